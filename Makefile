@@ -1,0 +1,101 @@
+# jakagw - JAKA robot to Modbus TCP gateway, and jakasim, its robot simulator.
+#
+#   make            build build/jakagw and build/jakasim
+#   make demo       install missing packages, build, run the gateway on the simulator
+#   make test       install missing packages, build, run every test (plain and ASan/UBSan)
+#   make install    install into $(DESTDIR)$(PREFIX) (binaries, config, unit, docs)
+
+VERSION   := 0.1.0
+PREFIX    ?= /usr/local
+SYSCONFDIR ?= /etc
+UNITDIR   ?= /lib/systemd/system
+DESTDIR   ?=
+BUILD     ?= build
+CC        ?= cc
+
+PKGS      := libuv libmodbus libcjson inih libsystemd
+PKG_CFLAGS := $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
+PKG_LIBS   := $(shell pkg-config --libs $(PKGS) 2>/dev/null)
+TEST_LIBS  := $(shell pkg-config --libs cmocka 2>/dev/null)
+
+WARN      := -Wall -Wextra -Werror -Wshadow -Wstrict-prototypes -Wmissing-prototypes -Wformat=2
+CFLAGS    ?= -O2 -g
+ALL_CFLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' \
+              $(WARN) $(CFLAGS) $(EXTRA_CFLAGS) -Iinclude $(PKG_CFLAGS) -MMD -MP
+ALL_LDFLAGS := $(LDFLAGS) $(EXTRA_LDFLAGS)
+
+LIB_SRCS  := $(filter-out src/main.c,$(wildcard src/*.c))
+SIM_SRCS  := $(wildcard sim/*.c)
+UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
+
+LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o)
+SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
+
+.PHONY: all deps demo test unit-tests check-docs docs install uninstall clean san valgrind
+all: $(BUILD)/jakagw $(BUILD)/jakasim
+
+$(BUILD)/%.o: %.c
+	@mkdir -p $(dir $@)
+	$(CC) $(ALL_CFLAGS) -c $< -o $@
+
+$(BUILD)/libjakagw.a: $(LIB_OBJS)
+	$(AR) rcs $@ $^
+
+$(BUILD)/jakagw: $(BUILD)/src/main.o $(BUILD)/libjakagw.a
+	$(CC) $(ALL_CFLAGS) $^ -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) -lm
+
+$(BUILD)/jakasim: $(SIM_OBJS) $(BUILD)/libjakagw.a
+	$(CC) $(ALL_CFLAGS) $^ -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) -lm
+
+# A unit test may #include the .c under test to reach its static helpers.
+$(BUILD)/tests/%: tests/%.c $(BUILD)/libjakagw.a
+	@mkdir -p $(dir $@)
+	$(CC) $(ALL_CFLAGS) -Isrc $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
+
+unit-tests: $(UNIT_TESTS:%=$(BUILD)/tests/%)
+
+# Installs the Debian packages the build and the tests need, if missing.
+deps:
+	@scripts/install-deps.sh
+
+# The sanitizer build: the same sources in build-san/ with ASan and UBSan.
+SAN_FLAGS := -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all
+san:
+	$(MAKE) BUILD=build-san CFLAGS="$(SAN_FLAGS)" EXTRA_LDFLAGS="-fsanitize=address,undefined" all unit-tests
+
+demo: deps all
+	@scripts/demo.sh
+
+test: deps
+	$(MAKE) all unit-tests
+	$(MAKE) san
+	@tests/run.sh
+
+# docs/register-map.md is generated from the table in src/regmap_table.c.
+docs: $(BUILD)/jakagw
+	$(BUILD)/jakagw --print-map md > docs/register-map.md
+	$(BUILD)/jakagw --print-map csv > docs/register-map.csv
+
+valgrind: all unit-tests
+	@VALGRIND=1 tests/run.sh unit
+
+install: all
+	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(SYSCONFDIR)/jakagw \
+	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(PREFIX)/share/doc/jakagw
+	install -m 0755 $(BUILD)/jakagw $(BUILD)/jakasim $(DESTDIR)$(PREFIX)/bin/
+	install -m 0644 config/jakagw.conf $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
+	sed 's|@BINDIR@|$(PREFIX)/bin|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g' \
+	    systemd/jakagw.service.in > $(DESTDIR)$(UNITDIR)/jakagw.service
+	chmod 0644 $(DESTDIR)$(UNITDIR)/jakagw.service
+	install -m 0644 README.md docs/register-map.md docs/register-map.csv \
+	    $(DESTDIR)$(PREFIX)/share/doc/jakagw/
+
+uninstall:
+	rm -f $(DESTDIR)$(PREFIX)/bin/jakagw $(DESTDIR)$(PREFIX)/bin/jakasim \
+	    $(DESTDIR)$(UNITDIR)/jakagw.service
+	rm -rf $(DESTDIR)$(PREFIX)/share/doc/jakagw
+
+clean:
+	rm -rf build build-san
+
+-include $(shell find $(BUILD) -name '*.d' 2>/dev/null)

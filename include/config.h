@@ -1,0 +1,67 @@
+/*
+ * config.h - jakagw's settings: defaults, INI file (libinih), flags.
+ *
+ * Every key lives in one table (src/config.c) that gives its section, type,
+ * range and default; the INI parser and the command-line overrides both set
+ * keys through config_set(), so a bad value gets the same one-line answer
+ * wherever it comes from. Unknown keys are errors: a typo must not silently
+ * leave a default in force on a machine that drives a robot.
+ */
+#ifndef JAKAGW_CONFIG_H
+#define JAKAGW_CONFIG_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "regmap.h"
+
+#define CONFIG_DEFAULT_PATH "/etc/jakagw/jakagw.conf"
+
+struct gw_config {
+    /* [robot] */
+    char robot_host[256];
+    uint32_t status_port;
+    uint32_t command_port;
+    uint32_t connect_timeout_ms;
+    uint32_t reconnect_min_ms;
+    uint32_t reconnect_max_ms;
+    uint32_t status_timeout_ms;
+    uint32_t max_document_bytes;
+    /* [modbus] */
+    char modbus_bind[64];
+    uint32_t modbus_port;
+    uint32_t max_clients;
+    uint32_t idle_timeout_ms; /* 0: never */
+    uint32_t frame_timeout_ms;
+    int32_t unit_id; /* -1: any */
+    uint32_t word_order; /* enum regmap_word_order */
+    /* [log] */
+    uint32_t log_level; /* enum log_level */
+};
+
+/* Fills 'cfg' with the defaults. */
+void config_defaults(struct gw_config *cfg);
+
+/*
+ * Sets one key from text. Returns 0, or -EINVAL with a reason ("not a
+ * number", "must be 1..65535", "unknown key") written to 'why'.
+ */
+int config_set(struct gw_config *cfg, const char *section, const char *key,
+               const char *value, char *why, size_t why_size);
+
+/*
+ * Reads an INI file over 'cfg'. Returns 0; -ENOENT when the file cannot be
+ * opened; -EINVAL for a bad line, with "FILE:LINE: [section] key: reason"
+ * written to 'why'.
+ */
+int config_load(struct gw_config *cfg, const char *path, char *why,
+                size_t why_size);
+
+/* Checks rules between keys. Returns 0 or -EINVAL with the reason. */
+int config_validate(const struct gw_config *cfg, char *why, size_t why_size);
+
+/* Writes the effective configuration as INI (for --check-config). */
+void config_print(const struct gw_config *cfg, FILE *out);
+
+#endif

@@ -1,0 +1,83 @@
+/*
+ * gateway.h - jakagw's core: robot links -> status model -> register image
+ * <- Modbus server, plus the gateway's own diagnostics.
+ *
+ * Life cycle as libuv handles: gateway_start(), gateway_close(cb); the
+ * struct is the caller's until cb runs.
+ */
+#ifndef JAKAGW_GATEWAY_H
+#define JAKAGW_GATEWAY_H
+
+#include <stdbool.h>
+#include <stdint.h>
+#include <uv.h>
+
+#include "config.h"
+#include "log.h"
+#include "mb_server.h"
+#include "regmap.h"
+#include "robot_link.h"
+#include "status.h"
+
+struct gateway_counters {
+    uint64_t documents_parsed;
+    uint64_t parse_errors;
+    uint64_t framing_errors;
+    uint64_t oversize_documents;
+    uint64_t garbage_bytes;
+    uint64_t len_mismatches;
+    uint64_t status_reconnects;
+    uint64_t command_reconnects;
+};
+
+enum {
+    GATEWAY_PART_MODBUS = 1,
+    GATEWAY_PART_STATUS_LINK = 2,
+    GATEWAY_PART_COMMAND_LINK = 4,
+};
+
+struct gateway {
+    uv_loop_t *loop;
+    struct gw_config cfg;
+    struct regmap map;
+    struct regmap_image image;
+    struct jaka_status status;
+    struct robot_link status_link;
+    struct robot_link command_link;
+    struct mb_server modbus;
+    struct gateway_counters counters;
+    double gw_values[GW_VALUE_COUNT];
+
+    uint64_t started_ms;
+    uint64_t last_document_ms; /* 0: none yet */
+    size_t last_document_bytes;
+    uint64_t heartbeat_changed_ms; /* 0: never */
+    double heartbeat_value;
+    struct log_ratelimit parse_log_limit;
+
+    /* Called when a link or the freshness changes (for sd_notify STATUS=). */
+    void (*on_change)(struct gateway *gw);
+    unsigned parts; /* GATEWAY_PART_* started, to close */
+    int closing_parts;
+    void (*close_cb)(struct gateway *gw);
+};
+
+/*
+ * Builds the map and the image, starts the Modbus server and both robot
+ * links. Returns 0 or a negative errno, having logged what failed; call
+ * gateway_close() in either case.
+ */
+int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *cfg);
+
+/* Is the status data live (a document within status_timeout_ms)? */
+bool gateway_status_fresh(const struct gateway *gw);
+
+/* Recomputes the gateway values (gw_values) and encodes them. */
+void gateway_refresh_values(struct gateway *gw);
+
+/* A one-line summary for sd_notify STATUS= and logs. */
+void gateway_describe(const struct gateway *gw, char *buf, size_t size);
+
+void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw));
+
+#endif

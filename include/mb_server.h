@@ -1,0 +1,99 @@
+/*
+ * mb_server.h - the Modbus TCP slave.
+ *
+ * libuv owns every socket. Each connection has its own MBAP framer, so a
+ * client that sends half a request and stalls delays nobody else; several
+ * requests in one segment are answered one by one, in order. A request is
+ * checked completely (mb_request.h) before libmodbus builds the reply with
+ * modbus_reply() or modbus_reply_exception(); libmodbus writes that reply
+ * into a private socketpair that is drained at once, so libmodbus never
+ * touches a client socket and never blocks. modbus_receive() is never used.
+ *
+ * Connection rules:
+ * - a bad MBAP header (protocol id not 0, length outside 2..254) closes the
+ *   connection: the stream can no longer be trusted to be framed;
+ * - a request must complete within frame_timeout_ms of its first byte;
+ * - a connection idle for idle_timeout_ms (0: never) is closed;
+ * - at max_clients, a new connection evicts the one idle the longest, so a
+ *   PLC reconnecting after a cable pull is never locked out by its own
+ *   half-dead previous connection;
+ * - a client that does not read its replies (more than 64 KiB queued) is
+ *   closed.
+ * Function codes 17 (report server id) and 43/14 (device identification)
+ * are answered here, because libmodbus 3.1.6 reports its own name for 17
+ * and does not know 43.
+ */
+#ifndef JAKAGW_MB_SERVER_H
+#define JAKAGW_MB_SERVER_H
+
+#include <stdbool.h>
+#include <stdint.h>
+#include <uv.h>
+
+#include <modbus.h>
+
+#include "regmap.h"
+
+struct mb_server_config {
+    const char *bind;
+    uint16_t port;
+    unsigned max_clients;
+    uint32_t idle_timeout_ms;  /* 0: never */
+    uint32_t frame_timeout_ms;
+    int unit_id;               /* -1: answer any */
+};
+
+struct mb_server_hooks {
+    /* Before a request is answered: refresh the live gateway values. */
+    void (*before_request)(void *user);
+    /* After a write was applied to the image. */
+    void (*after_write)(void *user, enum regmap_table table, unsigned address,
+                        unsigned count);
+    /* Run indicator for function 17: is the robot data live? */
+    bool (*is_running)(void *user);
+    void *user;
+};
+
+struct mb_server_stats {
+    uint64_t requests;
+    uint64_t exceptions;
+    uint64_t evictions;
+    uint64_t bad_frames;
+    unsigned clients;
+};
+
+struct mb_client;
+
+struct mb_server {
+    uv_loop_t *loop;
+    struct mb_server_config cfg;
+    char bind[64];
+    struct mb_server_hooks hooks;
+    struct regmap_image *img;
+    uv_tcp_t listener;
+    uv_timer_t sweep;
+    modbus_t *ctx;
+    int pair[2]; /* [0] libmodbus writes replies, [1] we read them */
+    struct mb_client *clients; /* doubly linked, newest first */
+    struct mb_server_stats stats;
+    char device_info[64];
+    bool closing;
+    int open_handles;
+    void (*close_cb)(struct mb_server *srv);
+};
+
+/*
+ * Starts listening. Returns 0 or a negative errno / libuv error (for
+ * example UV_EADDRINUSE), having logged what failed.
+ */
+int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
+                    const struct mb_server_config *cfg, struct regmap_image *img,
+                    const struct mb_server_hooks *hooks);
+
+/* The port actually bound (useful with port 0). */
+int mb_server_port(const struct mb_server *srv);
+
+/* Closes the listener and every client; 'cb' runs when all are closed. */
+void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv));
+
+#endif

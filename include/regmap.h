@@ -1,0 +1,204 @@
+/*
+ * regmap.h - the Modbus register map: one table, the single source of truth.
+ *
+ * Each row of the table places one status field (or a part of an array
+ * field), or one gateway value, in one Modbus table: its address, type,
+ * scale, unit, access and documentation. From the rows come the register
+ * image that the Modbus server answers from, the write checks, and the
+ * CSV and Markdown listings (jakagw --print-map csv|md).
+ *
+ * Conventions, which the listings repeat for the integrator:
+ * - Addresses are 0-based wire addresses; PLC notation adds 1 and the table
+ *   prefix (input register 200 is 30201).
+ * - f32, u32 and i32 take two registers; by default the high word comes
+ *   first ("ABCD"), configurable to low word first ("CDAB"). Within a
+ *   register the high byte comes first, as Modbus defines.
+ * - str: two ASCII bytes per register, the first character in the high
+ *   byte, padded with NUL.
+ * - An integer is round(source * scale), clamped to its type's range.
+ * - A value the last document did not carry reads 0 (bits and integers) or
+ *   NaN (f32); the per-field presence bits and element counts tell which.
+ * - Addresses between rows read as 0; addresses past the last row of a
+ *   table answer exception 02.
+ */
+#ifndef JAKAGW_REGMAP_H
+#define JAKAGW_REGMAP_H
+
+#include <stdbool.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#include <modbus.h>
+
+#include "status.h"
+
+#define REGMAP_VERSION 1
+#define REGMAP_MAGIC 0x4A4B /* "JK" */
+#define REGMAP_PROBE_F32 (-1234.5)
+#define REGMAP_PROBE_U32 0x01020304u
+
+enum regmap_table {
+    REGMAP_COIL,
+    REGMAP_DISCRETE_INPUT,
+    REGMAP_INPUT_REGISTER,
+    REGMAP_HOLDING_REGISTER,
+    REGMAP_TABLE_COUNT
+};
+
+enum regmap_type {
+    REGMAP_BOOL,
+    REGMAP_U16,
+    REGMAP_I16,
+    REGMAP_U32,
+    REGMAP_I32,
+    REGMAP_F32,
+    REGMAP_STR,
+};
+
+enum regmap_word_order {
+    REGMAP_HIGH_WORD_FIRST = 0, /* ABCD */
+    REGMAP_LOW_WORD_FIRST = 1,  /* CDAB */
+};
+
+/* Gateway values a row can show ("gw:<name>"); the gateway fills them. */
+#define GW_VALUES(X)                                                           \
+    X(map_magic)                                                               \
+    X(map_version)                                                             \
+    X(map_crc)                                                                 \
+    X(word_order)                                                              \
+    X(address_base)                                                            \
+    X(probe_f32)                                                               \
+    X(probe_u32)                                                               \
+    X(version_major)                                                           \
+    X(version_minor)                                                           \
+    X(version_patch)                                                           \
+    X(status_link_up)                                                          \
+    X(command_link_up)                                                         \
+    X(status_fresh)                                                            \
+    X(status_link_state)                                                       \
+    X(command_link_state)                                                      \
+    X(status_age_ms)                                                           \
+    X(documents_parsed)                                                        \
+    X(parse_errors)                                                            \
+    X(framing_errors)                                                          \
+    X(oversize_documents)                                                      \
+    X(garbage_bytes)                                                           \
+    X(len_mismatches)                                                          \
+    X(status_reconnects)                                                       \
+    X(command_reconnects)                                                      \
+    X(modbus_requests)                                                         \
+    X(modbus_exceptions)                                                       \
+    X(modbus_clients)                                                          \
+    X(modbus_evictions)                                                        \
+    X(uptime_s)                                                                \
+    X(last_document_bytes)                                                     \
+    X(plc_heartbeat)                                                           \
+    X(plc_heartbeat_age_ms)                                                    \
+    X(clear_counters)
+
+enum gw_value {
+#define GW_ENUM(name) GW_##name,
+    GW_VALUES(GW_ENUM)
+#undef GW_ENUM
+    GW_VALUE_COUNT
+};
+
+extern const char *const gw_value_names[GW_VALUE_COUNT];
+
+enum regmap_source {
+    REGMAP_SRC_STATUS,  /* element of a status field */
+    REGMAP_SRC_GW,      /* a gateway value */
+    REGMAP_SRC_PRESENT, /* did the last document carry this field */
+    REGMAP_SRC_COUNT,   /* how many elements of this field it carried */
+};
+
+struct regmap_row {
+    enum regmap_table table;
+    uint16_t address;  /* of the first element */
+    uint16_t elements; /* 1 for a scalar */
+    uint16_t stride;   /* between elements; 0 means the element's width */
+    enum regmap_type type;
+    uint16_t str_regs; /* REGMAP_STR: registers per element */
+    double scale;      /* 0 means 1 */
+    const char *unit;
+    bool writable;
+    double min, max; /* accepted written values, writable rows only */
+    /* Templates: '*' is the source index, '#' the element number from 1. */
+    const char *name;
+    const char *description;
+    enum regmap_source source;
+    int id;          /* enum status_field or enum gw_value */
+    uint16_t index;  /* first element of the status field this row shows */
+};
+
+/* The built-in table, in src/regmap_table.c. */
+extern const struct regmap_row regmap_table_rows[];
+extern const unsigned regmap_table_row_count;
+
+struct regmap {
+    struct regmap_row *rows; /* the table plus generated presence/count rows */
+    unsigned row_count;
+    /* Per table: size in bits/registers, and the row owning each address. */
+    unsigned size[REGMAP_TABLE_COUNT];
+    const struct regmap_row **owner[REGMAP_TABLE_COUNT];
+    uint32_t crc; /* CRC-32 of the CSV listing: changes with any layout change */
+};
+
+/*
+ * Builds the map from the built-in table. Fails with -EINVAL (and a log line
+ * naming the row) when rows overlap or a row does not fit its table or
+ * field, or -ENOMEM.
+ */
+int regmap_init(struct regmap *map);
+void regmap_free(struct regmap *map);
+
+/* Registers (or bits) one element of 'row' takes. */
+unsigned regmap_element_width(const struct regmap_row *row);
+/* The address of element 'i' of 'row'. */
+unsigned regmap_element_address(const struct regmap_row *row, unsigned i);
+
+/* The row owning 'address' in 'table', or NULL (hole or out of range). */
+const struct regmap_row *regmap_find(const struct regmap *map,
+                                     enum regmap_table table, unsigned address);
+
+enum regmap_format { REGMAP_FORMAT_CSV, REGMAP_FORMAT_MD };
+
+/* Writes the listing; returns 0 or -EIO. */
+int regmap_print(const struct regmap *map, enum regmap_format format, FILE *out);
+
+/* The register image the Modbus server answers from. */
+struct regmap_image {
+    const struct regmap *map;
+    modbus_mapping_t *mb;
+    enum regmap_word_order word_order;
+};
+
+int regmap_image_init(struct regmap_image *img, const struct regmap *map,
+                      enum regmap_word_order word_order);
+void regmap_image_free(struct regmap_image *img);
+
+/* Re-encodes every status-sourced row from 's' (after each document). */
+void regmap_encode_status(struct regmap_image *img, const struct jaka_status *s);
+/* Re-encodes every gateway-sourced row from 'gw' (before each request). */
+void regmap_encode_gw(struct regmap_image *img, const double gw[GW_VALUE_COUNT]);
+
+/* Encoders of single values, exposed for tests and the CAN side. */
+void regmap_encode_value(uint16_t *regs, enum regmap_type type, double value,
+                         bool present, double scale,
+                         enum regmap_word_order word_order);
+void regmap_encode_string(uint16_t *regs, unsigned reg_count, const char *text);
+
+/*
+ * Checks that 'value' may be written at 'address' of a writable table.
+ * Returns 0, or the Modbus exception code: MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS
+ * when no writable row owns the address, MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
+ * when the value is outside the row's range.
+ */
+int regmap_check_write(const struct regmap *map, enum regmap_table table,
+                       unsigned address, uint16_t value);
+
+/* Reads back a written element as a number (u16/i16/bool rows). */
+double regmap_read_written(const struct regmap_image *img,
+                           const struct regmap_row *row);
+
+#endif

@@ -1,0 +1,104 @@
+/*
+ * robot_link.h - one TCP connection to the robot controller, kept open.
+ *
+ * A robot link resolves the host, connects (with a timeout), frames what it
+ * reads into JSON objects (framer.h) and hands each to a callback. When the
+ * connection fails, closes, or stays silent longer than 'silence_timeout_ms'
+ * (0: never), it closes and tries again after a delay that doubles from
+ * 'reconnect_min_ms' up to 'reconnect_max_ms'; the delay resets once the
+ * robot has sent a complete object. Each change of state is logged once:
+ * a controller that stays unreachable does not flood the journal.
+ *
+ * Life cycle, as libuv handles: robot_link_init(), robot_link_start(),
+ * robot_link_close(cb); the memory is the caller's until cb runs.
+ * Nothing here blocks: resolving runs on libuv's thread pool.
+ */
+#ifndef JAKAGW_ROBOT_LINK_H
+#define JAKAGW_ROBOT_LINK_H
+
+#include <stdbool.h>
+#include <stdint.h>
+#include <uv.h>
+
+#include "framer.h"
+
+enum robot_link_state {
+    ROBOT_LINK_DISCONNECTED = 0,
+    ROBOT_LINK_CONNECTING = 1,
+    ROBOT_LINK_CONNECTED = 2,
+};
+
+struct robot_link;
+
+struct robot_link_callbacks {
+    /* One complete JSON object from the robot. */
+    void (*on_object)(struct robot_link *link, const char *json, size_t size);
+    /* A framing problem (garbage, oversize, cut-short or len mismatch). */
+    void (*on_framing_error)(struct robot_link *link, enum framer_event event,
+                             size_t size);
+    /* The state changed. */
+    void (*on_state)(struct robot_link *link, enum robot_link_state state);
+};
+
+struct robot_link_config {
+    const char *name; /* for log lines: "status", "command" */
+    const char *host;
+    uint16_t port;
+    uint32_t connect_timeout_ms;
+    uint32_t reconnect_min_ms;
+    uint32_t reconnect_max_ms;
+    uint32_t silence_timeout_ms;
+    size_t max_object;
+};
+
+struct robot_link {
+    uv_loop_t *loop;
+    struct robot_link_config cfg;
+    char host[256];
+    struct robot_link_callbacks cb;
+    void *user;
+
+    enum robot_link_state state;
+    uv_tcp_t tcp;
+    bool tcp_open;
+    uv_timer_t timer;    /* connect timeout, or the wait before retrying */
+    uv_timer_t watchdog; /* silence while connected */
+    uv_getaddrinfo_t resolver;
+    bool resolving;
+    uv_connect_t connect_req;
+    struct framer framer;
+    char read_buf[16384];
+
+    uint32_t backoff_ms;
+    int last_error; /* the failure last logged, to log each change once */
+    bool stopping;
+    int open_handles;
+    void (*close_cb)(struct robot_link *link);
+
+    uint64_t connections; /* successful connects, ever */
+    uint64_t last_object_ms;
+};
+
+/* Returns 0, or a negative errno (-EINVAL for a bad config, -ENOMEM). */
+int robot_link_init(uv_loop_t *loop, struct robot_link *link,
+                    const struct robot_link_config *cfg,
+                    const struct robot_link_callbacks *cb, void *user);
+
+/* Starts connecting. Returns 0 or a negative errno. */
+int robot_link_start(struct robot_link *link);
+
+/*
+ * Queues 'size' bytes to the robot. Returns 0, -ENOTCONN when not
+ * connected (nothing is queued: the caller decides what that means), or a
+ * negative libuv error.
+ */
+int robot_link_send(struct robot_link *link, const char *data, size_t size);
+
+/* Closes the connection now and reconnects after the backoff delay. */
+void robot_link_restart(struct robot_link *link, const char *why);
+
+/* Stops for good; 'cb' runs when every handle is closed. */
+void robot_link_close(struct robot_link *link,
+                      void (*cb)(struct robot_link *link));
+
+#endif

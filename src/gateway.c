@@ -1,0 +1,336 @@
+/* gateway.c - see gateway.h. */
+#include "gateway.h"
+
+#include "log.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <string.h>
+
+#define NEVER_MS 4294967295.0
+
+static struct gateway *gateway_of_link(struct robot_link *link)
+{
+    return link->user;
+}
+
+static void notify_change(struct gateway *gw)
+{
+    if (gw->on_change)
+        gw->on_change(gw);
+}
+
+static void on_status_document(struct robot_link *link, const char *json,
+                               size_t size)
+{
+    struct gateway *gw = gateway_of_link(link);
+    bool was_fresh = gateway_status_fresh(gw);
+    int rc = status_parse(&gw->status, json, size);
+
+    if (rc != STATUS_PARSE_OK) {
+        uint64_t suppressed;
+        gw->counters.parse_errors++;
+        if (log_ratelimit_pass(&gw->parse_log_limit, uv_now(gw->loop), &suppressed))
+            log_warn("status link: dropped a %zu-byte document: %s "
+                     "(%llu more since the last such line)",
+                     size, rc == STATUS_PARSE_BAD_JSON ? "not valid JSON"
+                                                       : "not a JSON object",
+                     (unsigned long long)suppressed);
+        return;
+    }
+    gw->counters.documents_parsed++;
+    gw->last_document_ms = uv_now(gw->loop);
+    gw->last_document_bytes = size;
+    regmap_encode_status(&gw->image, &gw->status);
+    if (!was_fresh)
+        notify_change(gw);
+}
+
+static void on_status_framing(struct robot_link *link, enum framer_event event,
+                              size_t size)
+{
+    struct gateway *gw = gateway_of_link(link);
+    uint64_t suppressed;
+    const char *what = "";
+
+    switch (event) {
+    case FRAMER_EVENT_GARBAGE:
+        gw->counters.framing_errors++;
+        gw->counters.garbage_bytes += size;
+        what = "skipped bytes that belong to no document";
+        break;
+    case FRAMER_EVENT_OVERSIZE:
+        gw->counters.framing_errors++;
+        gw->counters.oversize_documents++;
+        what = "dropped a document larger than max_document_bytes";
+        break;
+    case FRAMER_EVENT_TRUNCATED:
+        gw->counters.framing_errors++;
+        what = "dropped a document cut short by the next one";
+        break;
+    case FRAMER_EVENT_LEN_MISMATCH:
+        gw->counters.len_mismatches++;
+        what = "a document's \"len\" disagreed with its real end";
+        break;
+    case FRAMER_EVENT_OBJECT:
+        return;
+    }
+    if (log_ratelimit_pass(&gw->parse_log_limit, uv_now(gw->loop), &suppressed))
+        log_warn("status link: %s (%zu bytes; %llu more such events since the "
+                 "last line)",
+                 what, size, (unsigned long long)suppressed);
+}
+
+static void on_link_state(struct robot_link *link, enum robot_link_state state)
+{
+    struct gateway *gw = gateway_of_link(link);
+
+    if (state == ROBOT_LINK_CONNECTED && link->connections > 1) {
+        if (link == &gw->status_link)
+            gw->counters.status_reconnects++;
+        else
+            gw->counters.command_reconnects++;
+    }
+    notify_change(gw);
+}
+
+static void on_command_reply(struct robot_link *link, const char *json, size_t size)
+{
+    /* No command is sent yet: anything arriving is unsolicited. */
+    (void)link;
+    log_info("command link: unsolicited %zu-byte message from the robot: %.*s",
+             size, (int)(size > 200 ? 200 : size), json);
+}
+
+bool gateway_status_fresh(const struct gateway *gw)
+{
+    return gw->last_document_ms != 0 &&
+           gw->status_link.state == ROBOT_LINK_CONNECTED &&
+           uv_now(gw->loop) - gw->last_document_ms < gw->cfg.status_timeout_ms;
+}
+
+static double age_ms(const struct gateway *gw, uint64_t since)
+{
+    if (since == 0)
+        return NEVER_MS;
+    uint64_t age = uv_now(gw->loop) - since;
+    return age > NEVER_MS - 1 ? NEVER_MS - 1 : (double)age;
+}
+
+void gateway_refresh_values(struct gateway *gw)
+{
+    double *v = gw->gw_values;
+    const struct mb_server_stats *mb = &gw->modbus.stats;
+    const struct gateway_counters *c = &gw->counters;
+    bool fresh = gateway_status_fresh(gw);
+    unsigned major = 0, minor = 0, patch = 0;
+
+    sscanf(JAKAGW_VERSION, "%u.%u.%u", &major, &minor, &patch);
+    v[GW_map_magic] = REGMAP_MAGIC;
+    v[GW_map_version] = REGMAP_VERSION;
+    v[GW_map_crc] = gw->map.crc;
+    v[GW_word_order] = gw->image.word_order;
+    v[GW_address_base] = 0;
+    v[GW_probe_f32] = REGMAP_PROBE_F32;
+    v[GW_probe_u32] = REGMAP_PROBE_U32;
+    v[GW_version_major] = major;
+    v[GW_version_minor] = minor;
+    v[GW_version_patch] = patch;
+    v[GW_status_link_up] = gw->status_link.state == ROBOT_LINK_CONNECTED;
+    v[GW_command_link_up] = gw->command_link.state == ROBOT_LINK_CONNECTED;
+    v[GW_status_fresh] = fresh;
+    v[GW_status_link_state] =
+        gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh ? 3
+                                                                : gw->status_link.state;
+    v[GW_command_link_state] = gw->command_link.state;
+    v[GW_status_age_ms] = age_ms(gw, gw->last_document_ms);
+    v[GW_documents_parsed] = (double)c->documents_parsed;
+    v[GW_parse_errors] = (double)c->parse_errors;
+    v[GW_framing_errors] = (double)c->framing_errors;
+    v[GW_oversize_documents] = (double)c->oversize_documents;
+    v[GW_garbage_bytes] = (double)c->garbage_bytes;
+    v[GW_len_mismatches] = (double)c->len_mismatches;
+    v[GW_status_reconnects] = (double)c->status_reconnects;
+    v[GW_command_reconnects] = (double)c->command_reconnects;
+    v[GW_modbus_requests] = (double)mb->requests;
+    v[GW_modbus_exceptions] = (double)mb->exceptions;
+    v[GW_modbus_clients] = mb->clients;
+    v[GW_modbus_evictions] = (double)mb->evictions;
+    v[GW_uptime_s] = (double)((uv_now(gw->loop) - gw->started_ms) / 1000);
+    v[GW_last_document_bytes] = (double)gw->last_document_bytes;
+    v[GW_plc_heartbeat_age_ms] = age_ms(gw, gw->heartbeat_changed_ms);
+    regmap_encode_gw(&gw->image, v);
+}
+
+static void clear_counters(struct gateway *gw)
+{
+    memset(&gw->counters, 0, sizeof(gw->counters));
+    gw->modbus.stats.requests = 0;
+    gw->modbus.stats.exceptions = 0;
+    gw->modbus.stats.evictions = 0;
+    gw->modbus.stats.bad_frames = 0;
+    log_notice("counters cleared by a Modbus client");
+}
+
+static void before_request(void *user)
+{
+    gateway_refresh_values(user);
+}
+
+static void after_write(void *user, enum regmap_table table, unsigned address,
+                        unsigned count)
+{
+    struct gateway *gw = user;
+
+    for (unsigned a = address; a < address + count; a++) {
+        const struct regmap_row *row = regmap_find(&gw->map, table, a);
+        if (!row || row->source != REGMAP_SRC_GW)
+            continue;
+        double value = regmap_read_written(&gw->image, row);
+        if (row->id == GW_plc_heartbeat) {
+            if (gw->heartbeat_changed_ms == 0 || value != gw->heartbeat_value)
+                gw->heartbeat_changed_ms = uv_now(gw->loop);
+            gw->heartbeat_value = value;
+        } else if (row->id == GW_clear_counters && value != 0) {
+            clear_counters(gw);
+            /* A command coil: it reads 0 once done. */
+            gw->image.mb->tab_bits[row->address] = 0;
+        }
+    }
+}
+
+static bool is_running(void *user)
+{
+    return gateway_status_fresh(user);
+}
+
+void gateway_describe(const struct gateway *gw, char *buf, size_t size)
+{
+    static const char *const names[] = {"disconnected", "connecting", "connected"};
+    snprintf(buf, size, "status link %s%s, command link %s, %u Modbus clients",
+             names[gw->status_link.state],
+             gw->status_link.state == ROBOT_LINK_CONNECTED &&
+                     !gateway_status_fresh(gw)
+                 ? " (silent)"
+                 : "",
+             names[gw->command_link.state], gw->modbus.stats.clients);
+}
+
+static int start_links(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct robot_link_config lc = {
+        .name = "status",
+        .host = cfg->robot_host,
+        .port = (uint16_t)cfg->status_port,
+        .connect_timeout_ms = cfg->connect_timeout_ms,
+        .reconnect_min_ms = cfg->reconnect_min_ms,
+        .reconnect_max_ms = cfg->reconnect_max_ms,
+        .silence_timeout_ms = cfg->status_timeout_ms,
+        .max_object = cfg->max_document_bytes,
+    };
+    struct robot_link_callbacks status_cb = {
+        .on_object = on_status_document,
+        .on_framing_error = on_status_framing,
+        .on_state = on_link_state,
+    };
+    struct robot_link_callbacks command_cb = {
+        .on_object = on_command_reply,
+        .on_state = on_link_state,
+    };
+    int rc = robot_link_init(gw->loop, &gw->status_link, &lc, &status_cb, gw);
+    if (rc)
+        return rc;
+    gw->parts |= GATEWAY_PART_STATUS_LINK;
+    lc.name = "command";
+    lc.port = (uint16_t)cfg->command_port;
+    /* Replies come only when asked; silence is normal there. */
+    lc.silence_timeout_ms = 0;
+    rc = robot_link_init(gw->loop, &gw->command_link, &lc, &command_cb, gw);
+    if (rc)
+        return rc;
+    gw->parts |= GATEWAY_PART_COMMAND_LINK;
+    robot_link_start(&gw->status_link);
+    robot_link_start(&gw->command_link);
+    return 0;
+}
+
+int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *cfg)
+{
+    int rc;
+
+    memset(gw, 0, sizeof(*gw));
+    gw->loop = loop;
+    gw->cfg = *cfg;
+    gw->started_ms = uv_now(loop);
+    gw->parse_log_limit.interval_ms = 5000;
+    rc = regmap_init(&gw->map);
+    if (rc)
+        return rc;
+    rc = regmap_image_init(&gw->image, &gw->map, (enum regmap_word_order)cfg->word_order);
+    if (rc)
+        return rc;
+    /* Nothing received yet: every value reads as absent. */
+    regmap_encode_status(&gw->image, &gw->status);
+    gateway_refresh_values(gw);
+
+    struct mb_server_config mc = {
+        .bind = cfg->modbus_bind,
+        .port = (uint16_t)cfg->modbus_port,
+        .max_clients = cfg->max_clients,
+        .idle_timeout_ms = cfg->idle_timeout_ms,
+        .frame_timeout_ms = cfg->frame_timeout_ms,
+        .unit_id = cfg->unit_id,
+    };
+    struct mb_server_hooks hooks = {
+        .before_request = before_request,
+        .after_write = after_write,
+        .is_running = is_running,
+        .user = gw,
+    };
+    gw->parts |= GATEWAY_PART_MODBUS;
+    rc = mb_server_start(loop, &gw->modbus, &mc, &gw->image, &hooks);
+    if (rc)
+        return rc;
+    return start_links(gw);
+}
+
+static void part_closed(struct gateway *gw)
+{
+    if (--gw->closing_parts > 0)
+        return;
+    regmap_image_free(&gw->image);
+    regmap_free(&gw->map);
+    if (gw->close_cb)
+        gw->close_cb(gw);
+}
+
+static void on_link_closed(struct robot_link *link)
+{
+    part_closed(link->user);
+}
+
+static void on_server_closed(struct mb_server *srv)
+{
+    part_closed(srv->hooks.user);
+}
+
+void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
+{
+    gw->close_cb = cb;
+    /* Held until every close is issued: a part may finish synchronously. */
+    gw->closing_parts = 1;
+    if (gw->parts & GATEWAY_PART_MODBUS) {
+        gw->closing_parts++;
+        mb_server_close(&gw->modbus, on_server_closed);
+    }
+    if (gw->parts & GATEWAY_PART_STATUS_LINK) {
+        gw->closing_parts++;
+        robot_link_close(&gw->status_link, on_link_closed);
+    }
+    if (gw->parts & GATEWAY_PART_COMMAND_LINK) {
+        gw->closing_parts++;
+        robot_link_close(&gw->command_link, on_link_closed);
+    }
+    part_closed(gw);
+}

@@ -1,0 +1,224 @@
+/* mb_request.c - see mb_request.h. */
+#include "mb_request.h"
+
+#include <modbus.h>
+
+#define ILLEGAL_FUNCTION MODBUS_EXCEPTION_ILLEGAL_FUNCTION
+#define ILLEGAL_ADDRESS MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS
+#define ILLEGAL_VALUE MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
+
+static unsigned get16(const uint8_t *p) { return (unsigned)p[0] << 8 | p[1]; }
+
+static int check_read(const struct regmap *map, enum regmap_table table,
+                      const uint8_t *pdu, size_t size, unsigned max)
+{
+    if (size != 5)
+        return ILLEGAL_VALUE;
+    unsigned address = get16(pdu + 1), count = get16(pdu + 3);
+    if (count < 1 || count > max)
+        return ILLEGAL_VALUE;
+    if (address + count > map->size[table])
+        return ILLEGAL_ADDRESS;
+    return 0;
+}
+
+static int check_write_range(const struct regmap *map, enum regmap_table table,
+                             unsigned address, unsigned count)
+{
+    if (address + count > map->size[table])
+        return ILLEGAL_ADDRESS;
+    for (unsigned a = address; a < address + count; a++) {
+        const struct regmap_row *row = regmap_find(map, table, a);
+        if (!row || !row->writable)
+            return ILLEGAL_ADDRESS;
+    }
+    return 0;
+}
+
+static int check_values(const struct regmap *map, enum regmap_table table,
+                        unsigned address, const uint16_t *values, unsigned count)
+{
+    for (unsigned i = 0; i < count; i++) {
+        int ex = regmap_check_write(map, table, address + i, values[i]);
+        if (ex)
+            return ex;
+    }
+    return 0;
+}
+
+static int check_write_coils(const struct regmap *map, const uint8_t *pdu,
+                             size_t size)
+{
+    if (size < 6)
+        return ILLEGAL_VALUE;
+    unsigned address = get16(pdu + 1), count = get16(pdu + 3);
+    unsigned bytes = pdu[5];
+    if (count < 1 || count > MODBUS_MAX_WRITE_BITS || bytes != (count + 7) / 8 ||
+        size != 6 + bytes)
+        return ILLEGAL_VALUE;
+    int ex = check_write_range(map, REGMAP_COIL, address, count);
+    if (ex)
+        return ex;
+    uint16_t values[MODBUS_MAX_WRITE_BITS];
+    for (unsigned i = 0; i < count; i++)
+        values[i] = (pdu[6 + i / 8] >> (i % 8)) & 1;
+    return check_values(map, REGMAP_COIL, address, values, count);
+}
+
+static int check_write_registers(const struct regmap *map, const uint8_t *regs,
+                                 unsigned address, unsigned count)
+{
+    int ex = check_write_range(map, REGMAP_HOLDING_REGISTER, address, count);
+    if (ex)
+        return ex;
+    uint16_t values[MODBUS_MAX_WRITE_REGISTERS];
+    for (unsigned i = 0; i < count; i++)
+        values[i] = (uint16_t)get16(regs + 2 * i);
+    return check_values(map, REGMAP_HOLDING_REGISTER, address, values, count);
+}
+
+static int check_write_multiple(const struct regmap *map, const uint8_t *pdu,
+                                size_t size)
+{
+    if (size < 6)
+        return ILLEGAL_VALUE;
+    unsigned address = get16(pdu + 1), count = get16(pdu + 3);
+    unsigned bytes = pdu[5];
+    if (count < 1 || count > MODBUS_MAX_WRITE_REGISTERS || bytes != 2 * count ||
+        size != 6 + bytes)
+        return ILLEGAL_VALUE;
+    return check_write_registers(map, pdu + 6, address, count);
+}
+
+static int check_mask_write(const struct regmap_image *img, const uint8_t *pdu,
+                            size_t size)
+{
+    if (size != 7)
+        return ILLEGAL_VALUE;
+    unsigned address = get16(pdu + 1);
+    int ex = check_write_range(img->map, REGMAP_HOLDING_REGISTER, address, 1);
+    if (ex)
+        return ex;
+    unsigned and_mask = get16(pdu + 3), or_mask = get16(pdu + 5);
+    unsigned current = img->mb->tab_registers[address];
+    uint16_t result = (uint16_t)((current & and_mask) | (or_mask & ~and_mask));
+    return check_values(img->map, REGMAP_HOLDING_REGISTER, address, &result, 1);
+}
+
+static int check_read_write(const struct regmap *map, const uint8_t *pdu,
+                            size_t size)
+{
+    if (size < 10)
+        return ILLEGAL_VALUE;
+    unsigned read_address = get16(pdu + 1), read_count = get16(pdu + 3);
+    unsigned write_address = get16(pdu + 5), write_count = get16(pdu + 7);
+    unsigned bytes = pdu[9];
+    if (read_count < 1 || read_count > MODBUS_MAX_WR_READ_REGISTERS ||
+        write_count < 1 || write_count > MODBUS_MAX_WR_WRITE_REGISTERS ||
+        bytes != 2 * write_count || size != 10 + bytes)
+        return ILLEGAL_VALUE;
+    if (read_address + read_count > map->size[REGMAP_HOLDING_REGISTER])
+        return ILLEGAL_ADDRESS;
+    return check_write_registers(map, pdu + 10, write_address, write_count);
+}
+
+int mb_request_check(const struct regmap_image *img, const uint8_t *pdu,
+                     size_t size)
+{
+    const struct regmap *map = img->map;
+
+    if (size < 1)
+        return ILLEGAL_VALUE;
+    switch (pdu[0]) {
+    case MODBUS_FC_READ_COILS:
+        return check_read(map, REGMAP_COIL, pdu, size, MODBUS_MAX_READ_BITS);
+    case MODBUS_FC_READ_DISCRETE_INPUTS:
+        return check_read(map, REGMAP_DISCRETE_INPUT, pdu, size,
+                          MODBUS_MAX_READ_BITS);
+    case MODBUS_FC_READ_HOLDING_REGISTERS:
+        return check_read(map, REGMAP_HOLDING_REGISTER, pdu, size,
+                          MODBUS_MAX_READ_REGISTERS);
+    case MODBUS_FC_READ_INPUT_REGISTERS:
+        return check_read(map, REGMAP_INPUT_REGISTER, pdu, size,
+                          MODBUS_MAX_READ_REGISTERS);
+    case MODBUS_FC_WRITE_SINGLE_COIL: {
+        if (size != 5)
+            return ILLEGAL_VALUE;
+        unsigned value = get16(pdu + 3);
+        if (value != 0x0000 && value != 0xFF00)
+            return ILLEGAL_VALUE;
+        int ex = check_write_range(map, REGMAP_COIL, get16(pdu + 1), 1);
+        return ex ? ex
+                  : regmap_check_write(map, REGMAP_COIL, get16(pdu + 1),
+                                       value ? 1 : 0);
+    }
+    case MODBUS_FC_WRITE_SINGLE_REGISTER: {
+        if (size != 5)
+            return ILLEGAL_VALUE;
+        return check_write_registers(map, pdu + 3, get16(pdu + 1), 1);
+    }
+    case MODBUS_FC_WRITE_MULTIPLE_COILS:
+        return check_write_coils(map, pdu, size);
+    case MODBUS_FC_WRITE_MULTIPLE_REGISTERS:
+        return check_write_multiple(map, pdu, size);
+    case MODBUS_FC_MASK_WRITE_REGISTER:
+        return check_mask_write(img, pdu, size);
+    case MODBUS_FC_WRITE_AND_READ_REGISTERS:
+        return check_read_write(map, pdu, size);
+    case MODBUS_FC_REPORT_SLAVE_ID:
+        return size == 1 ? 0 : ILLEGAL_VALUE;
+    case MB_FC_READ_DEVICE_ID:
+        if (size < 2 || pdu[1] != MB_MEI_READ_DEVICE_ID)
+            return ILLEGAL_FUNCTION;
+        if (size != 4 || pdu[2] < 1 || pdu[2] > 4)
+            return ILLEGAL_VALUE;
+        return 0;
+    default:
+        return ILLEGAL_FUNCTION;
+    }
+}
+
+int mb_request_is_write(uint8_t function)
+{
+    switch (function) {
+    case MODBUS_FC_WRITE_SINGLE_COIL:
+    case MODBUS_FC_WRITE_SINGLE_REGISTER:
+    case MODBUS_FC_WRITE_MULTIPLE_COILS:
+    case MODBUS_FC_WRITE_MULTIPLE_REGISTERS:
+    case MODBUS_FC_MASK_WRITE_REGISTER:
+    case MODBUS_FC_WRITE_AND_READ_REGISTERS:
+        return 1;
+    default:
+        return 0;
+    }
+}
+
+int mb_request_write_range(const uint8_t *pdu, size_t size,
+                           enum regmap_table *table, unsigned *address,
+                           unsigned *count)
+{
+    if (size < 5 || !mb_request_is_write(pdu[0]))
+        return -1;
+    *table = REGMAP_HOLDING_REGISTER;
+    *address = get16(pdu + 1);
+    *count = 1;
+    switch (pdu[0]) {
+    case MODBUS_FC_WRITE_SINGLE_COIL:
+        *table = REGMAP_COIL;
+        break;
+    case MODBUS_FC_WRITE_MULTIPLE_COILS:
+        *table = REGMAP_COIL;
+        *count = get16(pdu + 3);
+        break;
+    case MODBUS_FC_WRITE_MULTIPLE_REGISTERS:
+        *count = get16(pdu + 3);
+        break;
+    case MODBUS_FC_WRITE_AND_READ_REGISTERS:
+        if (size < 9)
+            return -1;
+        *address = get16(pdu + 5);
+        *count = get16(pdu + 7);
+        break;
+    }
+    return 0;
+}

@@ -1,0 +1,564 @@
+/* mb_server.c - see mb_server.h. */
+#include "mb_server.h"
+
+#include "log.h"
+#include "mb_request.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#define MBAP_SIZE 7
+#define MAX_ADU (MBAP_SIZE + 253)
+#define MAX_QUEUED_REPLY_BYTES (64 * 1024)
+
+struct mb_client {
+    uv_tcp_t tcp;
+    struct mb_server *srv;
+    struct mb_client *prev, *next;
+    uint8_t buf[2 * MAX_ADU];
+    size_t used;
+    uint64_t last_activity_ms;
+    uint64_t frame_start_ms; /* when the first byte of a partial frame came */
+    char peer[64];
+    bool closing;
+};
+
+struct reply {
+    uv_write_t req;
+    size_t size;
+    uint8_t data[];
+};
+
+static struct log_ratelimit client_log_limit = {.interval_ms = 1000};
+
+static void client_log(struct mb_server *srv, const char *peer, const char *fmt,
+                       const char *why)
+{
+    uint64_t suppressed;
+    if (!log_ratelimit_pass(&client_log_limit, uv_now(srv->loop), &suppressed))
+        return;
+    if (suppressed)
+        log_warn("modbus: client %s: %s: %s (%llu similar lines suppressed)", peer,
+                 fmt, why, (unsigned long long)suppressed);
+    else
+        log_warn("modbus: client %s: %s: %s", peer, fmt, why);
+}
+
+static void maybe_finish_close(struct mb_server *srv)
+{
+    if (srv->closing && srv->open_handles == 0 && srv->close_cb)
+        srv->close_cb(srv);
+}
+
+static void on_client_closed(uv_handle_t *h)
+{
+    struct mb_client *c = h->data;
+    struct mb_server *srv = c->srv;
+
+    free(c);
+    srv->open_handles--;
+    maybe_finish_close(srv);
+}
+
+static void close_client(struct mb_client *c, const char *why)
+{
+    struct mb_server *srv = c->srv;
+
+    if (c->closing)
+        return;
+    c->closing = true;
+    if (why)
+        client_log(srv, c->peer, "closing connection", why);
+    if (c->prev)
+        c->prev->next = c->next;
+    else
+        srv->clients = c->next;
+    if (c->next)
+        c->next->prev = c->prev;
+    srv->stats.clients--;
+    uv_close((uv_handle_t *)&c->tcp, on_client_closed);
+}
+
+static void on_reply_written(uv_write_t *req, int status)
+{
+    (void)status; /* a broken connection also fails its next read */
+    free(req);
+}
+
+static void send_bytes(struct mb_client *c, const uint8_t *data, size_t size)
+{
+    struct reply *r;
+    uv_buf_t buf;
+
+    if (uv_stream_get_write_queue_size((uv_stream_t *)&c->tcp) >
+        MAX_QUEUED_REPLY_BYTES) {
+        close_client(c, "does not read its replies");
+        return;
+    }
+    r = malloc(sizeof(*r) + size);
+    if (!r) {
+        close_client(c, "out of memory for a reply");
+        return;
+    }
+    memcpy(r->data, data, size);
+    r->size = size;
+    buf = uv_buf_init((char *)r->data, (unsigned)size);
+    if (uv_write(&r->req, (uv_stream_t *)&c->tcp, &buf, 1, on_reply_written) < 0) {
+        free(r);
+        close_client(c, "write failed");
+    }
+}
+
+/* Moves the reply libmodbus just wrote into the socketpair to the client. */
+static void forward_libmodbus_reply(struct mb_client *c)
+{
+    uint8_t rsp[MAX_ADU + 16];
+    ssize_t n = recv(c->srv->pair[1], rsp, sizeof(rsp), MSG_DONTWAIT);
+
+    if (n > 0)
+        send_bytes(c, rsp, (size_t)n);
+    else
+        log_err("modbus: libmodbus produced no reply (%s)",
+                n < 0 ? strerror(errno) : "empty");
+}
+
+static void put16(uint8_t *p, unsigned v)
+{
+    p[0] = (uint8_t)(v >> 8);
+    p[1] = (uint8_t)v;
+}
+
+/* Sends a PDU we built ourselves, under the request's MBAP header. */
+static void send_pdu(struct mb_client *c, const uint8_t *req, const uint8_t *pdu,
+                     size_t pdu_size)
+{
+    uint8_t adu[MAX_ADU];
+
+    memcpy(adu, req, 4); /* transaction and protocol id */
+    put16(adu + 4, (unsigned)(pdu_size + 1));
+    adu[6] = req[6];
+    memcpy(adu + MBAP_SIZE, pdu, pdu_size);
+    send_bytes(c, adu, MBAP_SIZE + pdu_size);
+}
+
+static void reply_exception(struct mb_client *c, const uint8_t *req, int code)
+{
+    c->srv->stats.exceptions++;
+    if (modbus_reply_exception(c->srv->ctx, req, (unsigned)code) < 0) {
+        log_err("modbus: cannot build exception reply: %s", modbus_strerror(errno));
+        return;
+    }
+    forward_libmodbus_reply(c);
+}
+
+static void reply_server_id(struct mb_client *c, const uint8_t *req)
+{
+    struct mb_server *srv = c->srv;
+    uint8_t pdu[3 + sizeof(srv->device_info)];
+    size_t len = strlen(srv->device_info);
+    bool running = srv->hooks.is_running && srv->hooks.is_running(srv->hooks.user);
+
+    pdu[0] = MODBUS_FC_REPORT_SLAVE_ID;
+    pdu[1] = (uint8_t)(len + 2);
+    pdu[2] = req[6];                 /* server id: the unit id asked for */
+    pdu[3] = running ? 0xFF : 0x00;  /* run indicator: robot data is live */
+    memcpy(pdu + 4, srv->device_info, len);
+    send_pdu(c, req, pdu, 4 + len);
+}
+
+/* Device identification objects (43/14): basic 0-2, regular 3-6, 0x80+. */
+static int device_object(const struct mb_server *srv, unsigned id, char *out,
+                         size_t size)
+{
+    switch (id) {
+    case 0x00: return snprintf(out, size, "jakagw");
+    case 0x01: return snprintf(out, size, "jakagw-modbus");
+    case 0x02: return snprintf(out, size, "%s", JAKAGW_VERSION);
+    case 0x04: return snprintf(out, size, "JAKA robot Modbus TCP gateway");
+    case 0x05: return snprintf(out, size, "jakagw");
+    case 0x80:
+        return snprintf(out, size, "map %d crc %08X", REGMAP_VERSION,
+                        srv->img->map->crc);
+    default: return -1;
+    }
+}
+
+static void reply_device_id(struct mb_client *c, const uint8_t *req)
+{
+    /* The objects we have, in order; code 1 streams up to 0x02 (basic),
+     * code 2 up to 0x7F (regular), code 3 everything (extended). */
+    static const uint8_t objects[] = {0x00, 0x01, 0x02, 0x04, 0x05, 0x80};
+    static const unsigned stream_last[4] = {0, 0x02, 0x7F, 0xFF};
+    const uint8_t *pdu = req + MBAP_SIZE;
+    unsigned code = pdu[2], object = pdu[3];
+    uint8_t rsp[253];
+    size_t n = 7;
+    unsigned count = 0;
+    char text[64];
+
+    if (code == 4) {
+        int len = device_object(c->srv, object, text, sizeof(text));
+        if (len < 0) {
+            reply_exception(c, req, MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
+            return;
+        }
+        rsp[n++] = (uint8_t)object;
+        rsp[n++] = (uint8_t)len;
+        memcpy(rsp + n, text, (size_t)len);
+        n += (size_t)len;
+        count = 1;
+    } else {
+        /* An unknown start object restarts the stream at object 0. */
+        if (object > stream_last[code] ||
+            device_object(c->srv, object, text, sizeof(text)) < 0)
+            object = 0;
+        for (size_t i = 0; i < sizeof(objects); i++) {
+            if (objects[i] < object || objects[i] > stream_last[code])
+                continue;
+            int len = device_object(c->srv, objects[i], text, sizeof(text));
+            rsp[n++] = objects[i];
+            rsp[n++] = (uint8_t)len;
+            memcpy(rsp + n, text, (size_t)len);
+            n += (size_t)len;
+            count++;
+        }
+    }
+    rsp[0] = MB_FC_READ_DEVICE_ID;
+    rsp[1] = MB_MEI_READ_DEVICE_ID;
+    rsp[2] = (uint8_t)code;
+    rsp[3] = 0x83; /* conformity: extended, stream and individual access */
+    rsp[4] = 0x00; /* no more follows: every object fits in one reply */
+    rsp[5] = 0x00;
+    rsp[6] = (uint8_t)count;
+    send_pdu(c, req, rsp, n);
+}
+
+static void answer(struct mb_client *c, const uint8_t *req, size_t size)
+{
+    struct mb_server *srv = c->srv;
+    const uint8_t *pdu = req + MBAP_SIZE;
+    size_t pdu_size = size - MBAP_SIZE;
+    int ex;
+
+    srv->stats.requests++;
+    if (srv->cfg.unit_id >= 0 && req[6] != srv->cfg.unit_id) {
+        /* Nothing stands behind this gateway at that unit id. */
+        reply_exception(c, req, MB_EXCEPTION_GATEWAY_PATH);
+        return;
+    }
+    if (srv->hooks.before_request)
+        srv->hooks.before_request(srv->hooks.user);
+    ex = mb_request_check(srv->img, pdu, pdu_size);
+    if (ex) {
+        reply_exception(c, req, ex);
+        return;
+    }
+    if (pdu[0] == MODBUS_FC_REPORT_SLAVE_ID) {
+        reply_server_id(c, req);
+        return;
+    }
+    if (pdu[0] == MB_FC_READ_DEVICE_ID) {
+        reply_device_id(c, req);
+        return;
+    }
+    if (modbus_reply(srv->ctx, req, (int)size, srv->img->mb) < 0) {
+        log_err("modbus: libmodbus could not answer function %u: %s", pdu[0],
+                modbus_strerror(errno));
+        reply_exception(c, req, MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE);
+        return;
+    }
+    forward_libmodbus_reply(c);
+    if (mb_request_is_write(pdu[0]) && srv->hooks.after_write) {
+        enum regmap_table table;
+        unsigned address, count;
+        if (mb_request_write_range(pdu, pdu_size, &table, &address, &count) == 0)
+            srv->hooks.after_write(srv->hooks.user, table, address, count);
+    }
+}
+
+/*
+ * Answers every complete request in the buffer, in order. Returns the bytes
+ * consumed.
+ */
+static size_t process_frames(struct mb_client *c)
+{
+    size_t off = 0;
+
+    while (!c->closing && c->used - off >= MBAP_SIZE) {
+        const uint8_t *h = c->buf + off;
+        unsigned protocol = (unsigned)h[2] << 8 | h[3];
+        unsigned length = (unsigned)h[4] << 8 | h[5];
+        char why[96];
+
+        if (protocol != 0 || length < 2 || length > 254) {
+            snprintf(why, sizeof(why),
+                     "bad MBAP header (protocol id %u, length %u)", protocol,
+                     length);
+            c->srv->stats.bad_frames++;
+            close_client(c, why);
+            return off;
+        }
+        size_t frame = MBAP_SIZE - 1 + length;
+        if (c->used - off < frame)
+            break;
+        answer(c, h, frame);
+        off += frame;
+    }
+    if (c->closing)
+        return off;
+    if (off) {
+        memmove(c->buf, c->buf + off, c->used - off);
+        c->used -= off;
+    }
+    return off;
+}
+
+static void on_client_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
+{
+    struct mb_client *c = h->data;
+    (void)suggested;
+    *buf = uv_buf_init((char *)c->buf + c->used, (unsigned)(sizeof(c->buf) - c->used));
+}
+
+static void on_client_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
+{
+    struct mb_client *c = s->data;
+    bool had_partial = c->used > 0;
+
+    (void)buf;
+    if (nread == 0)
+        return;
+    if (nread < 0) {
+        close_client(c, nread == UV_EOF ? NULL : uv_strerror((int)nread));
+        return;
+    }
+    c->used += (size_t)nread;
+    c->last_activity_ms = uv_now(c->srv->loop);
+    size_t consumed = process_frames(c);
+    if (c->closing)
+        return;
+    /* A partial frame keeps the deadline of its first byte. */
+    if (c->used == 0)
+        c->frame_start_ms = 0;
+    else if (consumed > 0 || !had_partial)
+        c->frame_start_ms = c->last_activity_ms;
+}
+
+static struct mb_client *longest_idle(struct mb_server *srv)
+{
+    struct mb_client *best = NULL;
+    for (struct mb_client *c = srv->clients; c; c = c->next) {
+        if (!c->closing && (!best || c->last_activity_ms <= best->last_activity_ms))
+            best = c;
+    }
+    return best;
+}
+
+static void describe_peer(struct mb_client *c)
+{
+    struct sockaddr_storage sa;
+    int len = sizeof(sa);
+    char host[48] = "?";
+    unsigned port = 0;
+
+    if (uv_tcp_getpeername(&c->tcp, (struct sockaddr *)&sa, &len) == 0) {
+        if (sa.ss_family == AF_INET) {
+            uv_ip4_name((struct sockaddr_in *)&sa, host, sizeof(host));
+            port = ntohs(((struct sockaddr_in *)&sa)->sin_port);
+        } else if (sa.ss_family == AF_INET6) {
+            uv_ip6_name((struct sockaddr_in6 *)&sa, host, sizeof(host));
+            port = ntohs(((struct sockaddr_in6 *)&sa)->sin6_port);
+        }
+    }
+    snprintf(c->peer, sizeof(c->peer), "%s:%u", host, port);
+}
+
+static void on_connection(uv_stream_t *listener, int status)
+{
+    struct mb_server *srv = listener->data;
+    struct mb_client *c;
+
+    if (status < 0) {
+        log_warn("modbus: accept failed: %s", uv_strerror(status));
+        return;
+    }
+    c = calloc(1, sizeof(*c));
+    if (!c) {
+        log_err("modbus: out of memory for a new client");
+        return;
+    }
+    c->srv = srv;
+    uv_tcp_init(srv->loop, &c->tcp);
+    c->tcp.data = c;
+    srv->open_handles++;
+    if (uv_accept(listener, (uv_stream_t *)&c->tcp) < 0) {
+        c->closing = true;
+        uv_close((uv_handle_t *)&c->tcp, on_client_closed);
+        return;
+    }
+    describe_peer(c);
+    if (srv->stats.clients >= srv->cfg.max_clients) {
+        struct mb_client *victim = longest_idle(srv);
+        if (victim) {
+            char why[128];
+            snprintf(why, sizeof(why), "evicted after %llu ms idle to admit %s "
+                     "(max_clients %u)",
+                     (unsigned long long)(uv_now(srv->loop) - victim->last_activity_ms),
+                     c->peer, srv->cfg.max_clients);
+            srv->stats.evictions++;
+            close_client(victim, why);
+        }
+    }
+    c->last_activity_ms = uv_now(srv->loop);
+    c->next = srv->clients;
+    if (srv->clients)
+        srv->clients->prev = c;
+    srv->clients = c;
+    srv->stats.clients++;
+    uv_tcp_nodelay(&c->tcp, 1);
+    uv_tcp_keepalive(&c->tcp, 1, 10);
+    log_debug("modbus: client %s connected (%u now)", c->peer, srv->stats.clients);
+    if (uv_read_start((uv_stream_t *)&c->tcp, on_client_alloc, on_client_read) < 0)
+        close_client(c, "cannot read");
+}
+
+static void on_sweep(uv_timer_t *t)
+{
+    struct mb_server *srv = t->data;
+    uint64_t now = uv_now(srv->loop);
+    struct mb_client *next;
+    char why[96];
+
+    for (struct mb_client *c = srv->clients; c; c = next) {
+        next = c->next;
+        if (c->used && now - c->frame_start_ms >= srv->cfg.frame_timeout_ms) {
+            snprintf(why, sizeof(why), "request incomplete after %llu ms (%zu bytes)",
+                     (unsigned long long)(now - c->frame_start_ms), c->used);
+            srv->stats.bad_frames++;
+            close_client(c, why);
+        } else if (srv->cfg.idle_timeout_ms &&
+                   now - c->last_activity_ms >= srv->cfg.idle_timeout_ms) {
+            snprintf(why, sizeof(why), "idle for %llu ms",
+                     (unsigned long long)(now - c->last_activity_ms));
+            close_client(c, why);
+        }
+    }
+}
+
+static int open_reply_pair(struct mb_server *srv)
+{
+    if (socketpair(AF_UNIX, SOCK_SEQPACKET | SOCK_NONBLOCK | SOCK_CLOEXEC, 0,
+                   srv->pair) < 0)
+        return -errno;
+    srv->ctx = modbus_new_tcp(NULL, 0);
+    if (!srv->ctx)
+        return -ENOMEM;
+    modbus_set_socket(srv->ctx, srv->pair[0]);
+    /* modbus_reply never needs to wait; keep any wait it might do minimal. */
+    modbus_set_response_timeout(srv->ctx, 0, 1);
+    return 0;
+}
+
+int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
+                    const struct mb_server_config *cfg, struct regmap_image *img,
+                    const struct mb_server_hooks *hooks)
+{
+    struct sockaddr_storage addr;
+    unsigned sweep_ms;
+    int rc;
+
+    memset(srv, 0, sizeof(*srv));
+    srv->pair[0] = srv->pair[1] = -1;
+    if (!cfg || !img || !cfg->bind || cfg->max_clients == 0 ||
+        strlen(cfg->bind) >= sizeof(srv->bind))
+        return -EINVAL;
+    srv->loop = loop;
+    srv->cfg = *cfg;
+    snprintf(srv->bind, sizeof(srv->bind), "%s", cfg->bind);
+    srv->cfg.bind = srv->bind;
+    srv->hooks = *hooks;
+    srv->img = img;
+    snprintf(srv->device_info, sizeof(srv->device_info), "jakagw %s map %d",
+             JAKAGW_VERSION, REGMAP_VERSION);
+
+    if (uv_ip4_addr(cfg->bind, cfg->port, (struct sockaddr_in *)&addr) != 0 &&
+        uv_ip6_addr(cfg->bind, cfg->port, (struct sockaddr_in6 *)&addr) != 0) {
+        log_err("modbus: bind address '%s' is not an IPv4 or IPv6 address", cfg->bind);
+        return -EINVAL;
+    }
+    rc = open_reply_pair(srv);
+    if (rc < 0) {
+        log_err("modbus: cannot prepare libmodbus: %s", strerror(-rc));
+        return rc;
+    }
+    uv_tcp_init(loop, &srv->listener);
+    srv->listener.data = srv;
+    uv_timer_init(loop, &srv->sweep);
+    srv->sweep.data = srv;
+    srv->open_handles = 2;
+    rc = uv_tcp_bind(&srv->listener, (const struct sockaddr *)&addr, 0);
+    if (rc == 0)
+        rc = uv_listen((uv_stream_t *)&srv->listener, 64, on_connection);
+    if (rc < 0) {
+        log_err("modbus: cannot listen on %s port %u: %s", cfg->bind, cfg->port,
+                uv_strerror(rc));
+        return rc;
+    }
+    sweep_ms = cfg->frame_timeout_ms / 4;
+    if (cfg->idle_timeout_ms && cfg->idle_timeout_ms / 4 < sweep_ms)
+        sweep_ms = cfg->idle_timeout_ms / 4;
+    if (sweep_ms < 10)
+        sweep_ms = 10;
+    uv_timer_start(&srv->sweep, on_sweep, sweep_ms, sweep_ms);
+    log_notice("modbus: listening on %s port %d (max %u clients)", cfg->bind,
+               mb_server_port(srv), cfg->max_clients);
+    return 0;
+}
+
+int mb_server_port(const struct mb_server *srv)
+{
+    struct sockaddr_storage sa;
+    int len = sizeof(sa);
+
+    if (uv_tcp_getsockname(&srv->listener, (struct sockaddr *)&sa, &len) != 0)
+        return -1;
+    if (sa.ss_family == AF_INET6)
+        return ntohs(((struct sockaddr_in6 *)&sa)->sin6_port);
+    return ntohs(((struct sockaddr_in *)&sa)->sin_port);
+}
+
+static void on_server_handle_closed(uv_handle_t *h)
+{
+    struct mb_server *srv = h->data;
+    srv->open_handles--;
+    maybe_finish_close(srv);
+}
+
+void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv))
+{
+    srv->closing = true;
+    srv->close_cb = cb;
+    while (srv->clients)
+        close_client(srv->clients, NULL);
+    if (srv->ctx) {
+        /* libmodbus would close the socket it was given; we own it. */
+        modbus_set_socket(srv->ctx, -1);
+        modbus_free(srv->ctx);
+        srv->ctx = NULL;
+    }
+    for (int i = 0; i < 2; i++) {
+        if (srv->pair[i] >= 0)
+            close(srv->pair[i]);
+        srv->pair[i] = -1;
+    }
+    if (srv->open_handles == 0) {
+        maybe_finish_close(srv);
+        return;
+    }
+    uv_close((uv_handle_t *)&srv->listener, on_server_handle_closed);
+    uv_close((uv_handle_t *)&srv->sweep, on_server_handle_closed);
+}

@@ -1,0 +1,601 @@
+/* regmap.c - build, check, list and encode the register map (regmap.h). */
+#include "regmap.h"
+
+#include "log.h"
+
+#include <errno.h>
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define PRESENCE_BASE 1536 /* discrete inputs: one per status field */
+#define COUNT_BASE 3000    /* input registers: one per array field */
+
+const char *const gw_value_names[GW_VALUE_COUNT] = {
+#define GW_NAME(name) [GW_##name] = #name,
+    GW_VALUES(GW_NAME)
+#undef GW_NAME
+};
+
+static const char *const table_names[REGMAP_TABLE_COUNT] = {
+    [REGMAP_COIL] = "coil",
+    [REGMAP_DISCRETE_INPUT] = "discrete_input",
+    [REGMAP_INPUT_REGISTER] = "input_register",
+    [REGMAP_HOLDING_REGISTER] = "holding_register",
+};
+
+/* PLC notation: the table's leading digit, then the address from 1. */
+static const unsigned table_plc_base[REGMAP_TABLE_COUNT] = {
+    [REGMAP_COIL] = 1,
+    [REGMAP_DISCRETE_INPUT] = 10001,
+    [REGMAP_INPUT_REGISTER] = 30001,
+    [REGMAP_HOLDING_REGISTER] = 40001,
+};
+
+static const char *const type_names[] = {
+    [REGMAP_BOOL] = "bool", [REGMAP_U16] = "u16", [REGMAP_I16] = "i16",
+    [REGMAP_U32] = "u32",   [REGMAP_I32] = "i32", [REGMAP_F32] = "f32",
+    [REGMAP_STR] = "str",
+};
+
+static bool is_bit_table(enum regmap_table t)
+{
+    return t == REGMAP_COIL || t == REGMAP_DISCRETE_INPUT;
+}
+
+unsigned regmap_element_width(const struct regmap_row *row)
+{
+    switch (row->type) {
+    case REGMAP_BOOL:
+    case REGMAP_U16:
+    case REGMAP_I16:
+        return 1;
+    case REGMAP_U32:
+    case REGMAP_I32:
+    case REGMAP_F32:
+        return 2;
+    case REGMAP_STR:
+        return row->str_regs;
+    }
+    return 1;
+}
+
+unsigned regmap_element_address(const struct regmap_row *row, unsigned i)
+{
+    unsigned stride = row->stride ? row->stride : regmap_element_width(row);
+    return row->address + i * stride;
+}
+
+static bool is_array_field(enum status_field id)
+{
+    return strchr(status_fields[id].path, '*') != NULL;
+}
+
+/* Appends the generated rows: presence bits and element counts. */
+static unsigned add_generated_rows(struct regmap_row *rows, unsigned n)
+{
+    for (int id = 0; id < STATUS_FIELD_COUNT; id++) {
+        rows[n++] = (struct regmap_row){
+            .table = REGMAP_DISCRETE_INPUT, .address = PRESENCE_BASE + id,
+            .elements = 1, .type = REGMAP_BOOL, .scale = 1, .unit = "",
+            .name = "present_", .description = "The last document carried ",
+            .source = REGMAP_SRC_PRESENT, .id = id};
+        if (is_array_field((enum status_field)id))
+            rows[n++] = (struct regmap_row){
+                .table = REGMAP_INPUT_REGISTER, .address = COUNT_BASE + id,
+                .elements = 1, .type = REGMAP_U16, .scale = 1, .unit = "",
+                .name = "count_",
+                .description = "Elements the last document carried of ",
+                .source = REGMAP_SRC_COUNT, .id = id};
+    }
+    return n;
+}
+
+static int check_row(const struct regmap_row *row)
+{
+    bool bits = is_bit_table(row->table);
+
+    if ((row->type == REGMAP_BOOL) != bits)
+        return -EINVAL;
+    if (row->writable != (row->table == REGMAP_COIL ||
+                          row->table == REGMAP_HOLDING_REGISTER))
+        return -EINVAL;
+    if (row->elements == 0 || (row->type == REGMAP_STR && row->str_regs == 0))
+        return -EINVAL;
+    if (row->source == REGMAP_SRC_STATUS) {
+        const struct status_field_info *f = &status_fields[row->id];
+        if (row->index + row->elements > f->capacity)
+            return -EINVAL;
+        if ((f->kind == STATUS_KIND_STR) != (row->type == REGMAP_STR))
+            return -EINVAL;
+    }
+    return 0;
+}
+
+static int index_rows(struct regmap *map)
+{
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const struct regmap_row *row = &map->rows[r];
+        unsigned last = regmap_element_address(row, row->elements - 1) +
+                        regmap_element_width(row);
+        if (last > map->size[row->table])
+            map->size[row->table] = last;
+    }
+    for (int t = 0; t < REGMAP_TABLE_COUNT; t++) {
+        map->owner[t] = calloc(map->size[t] ? map->size[t] : 1,
+                               sizeof(*map->owner[t]));
+        if (!map->owner[t])
+            return -ENOMEM;
+    }
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const struct regmap_row *row = &map->rows[r];
+        for (unsigned i = 0; i < row->elements; i++) {
+            unsigned a = regmap_element_address(row, i);
+            for (unsigned w = 0; w < regmap_element_width(row); w++) {
+                if (map->owner[row->table][a + w]) {
+                    log_err("register map: row '%s' overlaps row '%s' at %s %u",
+                            row->name, map->owner[row->table][a + w]->name,
+                            table_names[row->table], a + w);
+                    return -EINVAL;
+                }
+                map->owner[row->table][a + w] = row;
+            }
+        }
+    }
+    return 0;
+}
+
+static uint32_t crc32_update(uint32_t crc, const unsigned char *p, size_t n)
+{
+    crc = ~crc;
+    while (n--) {
+        crc ^= *p++;
+        for (int k = 0; k < 8; k++)
+            crc = (crc >> 1) ^ (0xEDB88320u & (0u - (crc & 1u)));
+    }
+    return ~crc;
+}
+
+static int compute_crc(struct regmap *map)
+{
+    char *text = NULL;
+    size_t size = 0;
+    FILE *mem = open_memstream(&text, &size);
+
+    if (!mem)
+        return -ENOMEM;
+    int rc = regmap_print(map, REGMAP_FORMAT_CSV, mem);
+    fclose(mem);
+    if (rc == 0)
+        map->crc = crc32_update(0, (const unsigned char *)text, size);
+    free(text);
+    return rc;
+}
+
+int regmap_init(struct regmap *map)
+{
+    unsigned max_rows = regmap_table_row_count + 2 * STATUS_FIELD_COUNT;
+    int rc;
+
+    memset(map, 0, sizeof(*map));
+    map->rows = calloc(max_rows, sizeof(*map->rows));
+    if (!map->rows)
+        return -ENOMEM;
+    memcpy(map->rows, regmap_table_rows,
+           regmap_table_row_count * sizeof(*map->rows));
+    map->row_count = add_generated_rows(map->rows, regmap_table_row_count);
+    for (unsigned r = 0; r < map->row_count; r++) {
+        if (check_row(&map->rows[r]) != 0) {
+            log_err("register map: row '%s' does not fit its table or field",
+                    map->rows[r].name);
+            regmap_free(map);
+            return -EINVAL;
+        }
+    }
+    rc = index_rows(map);
+    if (rc == 0)
+        rc = compute_crc(map);
+    if (rc != 0)
+        regmap_free(map);
+    return rc;
+}
+
+void regmap_free(struct regmap *map)
+{
+    for (int t = 0; t < REGMAP_TABLE_COUNT; t++)
+        free(map->owner[t]);
+    free(map->rows);
+    memset(map, 0, sizeof(*map));
+}
+
+const struct regmap_row *regmap_find(const struct regmap *map,
+                                     enum regmap_table table, unsigned address)
+{
+    if (table >= REGMAP_TABLE_COUNT || address >= map->size[table])
+        return NULL;
+    return map->owner[table][address];
+}
+
+/* ---- listings ---- */
+
+/* Expands a template: '*' is the source index, '#' the element from 1. */
+static void expand(char *out, size_t size, const char *tmpl, unsigned source_index,
+                   unsigned element)
+{
+    size_t n = 0;
+
+    for (const char *p = tmpl; *p && n + 1 < size; p++) {
+        int w;
+        if (*p == '*')
+            w = snprintf(out + n, size - n, "%u", source_index);
+        else if (*p == '#')
+            w = snprintf(out + n, size - n, "%u", element + 1);
+        else {
+            out[n++] = *p;
+            continue;
+        }
+        if (w < 0 || (size_t)w >= size - n)
+            break;
+        n += (size_t)w;
+    }
+    out[n] = '\0';
+}
+
+struct element_text {
+    char name[96];
+    char source[96];
+    char description[256];
+};
+
+static void describe_element(const struct regmap_row *row, unsigned i,
+                             struct element_text *t)
+{
+    const char *fname = "";
+    const char *fpath = "";
+    unsigned source_index = i;
+
+    if (row->source != REGMAP_SRC_GW) {
+        fname = status_fields[row->id].name;
+        fpath = status_fields[row->id].path;
+        source_index = status_fields[row->id].first + row->index + i;
+    }
+    switch (row->source) {
+    case REGMAP_SRC_STATUS:
+        expand(t->name, sizeof(t->name), row->name, source_index, i);
+        status_element_path((enum status_field)row->id, row->index + i, t->source,
+                            sizeof(t->source));
+        expand(t->description, sizeof(t->description), row->description,
+               source_index, i);
+        break;
+    case REGMAP_SRC_GW:
+        snprintf(t->name, sizeof(t->name), "%s", row->name);
+        snprintf(t->source, sizeof(t->source), "gw:%s", gw_value_names[row->id]);
+        snprintf(t->description, sizeof(t->description), "%s", row->description);
+        break;
+    case REGMAP_SRC_PRESENT:
+    case REGMAP_SRC_COUNT: {
+        bool present = row->source == REGMAP_SRC_PRESENT;
+        snprintf(t->name, sizeof(t->name), "%s%s", row->name, fname);
+        snprintf(t->source, sizeof(t->source), "gw:%s(%s)",
+                 present ? "present" : "count", fpath);
+        snprintf(t->description, sizeof(t->description), "%s%s",
+                 row->description, fpath);
+        break;
+    }
+    }
+}
+
+static void put_csv_field(FILE *out, const char *s)
+{
+    if (!strpbrk(s, ",\"\n")) {
+        fputs(s, out);
+        return;
+    }
+    fputc('"', out);
+    for (; *s; s++) {
+        if (*s == '"')
+            fputc('"', out);
+        fputc(*s, out);
+    }
+    fputc('"', out);
+}
+
+static void put_md_field(FILE *out, const char *s)
+{
+    for (; *s; s++) {
+        if (*s == '|')
+            fputc('\\', out);
+        fputc(*s, out);
+    }
+}
+
+static void print_md_intro(const struct regmap *map, FILE *out)
+{
+    fprintf(out,
+            "# jakagw register map\n\n"
+            "Generated by `jakagw --print-map md` (map version %d, CRC-32 "
+            "0x%08X); do not edit by hand.\n\n"
+            "- **Address** is the 0-based address on the wire; **PLC** is the "
+            "1-based notation (coils 00001, discrete inputs 10001, input "
+            "registers 30001, holding registers 40001).\n"
+            "- **Count** is the number of registers (or bits) of the entry. "
+            "`f32`, `u32` and `i32` take two registers, high word first by "
+            "default (`word_order = high_first`, \"ABCD\"); with `word_order = "
+            "low_first` (\"CDAB\") the low word comes first. Input register 4 "
+            "says which is in force; registers 6 and 8 hold fixed probe values "
+            "to check it.\n"
+            "- `str` holds two ASCII bytes per register, the first character "
+            "in the high byte, NUL-padded.\n"
+            "- Integers hold round(source x **Scale**), clamped to the type's "
+            "range.\n"
+            "- **Source** is the JSON path in the status document (port "
+            "10000), `gw:<name>` for a gateway value, `gw:present(path)` and "
+            "`gw:count(path)` for what the last document carried.\n"
+            "- A value the last document did not carry reads 0, or NaN for "
+            "`f32`. Addresses between entries read 0; an address past a "
+            "table's last entry answers exception 02.\n"
+            "- Input register 18 (`status_age_ms`) and discrete input 2 "
+            "(`status_fresh`) tell live data from stale.\n",
+            REGMAP_VERSION, map->crc);
+}
+
+static void print_element(const struct regmap_row *row, unsigned i,
+                          enum regmap_format format, FILE *out)
+{
+    struct element_text t;
+    unsigned address = regmap_element_address(row, i);
+    const char *access = row->writable ? "rw" : "r";
+    double scale = row->scale != 0 ? row->scale : 1;
+
+    describe_element(row, i, &t);
+    if (format == REGMAP_FORMAT_CSV) {
+        fprintf(out, "%s,%u,%u,%s,%g,", table_names[row->table], address,
+                regmap_element_width(row), type_names[row->type], scale);
+        put_csv_field(out, row->unit);
+        fprintf(out, ",%s,", access);
+        put_csv_field(out, t.name);
+        fputc(',', out);
+        put_csv_field(out, t.source);
+        fputc(',', out);
+        put_csv_field(out, t.description);
+        fputc('\n', out);
+        return;
+    }
+    fprintf(out, "| %u | %05u | %u | %s | %g | ", address,
+            table_plc_base[row->table] + address, regmap_element_width(row),
+            type_names[row->type], scale);
+    put_md_field(out, row->unit);
+    fprintf(out, " | %s | `%s` | `", access, t.name);
+    put_md_field(out, t.source);
+    fputs("` | ", out);
+    put_md_field(out, t.description);
+    fputs(" |\n", out);
+}
+
+int regmap_print(const struct regmap *map, enum regmap_format format, FILE *out)
+{
+    static const char *const md_titles[REGMAP_TABLE_COUNT] = {
+        [REGMAP_COIL] = "Coils (FC 1, 5, 15)",
+        [REGMAP_DISCRETE_INPUT] = "Discrete inputs (FC 2)",
+        [REGMAP_INPUT_REGISTER] = "Input registers (FC 4)",
+        [REGMAP_HOLDING_REGISTER] = "Holding registers (FC 3, 6, 16, 22, 23)",
+    };
+
+    if (format == REGMAP_FORMAT_CSV)
+        fputs("table,address,count,type,scale,unit,access,name,source,"
+              "description\n",
+              out);
+    else
+        print_md_intro(map, out);
+    for (int t = 0; t < REGMAP_TABLE_COUNT; t++) {
+        if (format == REGMAP_FORMAT_MD)
+            fprintf(out,
+                    "\n## %s\n\n| Address | PLC | Count | Type | Scale | Unit "
+                    "| Access | Name | Source | Description |\n"
+                    "|---:|---:|---:|---|---:|---|---|---|---|---|\n",
+                    md_titles[t]);
+        /* In address order, element by element. */
+        for (unsigned a = 0; a < map->size[t]; a++) {
+            const struct regmap_row *row = map->owner[t][a];
+            if (!row)
+                continue;
+            for (unsigned i = 0; i < row->elements; i++) {
+                if (regmap_element_address(row, i) == a)
+                    print_element(row, i, format, out);
+            }
+        }
+    }
+    return ferror(out) ? -EIO : 0;
+}
+
+/* ---- the image ---- */
+
+int regmap_image_init(struct regmap_image *img, const struct regmap *map,
+                      enum regmap_word_order word_order)
+{
+    img->map = map;
+    img->word_order = word_order;
+    img->mb = modbus_mapping_new((int)map->size[REGMAP_COIL],
+                                 (int)map->size[REGMAP_DISCRETE_INPUT],
+                                 (int)map->size[REGMAP_HOLDING_REGISTER],
+                                 (int)map->size[REGMAP_INPUT_REGISTER]);
+    return img->mb ? 0 : -ENOMEM;
+}
+
+void regmap_image_free(struct regmap_image *img)
+{
+    if (img->mb)
+        modbus_mapping_free(img->mb);
+    img->mb = NULL;
+}
+
+/* Rounds and clamps without undefined double-to-integer conversions. */
+static double clamp_round(double v, double lo, double hi)
+{
+    if (isnan(v))
+        return 0;
+    v = nearbyint(v);
+    return v < lo ? lo : v > hi ? hi : v;
+}
+
+static void put_u32(uint16_t *regs, uint32_t v, enum regmap_word_order wo)
+{
+    uint16_t hi = (uint16_t)(v >> 16), lo = (uint16_t)(v & 0xFFFF);
+    regs[0] = wo == REGMAP_HIGH_WORD_FIRST ? hi : lo;
+    regs[1] = wo == REGMAP_HIGH_WORD_FIRST ? lo : hi;
+}
+
+void regmap_encode_value(uint16_t *regs, enum regmap_type type, double value,
+                         bool present, double scale,
+                         enum regmap_word_order word_order)
+{
+    double v = value * (scale != 0 ? scale : 1);
+
+    switch (type) {
+    case REGMAP_BOOL:
+        regs[0] = present && value != 0;
+        return;
+    case REGMAP_U16:
+        regs[0] = present ? (uint16_t)clamp_round(v, 0, 65535) : 0;
+        return;
+    case REGMAP_I16:
+        regs[0] = present ? (uint16_t)(int16_t)clamp_round(v, -32768, 32767) : 0;
+        return;
+    case REGMAP_U32:
+        put_u32(regs, present ? (uint32_t)clamp_round(v, 0, 4294967295.0) : 0,
+                word_order);
+        return;
+    case REGMAP_I32:
+        put_u32(regs,
+                present ? (uint32_t)(int32_t)clamp_round(v, -2147483648.0,
+                                                          2147483647.0)
+                        : 0,
+                word_order);
+        return;
+    case REGMAP_F32: {
+        float f;
+        uint32_t bits;
+        if (!present)
+            f = NAN;
+        else if (v > FLT_MAX)
+            f = INFINITY;
+        else if (v < -FLT_MAX)
+            f = -INFINITY;
+        else
+            f = (float)v;
+        memcpy(&bits, &f, sizeof(bits));
+        put_u32(regs, bits, word_order);
+        return;
+    }
+    case REGMAP_STR:
+        return;
+    }
+}
+
+void regmap_encode_string(uint16_t *regs, unsigned reg_count, const char *text)
+{
+    size_t len = strlen(text);
+
+    for (unsigned r = 0; r < reg_count; r++) {
+        unsigned char hi = 2 * r < len ? (unsigned char)text[2 * r] : 0;
+        unsigned char lo = 2 * r + 1 < len ? (unsigned char)text[2 * r + 1] : 0;
+        regs[r] = (uint16_t)(hi << 8 | lo);
+    }
+}
+
+static void encode_bit(struct regmap_image *img, const struct regmap_row *row,
+                       unsigned address, bool value)
+{
+    uint8_t *bits = row->table == REGMAP_COIL ? img->mb->tab_bits
+                                              : img->mb->tab_input_bits;
+    bits[address] = value ? 1 : 0;
+}
+
+static uint16_t *row_registers(struct regmap_image *img,
+                               const struct regmap_row *row, unsigned address)
+{
+    uint16_t *regs = row->table == REGMAP_INPUT_REGISTER
+                         ? img->mb->tab_input_registers
+                         : img->mb->tab_registers;
+    return &regs[address];
+}
+
+static void encode_number(struct regmap_image *img, const struct regmap_row *row,
+                          unsigned address, double value, bool present)
+{
+    if (row->type == REGMAP_BOOL)
+        encode_bit(img, row, address, present && value != 0);
+    else
+        regmap_encode_value(row_registers(img, row, address), row->type, value,
+                            present, row->scale, img->word_order);
+}
+
+static void encode_status_row(struct regmap_image *img,
+                              const struct regmap_row *row,
+                              const struct jaka_status *s)
+{
+    enum status_field id = (enum status_field)row->id;
+
+    if (row->source == REGMAP_SRC_PRESENT) {
+        encode_bit(img, row, row->address, s->count[id] > 0);
+        return;
+    }
+    if (row->source == REGMAP_SRC_COUNT) {
+        encode_number(img, row, row->address, s->count[id], true);
+        return;
+    }
+    for (unsigned i = 0; i < row->elements; i++) {
+        unsigned address = regmap_element_address(row, i);
+        if (row->type == REGMAP_STR) {
+            const struct status_str *t = status_str_at(s, id, row->index + i);
+            regmap_encode_string(row_registers(img, row, address), row->str_regs,
+                                 t->present ? t->text : "");
+        } else {
+            const struct status_num *n = status_num_at(s, id, row->index + i);
+            encode_number(img, row, address, n->value, n->present);
+        }
+    }
+}
+
+void regmap_encode_status(struct regmap_image *img, const struct jaka_status *s)
+{
+    for (unsigned r = 0; r < img->map->row_count; r++) {
+        const struct regmap_row *row = &img->map->rows[r];
+        if (row->source != REGMAP_SRC_GW)
+            encode_status_row(img, row, s);
+    }
+}
+
+void regmap_encode_gw(struct regmap_image *img, const double gw[GW_VALUE_COUNT])
+{
+    for (unsigned r = 0; r < img->map->row_count; r++) {
+        const struct regmap_row *row = &img->map->rows[r];
+        /* Written values belong to the PLC; the image already holds them. */
+        if (row->source == REGMAP_SRC_GW && !row->writable)
+            encode_number(img, row, row->address, gw[row->id], true);
+    }
+}
+
+int regmap_check_write(const struct regmap *map, enum regmap_table table,
+                       unsigned address, uint16_t value)
+{
+    const struct regmap_row *row = regmap_find(map, table, address);
+    double v;
+
+    if (!row || !row->writable)
+        return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+    v = row->type == REGMAP_I16 ? (double)(int16_t)value : (double)value;
+    if (v < row->min || v > row->max)
+        return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+    return 0;
+}
+
+double regmap_read_written(const struct regmap_image *img,
+                           const struct regmap_row *row)
+{
+    if (row->table == REGMAP_COIL)
+        return img->mb->tab_bits[row->address];
+    uint16_t v = img->mb->tab_registers[row->address];
+    return row->type == REGMAP_I16 ? (double)(int16_t)v : (double)v;
+}

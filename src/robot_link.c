@@ -1,0 +1,335 @@
+/* robot_link.c - see robot_link.h. */
+#include "robot_link.h"
+
+#include "log.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static void start_connect(struct robot_link *link);
+
+static void set_state(struct robot_link *link, enum robot_link_state state)
+{
+    if (link->state == state)
+        return;
+    link->state = state;
+    if (link->cb.on_state)
+        link->cb.on_state(link, state);
+}
+
+static void on_framer_event(void *user, enum framer_event event,
+                            const char *data, size_t size)
+{
+    struct robot_link *link = user;
+
+    if (event == FRAMER_EVENT_OBJECT) {
+        link->last_object_ms = uv_now(link->loop);
+        /* The robot speaks: a later failure starts the backoff afresh. */
+        link->backoff_ms = 0;
+        link->last_error = 0;
+        link->cb.on_object(link, data, size);
+        return;
+    }
+    if (link->cb.on_framing_error)
+        link->cb.on_framing_error(link, event, size);
+}
+
+int robot_link_init(uv_loop_t *loop, struct robot_link *link,
+                    const struct robot_link_config *cfg,
+                    const struct robot_link_callbacks *cb, void *user)
+{
+    int rc;
+
+    if (!loop || !link || !cfg || !cb || !cb->on_object || !cfg->host ||
+        strlen(cfg->host) >= sizeof(link->host) || cfg->port == 0 ||
+        cfg->reconnect_min_ms == 0 || cfg->reconnect_min_ms > cfg->reconnect_max_ms)
+        return -EINVAL;
+    memset(link, 0, sizeof(*link));
+    link->loop = loop;
+    link->cfg = *cfg;
+    snprintf(link->host, sizeof(link->host), "%s", cfg->host);
+    link->cfg.host = link->host;
+    link->cb = *cb;
+    link->user = user;
+    rc = framer_init(&link->framer, cfg->max_object, on_framer_event, link);
+    if (rc)
+        return rc;
+    uv_timer_init(loop, &link->timer);
+    uv_timer_init(loop, &link->watchdog);
+    link->timer.data = link;
+    link->watchdog.data = link;
+    link->open_handles = 2;
+    return 0;
+}
+
+/* Logs a failure once per change of its cause. */
+static void log_failure(struct robot_link *link, int err, const char *what)
+{
+    if (err == link->last_error)
+        return;
+    link->last_error = err;
+    log_warn("%s link: %s %s:%u: %s; retrying every %u ms at most "
+             "(logged again when the cause changes)",
+             link->cfg.name, what, link->host, link->cfg.port, uv_strerror(err),
+             link->cfg.reconnect_max_ms);
+}
+
+static void on_retry_timer(uv_timer_t *t)
+{
+    start_connect(t->data);
+}
+
+static void schedule_retry(struct robot_link *link)
+{
+    if (link->stopping)
+        return;
+    if (link->backoff_ms == 0)
+        link->backoff_ms = link->cfg.reconnect_min_ms;
+    else if (link->backoff_ms < link->cfg.reconnect_max_ms / 2)
+        link->backoff_ms *= 2;
+    else
+        link->backoff_ms = link->cfg.reconnect_max_ms;
+    uv_timer_stop(&link->timer);
+    uv_timer_start(&link->timer, on_retry_timer, link->backoff_ms, 0);
+}
+
+static void on_tcp_closed(uv_handle_t *h)
+{
+    struct robot_link *link = h->data;
+
+    link->tcp_open = false;
+    link->open_handles--;
+    if (link->stopping) {
+        if (link->open_handles == 0 && link->close_cb)
+            link->close_cb(link);
+        return;
+    }
+    schedule_retry(link);
+}
+
+/* Closes the socket; the retry is scheduled once it is closed. */
+static void drop_connection(struct robot_link *link)
+{
+    uv_timer_stop(&link->timer);
+    uv_timer_stop(&link->watchdog);
+    framer_reset(&link->framer);
+    set_state(link, ROBOT_LINK_DISCONNECTED);
+    if (link->tcp_open && !uv_is_closing((uv_handle_t *)&link->tcp))
+        uv_close((uv_handle_t *)&link->tcp, on_tcp_closed);
+    else if (!link->tcp_open)
+        schedule_retry(link);
+}
+
+void robot_link_restart(struct robot_link *link, const char *why)
+{
+    if (link->state == ROBOT_LINK_CONNECTED)
+        log_warn("%s link: closing connection to %s:%u: %s", link->cfg.name,
+                 link->host, link->cfg.port, why);
+    link->last_error = 0;
+    drop_connection(link);
+}
+
+static void on_watchdog(uv_timer_t *t)
+{
+    struct robot_link *link = t->data;
+    uint64_t silent = uv_now(link->loop) - link->last_object_ms;
+    char why[96];
+
+    if (silent < link->cfg.silence_timeout_ms) {
+        uv_timer_start(&link->watchdog, on_watchdog,
+                       link->cfg.silence_timeout_ms - silent, 0);
+        return;
+    }
+    snprintf(why, sizeof(why), "no complete document for %llu ms",
+             (unsigned long long)silent);
+    robot_link_restart(link, why);
+}
+
+static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
+{
+    struct robot_link *link = h->data;
+    (void)suggested;
+    *buf = uv_buf_init(link->read_buf, sizeof(link->read_buf));
+}
+
+static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
+{
+    struct robot_link *link = s->data;
+
+    if (nread > 0) {
+        framer_feed(&link->framer, buf->base, (size_t)nread);
+        return;
+    }
+    if (nread == 0)
+        return;
+    if (link->state == ROBOT_LINK_CONNECTED)
+        log_warn("%s link: connection to %s:%u lost: %s; reconnecting",
+                 link->cfg.name, link->host, link->cfg.port,
+                 nread == UV_EOF ? "closed by the robot" : uv_strerror((int)nread));
+    link->last_error = (int)nread;
+    drop_connection(link);
+}
+
+static void on_connected(uv_connect_t *req, int status)
+{
+    struct robot_link *link = req->data;
+    int rc;
+
+    uv_timer_stop(&link->timer);
+    if (status == UV_ECANCELED)
+        return; /* closed under us: on_tcp_closed takes over */
+    if (status < 0) {
+        log_failure(link, status, "cannot connect to");
+        drop_connection(link);
+        return;
+    }
+    rc = uv_read_start((uv_stream_t *)&link->tcp, on_alloc, on_read);
+    if (rc < 0) {
+        log_failure(link, rc, "cannot read from");
+        drop_connection(link);
+        return;
+    }
+    uv_tcp_nodelay(&link->tcp, 1);
+    uv_tcp_keepalive(&link->tcp, 1, 5);
+    link->connections++;
+    link->last_error = 0;
+    link->last_object_ms = uv_now(link->loop);
+    log_notice("%s link: connected to %s:%u", link->cfg.name, link->host,
+               link->cfg.port);
+    set_state(link, ROBOT_LINK_CONNECTED);
+    if (link->cfg.silence_timeout_ms)
+        uv_timer_start(&link->watchdog, on_watchdog, link->cfg.silence_timeout_ms,
+                       0);
+}
+
+static void on_connect_timeout(uv_timer_t *t)
+{
+    struct robot_link *link = t->data;
+    log_failure(link, UV_ETIMEDOUT, "cannot connect to");
+    /* Closing the handle cancels the pending connect. */
+    drop_connection(link);
+}
+
+static void on_resolved(uv_getaddrinfo_t *req, int status, struct addrinfo *res)
+{
+    struct robot_link *link = req->data;
+    int rc;
+
+    link->resolving = false;
+    if (link->stopping) {
+        uv_freeaddrinfo(res);
+        link->open_handles--;
+        if (link->open_handles == 0 && link->close_cb)
+            link->close_cb(link);
+        return;
+    }
+    link->open_handles--;
+    if (status < 0) {
+        log_failure(link, status, "cannot resolve");
+        uv_freeaddrinfo(res);
+        schedule_retry(link);
+        return;
+    }
+    uv_tcp_init(link->loop, &link->tcp);
+    link->tcp.data = link;
+    link->tcp_open = true;
+    link->open_handles++;
+    link->connect_req.data = link;
+    rc = uv_tcp_connect(&link->connect_req, &link->tcp, res->ai_addr, on_connected);
+    uv_freeaddrinfo(res);
+    if (rc < 0) {
+        log_failure(link, rc, "cannot connect to");
+        drop_connection(link);
+        return;
+    }
+    uv_timer_start(&link->timer, on_connect_timeout, link->cfg.connect_timeout_ms, 0);
+}
+
+static void start_connect(struct robot_link *link)
+{
+    struct addrinfo hints;
+    char port[8];
+    int rc;
+
+    if (link->stopping || link->tcp_open || link->resolving)
+        return;
+    set_state(link, ROBOT_LINK_CONNECTING);
+    memset(&hints, 0, sizeof(hints));
+    hints.ai_family = AF_UNSPEC;
+    hints.ai_socktype = SOCK_STREAM;
+    snprintf(port, sizeof(port), "%u", link->cfg.port);
+    link->resolver.data = link;
+    rc = uv_getaddrinfo(link->loop, &link->resolver, on_resolved, link->host, port,
+                        &hints);
+    if (rc < 0) {
+        log_failure(link, rc, "cannot resolve");
+        set_state(link, ROBOT_LINK_DISCONNECTED);
+        schedule_retry(link);
+        return;
+    }
+    link->resolving = true;
+    link->open_handles++;
+}
+
+int robot_link_start(struct robot_link *link)
+{
+    log_info("%s link: connecting to %s:%u", link->cfg.name, link->host,
+             link->cfg.port);
+    start_connect(link);
+    return 0;
+}
+
+struct send_req {
+    uv_write_t req;
+    char data[];
+};
+
+static void on_written(uv_write_t *req, int status)
+{
+    (void)status; /* a failed write shows up as a read error too */
+    free(req);
+}
+
+int robot_link_send(struct robot_link *link, const char *data, size_t size)
+{
+    struct send_req *sr;
+    uv_buf_t buf;
+    int rc;
+
+    if (link->state != ROBOT_LINK_CONNECTED)
+        return -ENOTCONN;
+    sr = malloc(sizeof(*sr) + size);
+    if (!sr)
+        return -ENOMEM;
+    memcpy(sr->data, data, size);
+    buf = uv_buf_init(sr->data, (unsigned)size);
+    rc = uv_write(&sr->req, (uv_stream_t *)&link->tcp, &buf, 1, on_written);
+    if (rc < 0)
+        free(sr);
+    return rc;
+}
+
+static void on_timer_closed(uv_handle_t *h)
+{
+    struct robot_link *link = h->data;
+    link->open_handles--;
+    if (link->open_handles == 0 && link->close_cb)
+        link->close_cb(link);
+}
+
+void robot_link_close(struct robot_link *link,
+                      void (*cb)(struct robot_link *link))
+{
+    link->stopping = true;
+    link->close_cb = cb;
+    set_state(link, ROBOT_LINK_DISCONNECTED);
+    framer_free(&link->framer);
+    uv_close((uv_handle_t *)&link->timer, on_timer_closed);
+    uv_close((uv_handle_t *)&link->watchdog, on_timer_closed);
+    if (link->tcp_open && !uv_is_closing((uv_handle_t *)&link->tcp))
+        uv_close((uv_handle_t *)&link->tcp, on_tcp_closed);
+    if (link->resolving)
+        uv_cancel((uv_req_t *)&link->resolver);
+}
