@@ -12,6 +12,7 @@ UNITDIR   ?= /lib/systemd/system
 DESTDIR   ?=
 BUILD     ?= build
 CC        ?= cc
+SAMPLES_DIR ?= $(abspath tests/data)
 
 PKGS      := libuv libmodbus libcjson inih libsystemd
 PKG_CFLAGS := $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
@@ -50,7 +51,7 @@ $(BUILD)/jakasim: $(SIM_OBJS) $(BUILD)/libjakagw.a
 # A unit test may #include the .c under test to reach its static helpers.
 $(BUILD)/tests/%: tests/%.c $(BUILD)/libjakagw.a
 	@mkdir -p $(dir $@)
-	$(CC) $(ALL_CFLAGS) -Isrc $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
+	$(CC) $(ALL_CFLAGS) -Isrc -DSAMPLES_DIR="\"$(SAMPLES_DIR)\"" $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
 
 unit-tests: $(UNIT_TESTS:%=$(BUILD)/tests/%)
 

@@ -5,12 +5,12 @@
  * splits or merges them at will. The framer buffers at most 'max_object'
  * bytes and reports each complete object, in order, through a callback.
  *
- * How an object's end is found: a string-aware brace scanner (braces inside
- * strings and escaped quotes do not count). When the object starts with a
- * "len" member (the status port's documents), its value is checked against
- * the scanner's end; when the scanner has not closed the object where "len"
- * says it ends but a '}' stands there, the object is cut at "len" so that one
- * corrupt document cannot swallow the ones after it.
+ * How an object's end is found: when the object starts with a "len" member
+ * (the status port's documents), at the byte "len" gives, provided a '}'
+ * stands there; the JSON parser then judges the content, so one corrupt
+ * document cannot swallow the ones after it. Otherwise, or when no '}'
+ * stands there, a string-aware brace scanner finds the end (braces inside
+ * strings and escaped quotes do not count).
  *
  * Recovery: bytes outside any object are garbage and skipped; an object
  * larger than 'max_object' is dropped and skipped to its end; once the stream

@@ -76,9 +76,13 @@ static int opens_len_header(const struct framer *f, size_t at)
 
     while (p < f->used && is_space(f->buf[p]))
         p++;
-    if (f->used - p < LEN_MARKER_SIZE)
-        return f->used - at > 64 ? 0 : -1;
-    return memcmp(f->buf + p, LEN_MARKER, LEN_MARKER_SIZE) == 0;
+    size_t have = f->used - p;
+    if (have >= LEN_MARKER_SIZE)
+        return memcmp(f->buf + p, LEN_MARKER, LEN_MARKER_SIZE) == 0;
+    /* Undecided only while every byte so far matches the marker. */
+    if (memcmp(f->buf + p, LEN_MARKER, have) != 0 || f->used - at > 64)
+        return 0;
+    return -1;
 }
 
 /*
@@ -197,6 +201,86 @@ static bool scan_byte(struct framer *f, char c)
     return false;
 }
 
+/* Is buf[0, n) exactly one balanced object, by the brace scanner? */
+static bool is_whole_object(const char *buf, size_t n)
+{
+    int depth = 0;
+    bool in_string = false, escaped = false;
+
+    for (size_t i = 0; i < n; i++) {
+        char c = buf[i];
+        if (in_string) {
+            if (escaped)
+                escaped = false;
+            else if (c == '\\')
+                escaped = true;
+            else if (c == '"')
+                in_string = false;
+        } else if (c == '"') {
+            in_string = true;
+        } else if (c == '{' || c == '[') {
+            depth++;
+        } else if ((c == '}' || c == ']') && --depth == 0) {
+            return i + 1 == n || buf[i + 1] == ' ' || buf[i + 1] == '\n' ||
+                   buf[i + 1] == '\r' || buf[i + 1] == '\t';
+        }
+    }
+    return false;
+}
+
+/*
+ * Frames an object that declares its length: a '}' where "len" says the
+ * object ends confirms it (the JSON parser judges the content). A new
+ * '{"len"' before that point means this object was cut short; it is found
+ * by a raw search, because a cut inside a string fools a brace scanner.
+ * Returns 1 when done with this object, 0 when more bytes are needed, -1
+ * when "len" proved wrong and the brace scanner must decide.
+ */
+static int frame_by_len(struct framer *f)
+{
+    size_t k = f->scan > 0 ? f->scan : 1;
+
+    for (; k < f->used && k < f->expect_len; k++) {
+        if (f->buf[k] != '{')
+            continue;
+        int opens = opens_len_header(f, k);
+        if (opens < 0) {
+            f->scan = k;
+            return 0;
+        }
+        if (opens > 0) {
+            size_t end = k;
+            while (end > 0 && is_space(f->buf[end - 1]))
+                end--;
+            if (is_whole_object(f->buf, end)) {
+                /* Complete, only its "len" was wrong. */
+                f->stats.len_mismatch++;
+                emit(f, FRAMER_EVENT_LEN_MISMATCH, f->buf, end);
+                finish_object(f, end);
+                return 1;
+            }
+            f->stats.truncated++;
+            emit(f, FRAMER_EVENT_TRUNCATED, f->buf, k);
+            consume(f, k);
+            start_seek(f);
+            f->resync = true;
+            return 1;
+        }
+    }
+    f->scan = k;
+    if (f->used < f->expect_len)
+        return 0;
+    if (f->buf[f->expect_len - 1] == '}') {
+        finish_object(f, f->expect_len);
+        return 1;
+    }
+    f->stats.len_mismatch++;
+    emit(f, FRAMER_EVENT_LEN_MISMATCH, f->buf, f->expect_len);
+    f->expect_len = 0;
+    f->scan = 0;
+    return -1;
+}
+
 /* Scans the current object; returns false when more bytes are needed. */
 static bool scan_object(struct framer *f)
 {
@@ -210,6 +294,11 @@ static bool scan_object(struct framer *f)
             if ((size_t)len >= 2 && (size_t)len <= f->max_object)
                 f->expect_len = (size_t)len;
         }
+    }
+    if (f->expect_len) {
+        int done = frame_by_len(f);
+        if (done >= 0)
+            return done == 1;
     }
     while (f->scan < f->used) {
         size_t at = f->scan;
@@ -231,19 +320,7 @@ static bool scan_object(struct framer *f)
         }
         f->scan++;
         if (scan_byte(f, c)) {
-            if (f->expect_len && f->scan != f->expect_len) {
-                f->stats.len_mismatch++;
-                emit(f, FRAMER_EVENT_LEN_MISMATCH, f->buf, f->scan);
-            }
             finish_object(f, at + 1);
-            return true;
-        }
-        if (f->expect_len && f->scan == f->expect_len && c == '}') {
-            /* "len" says the object ends here but the scanner disagrees
-             * (corrupt content); cut here and let the JSON parser judge. */
-            f->stats.len_mismatch++;
-            emit(f, FRAMER_EVENT_LEN_MISMATCH, f->buf, f->scan);
-            finish_object(f, f->scan);
             return true;
         }
     }

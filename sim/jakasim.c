@@ -1,0 +1,597 @@
+/*
+ * jakasim.c - a JAKA robot controller simulator: the status port pushes the
+ * status document every period; the command port answers Chapter-4
+ * commands; faults are injected on request, for the gateway's tests.
+ */
+#include "framer.h"
+#include "log.h"
+#include "pyjson.h"
+#include "robot.h"
+#include "status_doc.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <getopt.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <uv.h>
+
+#define MAX_QUEUED_STATUS (1024 * 1024)
+
+struct sim_options {
+    const char *bind;
+    int status_port, command_port;
+    unsigned period_ms;
+    const char *profile;
+    bool test_pattern;
+    const char *replay;
+    bool print_status;
+    bool auto_run;
+    /* faults */
+    unsigned drop_every_ms;
+    unsigned silent_after_ms;
+    bool split;
+    unsigned merge;
+    unsigned garbage_every;
+    unsigned truncate_every;
+    unsigned oversize_every;
+    const char *fail_command;
+    const char *ignore_command;
+    unsigned reply_delay_ms;
+    bool log_commands;
+};
+
+struct peer {
+    uv_tcp_t tcp;
+    struct sim *sim;
+    bool status; /* a status-port client, else a command-port client */
+    struct framer framer;
+    bool framer_ready;
+    bool closing;
+    struct peer *next;
+};
+
+struct sim {
+    uv_loop_t *loop;
+    struct sim_options opt;
+    const struct sim_profile *profile;
+    struct sim_robot robot;
+    uv_tcp_t status_server, command_server;
+    uv_timer_t tick, drop, split_timer;
+    uv_signal_t sigint, sigterm;
+    struct peer *peers;
+    struct pyjson doc;
+    char *replay_doc;
+    size_t replay_size;
+    uint64_t documents;
+    uint64_t started_ms;
+    char *merged;       /* documents held for --merge */
+    size_t merged_size;
+    unsigned merged_count;
+    char *pieces;       /* the rest of a document sent in pieces (--split) */
+    size_t piece_size, piece_sent;
+};
+
+struct write_req {
+    uv_write_t req;
+    char data[];
+};
+
+static void on_written(uv_write_t *req, int status)
+{
+    (void)status;
+    free(req);
+}
+
+static void peer_closed(uv_handle_t *h)
+{
+    struct peer *p = h->data;
+    if (p->framer_ready)
+        framer_free(&p->framer);
+    free(p);
+}
+
+static void close_peer(struct peer *p)
+{
+    struct sim *sim = p->sim;
+    if (p->closing)
+        return;
+    p->closing = true;
+    for (struct peer **pp = &sim->peers; *pp; pp = &(*pp)->next) {
+        if (*pp == p) {
+            *pp = p->next;
+            break;
+        }
+    }
+    uv_close((uv_handle_t *)&p->tcp, peer_closed);
+}
+
+static void send_to(struct peer *p, const char *data, size_t size)
+{
+    struct write_req *w;
+    uv_buf_t buf;
+
+    if (p->closing || size == 0)
+        return;
+    if (uv_stream_get_write_queue_size((uv_stream_t *)&p->tcp) > MAX_QUEUED_STATUS) {
+        log_warn("jakasim: dropping a client that does not read");
+        close_peer(p);
+        return;
+    }
+    w = malloc(sizeof(*w) + size);
+    if (!w)
+        return;
+    memcpy(w->data, data, size);
+    buf = uv_buf_init(w->data, (unsigned)size);
+    if (uv_write(&w->req, (uv_stream_t *)&p->tcp, &buf, 1, on_written) < 0) {
+        free(w);
+        close_peer(p);
+    }
+}
+
+static void broadcast_status(struct sim *sim, const char *data, size_t size)
+{
+    struct peer *next;
+    for (struct peer *p = sim->peers; p; p = next) {
+        next = p->next;
+        if (p->status)
+            send_to(p, data, size);
+    }
+}
+
+static void on_split_timer(uv_timer_t *t)
+{
+    struct sim *sim = t->data;
+    size_t left = sim->piece_size - sim->piece_sent;
+    size_t n = left > sim->piece_size / 3 + 1 ? sim->piece_size / 3 + 1 : left;
+
+    broadcast_status(sim, sim->pieces + sim->piece_sent, n);
+    sim->piece_sent += n;
+    if (sim->piece_sent >= sim->piece_size)
+        uv_timer_stop(t);
+}
+
+/* Sends one document, as the fault options shape it. */
+static void emit_document(struct sim *sim, const char *doc, size_t size)
+{
+    const struct sim_options *o = &sim->opt;
+    uint64_t n = ++sim->documents;
+
+    if (o->garbage_every && n % o->garbage_every == 0) {
+        static const char garbage[] = "\x01\x02GARBAGE\xff\xfe not json ]] 123 ";
+        broadcast_status(sim, garbage, sizeof(garbage) - 1);
+    }
+    if (o->truncate_every && n % o->truncate_every == 0)
+        broadcast_status(sim, doc, size / 2); /* a document cut short */
+    if (o->merge > 1) {
+        char *m = realloc(sim->merged, sim->merged_size + size);
+        if (!m)
+            return;
+        sim->merged = m;
+        memcpy(sim->merged + sim->merged_size, doc, size);
+        sim->merged_size += size;
+        if (++sim->merged_count >= o->merge) {
+            broadcast_status(sim, sim->merged, sim->merged_size);
+            sim->merged_size = 0;
+            sim->merged_count = 0;
+        }
+        return;
+    }
+    if (o->split && size > 3) {
+        /* First third now, the rest in two more writes 2 ms apart. */
+        char *copy = realloc(sim->pieces, size);
+        if (!copy)
+            return;
+        sim->pieces = copy;
+        memcpy(sim->pieces, doc, size);
+        sim->piece_size = size;
+        sim->piece_sent = 0;
+        on_split_timer(&sim->split_timer);
+        uv_timer_start(&sim->split_timer, on_split_timer, 2, 2);
+        return;
+    }
+    broadcast_status(sim, doc, size);
+}
+
+static void on_tick(uv_timer_t *t)
+{
+    struct sim *sim = t->data;
+    const struct sim_options *o = &sim->opt;
+
+    sim_robot_tick(&sim->robot, o->period_ms / 1000.0);
+    if (o->silent_after_ms &&
+        uv_now(sim->loop) - sim->started_ms >= o->silent_after_ms)
+        return; /* stop pushing, keep the connections open */
+    if (sim->replay_doc) {
+        emit_document(sim, sim->replay_doc, sim->replay_size);
+        return;
+    }
+    size_t pad = 0;
+    if (o->oversize_every && (sim->documents + 1) % o->oversize_every == 0)
+        pad = 70 * 1024;
+    sim_status_document(&sim->doc, &sim->robot, sim->profile, pad);
+    if (!sim->doc.failed)
+        emit_document(sim, sim->doc.buf, sim->doc.len);
+}
+
+static void on_drop_timer(uv_timer_t *t)
+{
+    struct sim *sim = t->data;
+    log_notice("jakasim: dropping every connection (--drop-every-ms)");
+    while (sim->peers)
+        close_peer(sim->peers);
+}
+
+struct delayed_reply {
+    uv_timer_t timer;
+    struct sim *sim;
+    uv_tcp_t *tcp; /* the peer, checked against the live list */
+    size_t size;
+    char data[];
+};
+
+static void delayed_closed(uv_handle_t *h)
+{
+    free(h->data);
+}
+
+static void on_delayed_reply(uv_timer_t *t)
+{
+    struct delayed_reply *d = t->data;
+    for (struct peer *p = d->sim->peers; p; p = p->next)
+        if (&p->tcp == d->tcp)
+            send_to(p, d->data, d->size);
+    uv_close((uv_handle_t *)&d->timer, delayed_closed);
+}
+
+static void on_command_object(void *user, enum framer_event ev, const char *data,
+                              size_t size)
+{
+    struct peer *p = user;
+    struct sim *sim = p->sim;
+    struct pyjson reply;
+    char name[64];
+
+    if (ev != FRAMER_EVENT_OBJECT)
+        return;
+    pyjson_init(&reply);
+    bool answer = sim_robot_command(&sim->robot, data, size, sim->opt.fail_command,
+                                    &reply, name, sizeof(name));
+    const char *ignore = sim->opt.ignore_command;
+    if (ignore && (strcmp(ignore, "all") == 0 || strcmp(ignore, name) == 0))
+        answer = false;
+    if (sim->opt.log_commands)
+        log_info("jakasim: command %.*s -> %s", (int)size, data,
+                 answer ? reply.buf : "(no reply)");
+    if (answer && !reply.failed) {
+        if (sim->opt.reply_delay_ms) {
+            struct delayed_reply *d = malloc(sizeof(*d) + reply.len);
+            if (d) {
+                d->sim = sim;
+                d->tcp = &p->tcp;
+                d->size = reply.len;
+                memcpy(d->data, reply.buf, reply.len);
+                uv_timer_init(sim->loop, &d->timer);
+                d->timer.data = d;
+                uv_timer_start(&d->timer, on_delayed_reply, sim->opt.reply_delay_ms, 0);
+            }
+        } else {
+            send_to(p, reply.buf, reply.len);
+        }
+    }
+    pyjson_free(&reply);
+}
+
+static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
+{
+    (void)h;
+    buf->base = malloc(suggested);
+    buf->len = buf->base ? suggested : 0;
+}
+
+static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
+{
+    struct peer *p = s->data;
+
+    if (nread > 0 && !p->status)
+        framer_feed(&p->framer, buf->base, (size_t)nread);
+    else if (nread < 0)
+        close_peer(p);
+    free(buf->base);
+}
+
+static void accept_peer(uv_stream_t *server, bool status)
+{
+    struct sim *sim = server->data;
+    struct peer *p = calloc(1, sizeof(*p));
+
+    if (!p)
+        return;
+    p->sim = sim;
+    p->status = status;
+    uv_tcp_init(sim->loop, &p->tcp);
+    p->tcp.data = p;
+    if (uv_accept(server, (uv_stream_t *)&p->tcp) < 0) {
+        p->closing = true;
+        uv_close((uv_handle_t *)&p->tcp, peer_closed);
+        return;
+    }
+    if (!status) {
+        if (framer_init(&p->framer, 65536, on_command_object, p) < 0) {
+            close_peer(p);
+            return;
+        }
+        p->framer_ready = true;
+    }
+    p->next = sim->peers;
+    sim->peers = p;
+    uv_tcp_nodelay(&p->tcp, 1);
+    uv_read_start((uv_stream_t *)&p->tcp, on_alloc, on_read);
+    log_info("jakasim: %s client connected", status ? "status" : "command");
+}
+
+static void on_status_connection(uv_stream_t *s, int status)
+{
+    if (status == 0)
+        accept_peer(s, true);
+}
+
+static void on_command_connection(uv_stream_t *s, int status)
+{
+    if (status == 0)
+        accept_peer(s, false);
+}
+
+static int listen_on(struct sim *sim, uv_tcp_t *server, int port, uv_connection_cb cb)
+{
+    struct sockaddr_storage addr;
+    int rc;
+
+    if (uv_ip4_addr(sim->opt.bind, port, (struct sockaddr_in *)&addr) != 0 &&
+        uv_ip6_addr(sim->opt.bind, port, (struct sockaddr_in6 *)&addr) != 0) {
+        fprintf(stderr, "jakasim: --bind: '%s' is not an IP address\n", sim->opt.bind);
+        return -EINVAL;
+    }
+    uv_tcp_init(sim->loop, server);
+    server->data = sim;
+    rc = uv_tcp_bind(server, (struct sockaddr *)&addr, 0);
+    if (rc == 0)
+        rc = uv_listen((uv_stream_t *)server, 16, cb);
+    if (rc < 0)
+        fprintf(stderr, "jakasim: cannot listen on %s port %d: %s\n", sim->opt.bind,
+                port, uv_strerror(rc));
+    return rc;
+}
+
+static void on_close_quiet(uv_handle_t *h)
+{
+    (void)h;
+}
+
+static void on_signal(uv_signal_t *s, int signum)
+{
+    struct sim *sim = s->data;
+    (void)signum;
+    while (sim->peers)
+        close_peer(sim->peers);
+    uv_close((uv_handle_t *)&sim->status_server, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->command_server, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->tick, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->drop, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->split_timer, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->sigint, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->sigterm, on_close_quiet);
+}
+
+static int load_replay(struct sim *sim, const char *path)
+{
+    FILE *f = fopen(path, "rb");
+    long size;
+
+    if (!f) {
+        fprintf(stderr, "jakasim: --replay: cannot open %s: %s\n", path, strerror(errno));
+        return -1;
+    }
+    fseek(f, 0, SEEK_END);
+    size = ftell(f);
+    fseek(f, 0, SEEK_SET);
+    sim->replay_doc = malloc((size_t)size + 1);
+    if (!sim->replay_doc || fread(sim->replay_doc, 1, (size_t)size, f) != (size_t)size) {
+        fclose(f);
+        fprintf(stderr, "jakasim: --replay: cannot read %s\n", path);
+        return -1;
+    }
+    fclose(f);
+    /* Recorded files may end with a newline the wire never had. */
+    while (size > 0 && (sim->replay_doc[size - 1] == '\n' || sim->replay_doc[size - 1] == '\r'))
+        size--;
+    sim->replay_size = (size_t)size;
+    cJSON *check = cJSON_ParseWithLength(sim->replay_doc, sim->replay_size);
+    bool ok = cJSON_IsObject(check);
+    cJSON_Delete(check);
+    if (!ok) {
+        fprintf(stderr, "jakasim: --replay: %s is not one JSON object\n", path);
+        return -1;
+    }
+    return 0;
+}
+
+static void usage(FILE *out)
+{
+    fprintf(out,
+        "Usage: jakasim [options]\n"
+        "Simulates a JAKA robot controller: status port and command port.\n\n"
+        "  --bind ADDR            listen address (default 127.0.0.1)\n"
+        "  --status-port N        status port (default 10000)\n"
+        "  --command-port N       command port (default 10001)\n"
+        "  --period-ms N          status push period (default 30)\n"
+        "  --profile NAME         controller version: manual, zu5s, full (default full)\n"
+        "  --test-pattern         distinct values in every field (for map tests)\n"
+        "  --replay FILE          push this recorded document instead\n"
+        "  --auto-run             power on, enable and play a program at start\n"
+        "  --print-status         print one status document and exit\n"
+        "  --log-commands         log every command and its reply\n"
+        "Faults:\n"
+        "  --drop-every-ms N      close every connection every N ms\n"
+        "  --silent-after-ms N    stop pushing status after N ms, keep connections\n"
+        "  --split                write each document in three pieces 2 ms apart\n"
+        "  --merge N              write N documents in one write\n"
+        "  --garbage-every N      send garbage bytes before every Nth document\n"
+        "  --truncate-every N     send half of every Nth document first\n"
+        "  --oversize-every N     make every Nth document larger than 64 KiB\n"
+        "  --fail-command NAME    answer command NAME with errorCode \"2\"\n"
+        "  --ignore-command NAME  never answer NAME (\"all\": any command)\n"
+        "  --reply-delay-ms N     answer commands after N ms\n");
+}
+
+static int parse_uint(const char *flag, const char *text, unsigned max, unsigned *out)
+{
+    char *end;
+    unsigned long v = strtoul(text, &end, 10);
+    if (*text < '0' || *text > '9' || *end || v > max) {
+        fprintf(stderr, "jakasim: --%s: '%s' must be a whole number 0..%u\n", flag,
+                text, max);
+        return -1;
+    }
+    *out = (unsigned)v;
+    return 0;
+}
+
+static int parse_options(int argc, char **argv, struct sim_options *o)
+{
+    static const struct option options[] = {
+        {"bind", required_argument, NULL, 'b'},
+        {"status-port", required_argument, NULL, 's'},
+        {"command-port", required_argument, NULL, 'c'},
+        {"period-ms", required_argument, NULL, 'p'},
+        {"profile", required_argument, NULL, 'P'},
+        {"test-pattern", no_argument, NULL, 't'},
+        {"replay", required_argument, NULL, 'r'},
+        {"print-status", no_argument, NULL, 'o'},
+        {"auto-run", no_argument, NULL, 'a'},
+        {"log-commands", no_argument, NULL, 'l'},
+        {"drop-every-ms", required_argument, NULL, 'D'},
+        {"silent-after-ms", required_argument, NULL, 'S'},
+        {"split", no_argument, NULL, 'x'},
+        {"merge", required_argument, NULL, 'm'},
+        {"garbage-every", required_argument, NULL, 'g'},
+        {"truncate-every", required_argument, NULL, 'T'},
+        {"oversize-every", required_argument, NULL, 'O'},
+        {"fail-command", required_argument, NULL, 'f'},
+        {"ignore-command", required_argument, NULL, 'i'},
+        {"reply-delay-ms", required_argument, NULL, 'd'},
+        {"help", no_argument, NULL, 'h'},
+        {NULL, 0, NULL, 0},
+    };
+    unsigned v;
+    int opt;
+
+    while ((opt = getopt_long(argc, argv, "h", options, NULL)) != -1) {
+        switch (opt) {
+        case 'b': o->bind = optarg; break;
+        case 's': if (parse_uint("status-port", optarg, 65535, &v)) return -1;
+                  o->status_port = (int)v; break;
+        case 'c': if (parse_uint("command-port", optarg, 65535, &v)) return -1;
+                  o->command_port = (int)v; break;
+        case 'p':
+            if (parse_uint("period-ms", optarg, 60000, &o->period_ms))
+                return -1;
+            if (o->period_ms == 0)
+                o->period_ms = 1;
+            break;
+        case 'P': o->profile = optarg; break;
+        case 't': o->test_pattern = true; break;
+        case 'r': o->replay = optarg; break;
+        case 'o': o->print_status = true; break;
+        case 'a': o->auto_run = true; break;
+        case 'l': o->log_commands = true; break;
+        case 'D': if (parse_uint("drop-every-ms", optarg, 3600000, &o->drop_every_ms)) return -1; break;
+        case 'S': if (parse_uint("silent-after-ms", optarg, 3600000, &o->silent_after_ms)) return -1; break;
+        case 'x': o->split = true; break;
+        case 'm': if (parse_uint("merge", optarg, 100, &o->merge)) return -1; break;
+        case 'g': if (parse_uint("garbage-every", optarg, 1000000, &o->garbage_every)) return -1; break;
+        case 'T': if (parse_uint("truncate-every", optarg, 1000000, &o->truncate_every)) return -1; break;
+        case 'O': if (parse_uint("oversize-every", optarg, 1000000, &o->oversize_every)) return -1; break;
+        case 'f': o->fail_command = optarg; break;
+        case 'i': o->ignore_command = optarg; break;
+        case 'd': if (parse_uint("reply-delay-ms", optarg, 600000, &o->reply_delay_ms)) return -1; break;
+        case 'h': usage(stdout); exit(0);
+        default: usage(stderr); return -1;
+        }
+    }
+    if (optind < argc) {
+        fprintf(stderr, "jakasim: unexpected argument '%s'\n", argv[optind]);
+        return -1;
+    }
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    struct sim sim;
+
+    memset(&sim, 0, sizeof(sim));
+    sim.opt = (struct sim_options){.bind = "127.0.0.1", .status_port = 10000,
+                                   .command_port = 10001, .period_ms = 30,
+                                   .profile = "full"};
+    if (parse_options(argc, argv, &sim.opt))
+        return 2;
+    sim.profile = sim_profile_find(sim.opt.profile);
+    if (!sim.profile) {
+        fprintf(stderr, "jakasim: --profile: '%s' must be manual, zu5s or full\n",
+                sim.opt.profile);
+        return 2;
+    }
+    sim_robot_init(&sim.robot, sim.opt.test_pattern);
+    if (sim.opt.auto_run) {
+        sim.robot.powered_on = sim.robot.enabled = true;
+        snprintf(sim.robot.program, sizeof(sim.robot.program), "demo.jks");
+        sim.robot.interp_state = 3;
+    }
+    if (sim.opt.replay && load_replay(&sim, sim.opt.replay))
+        return 2;
+    pyjson_init(&sim.doc);
+    if (sim.opt.print_status) {
+        if (sim.replay_doc)
+            fwrite(sim.replay_doc, 1, sim.replay_size, stdout);
+        else {
+            sim_status_document(&sim.doc, &sim.robot, sim.profile, 0);
+            fwrite(sim.doc.buf, 1, sim.doc.len, stdout);
+        }
+        pyjson_free(&sim.doc);
+        free(sim.replay_doc);
+        return 0;
+    }
+    signal(SIGPIPE, SIG_IGN);
+    sim.loop = uv_default_loop();
+    if (listen_on(&sim, &sim.status_server, sim.opt.status_port, on_status_connection) ||
+        listen_on(&sim, &sim.command_server, sim.opt.command_port, on_command_connection))
+        return 1;
+    uv_timer_init(sim.loop, &sim.tick);
+    uv_timer_init(sim.loop, &sim.drop);
+    uv_timer_init(sim.loop, &sim.split_timer);
+    sim.tick.data = sim.drop.data = sim.split_timer.data = &sim;
+    uv_timer_start(&sim.tick, on_tick, sim.opt.period_ms, sim.opt.period_ms);
+    if (sim.opt.drop_every_ms)
+        uv_timer_start(&sim.drop, on_drop_timer, sim.opt.drop_every_ms,
+                       sim.opt.drop_every_ms);
+    uv_signal_init(sim.loop, &sim.sigint);
+    uv_signal_init(sim.loop, &sim.sigterm);
+    sim.sigint.data = sim.sigterm.data = &sim;
+    uv_signal_start(&sim.sigint, on_signal, SIGINT);
+    uv_signal_start(&sim.sigterm, on_signal, SIGTERM);
+    sim.started_ms = uv_now(sim.loop);
+    log_notice("jakasim: status port %s:%d, command port %s:%d, every %u ms, "
+               "profile %s%s", sim.opt.bind, sim.opt.status_port, sim.opt.bind,
+               sim.opt.command_port, sim.opt.period_ms, sim.profile->name,
+               sim.replay_doc ? ", replaying a recorded document" : "");
+    uv_run(sim.loop, UV_RUN_DEFAULT);
+    uv_loop_close(sim.loop);
+    pyjson_free(&sim.doc);
+    free(sim.replay_doc);
+    free(sim.merged);
+    free(sim.pieces);
+    return 0;
+}

@@ -1,0 +1,80 @@
+/*
+ * robot.h - jakasim's robot: the controller state that the status document
+ * shows and the Chapter-4 commands change.
+ *
+ * A command is answered the way the manual shows, quirks included, and
+ * refused the way a controller refuses it (errorCode "2" and a message)
+ * when the state does not allow it: enable while powered off, motion while
+ * disabled, play with no program loaded, servo_j outside servo mode.
+ */
+#ifndef JAKASIM_ROBOT_H
+#define JAKASIM_ROBOT_H
+
+#include <stdbool.h>
+#include <stddef.h>
+
+#include "pyjson.h"
+
+#define SIM_JOINTS 6
+#define SIM_MAX_DIO 256
+#define SIM_MAX_AIO 128
+
+struct sim_robot {
+    bool powered_on;
+    bool enabled;
+    bool emergency_stop;
+    bool protective_stop;
+    bool drag;
+    bool servo_mode;
+    bool torque_control;
+    int interp_state; /* 0 idle, 1 loading, 2 paused, 3 running */
+    char program[128];
+    double program_time; /* seconds the loaded program has run */
+
+    double joints[SIM_JOINTS];      /* deg */
+    double joint_cmd[SIM_JOINTS];   /* commanded (joint_position) */
+    double joint_target[SIM_JOINTS];
+    double joint_speed;             /* deg/s of the current move */
+    double joint_vel[SIM_JOINTS];   /* last tick's velocity */
+    bool moving;
+    double tcp_speed;               /* mm/s */
+    double cart[6];                 /* mm, deg: FK of joints */
+
+    double rapid_rate;
+    int tool_id, user_id;
+    double tool_offsets[11][6], user_offsets[11][6];
+    double payload_mass, payload_centroid[3];
+    int collision_level;
+    int net_exception_ms, net_exception_motion;
+
+    bool din[SIM_MAX_DIO], dout[SIM_MAX_DIO];
+    double ain[SIM_MAX_AIO], aout[SIM_MAX_AIO];
+    bool tio_din[8], tio_dout[8];
+    double tio_ain[2];
+
+    char errcode[16];
+    char errmsg[128];
+    double uptime_s;
+    bool test_pattern; /* distinct values in every field, for map tests */
+};
+
+void sim_robot_init(struct sim_robot *r, bool test_pattern);
+
+/* Advances motion and programs by 'dt' seconds. */
+void sim_robot_tick(struct sim_robot *r, double dt);
+
+/*
+ * Answers one command (a JSON object's text) into 'reply'. Returns false
+ * when the command must get no reply at all (the robot ignores it).
+ * 'fail_cmd' (may be NULL): a cmdName to refuse with errorCode "2".
+ */
+bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
+                       const char *fail_cmd, struct pyjson *reply,
+                       char *cmd_name, size_t cmd_name_size);
+
+/* Kinematics of a Zu-5-like arm (DH in mm, angles in degrees). */
+void sim_forward_kinematics(const double joints[SIM_JOINTS], double pose[6]);
+bool sim_inverse_kinematics(const double pose[6], const double seed[SIM_JOINTS],
+                            double joints[SIM_JOINTS]);
+
+#endif
