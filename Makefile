@@ -51,7 +51,7 @@ $(BUILD)/jakasim: $(SIM_OBJS) $(BUILD)/libjakagw.a
 # A unit test may #include the .c under test to reach its static helpers.
 $(BUILD)/tests/%: tests/%.c $(BUILD)/libjakagw.a
 	@mkdir -p $(dir $@)
-	$(CC) $(ALL_CFLAGS) -Isrc -DSAMPLES_DIR="\"$(SAMPLES_DIR)\"" $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
+	$(CC) $(ALL_CFLAGS) -Isrc -DSAMPLES_DIR="\"$(SAMPLES_DIR)\"" -DCONFIG_FILE="\"$(abspath config/jakagw.conf)\"" $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
 
 unit-tests: $(UNIT_TESTS:%=$(BUILD)/tests/%)
 

@@ -279,8 +279,14 @@ static void describe_element(const struct regmap_row *row, unsigned i,
         snprintf(t->name, sizeof(t->name), "%s%s", row->name, fname);
         snprintf(t->source, sizeof(t->source), "gw:%s(%s)",
                  present ? "present" : "count", fpath);
-        snprintf(t->description, sizeof(t->description), "%s%s",
-                 row->description, fpath);
+        if (present || !is_array_field((enum status_field)row->id))
+            snprintf(t->description, sizeof(t->description), "%s%s",
+                     row->description, fpath);
+        else
+            snprintf(t->description, sizeof(t->description),
+                     "%s%s (indices %u to %u)", row->description, fpath,
+                     status_fields[row->id].first,
+                     status_fields[row->id].first + status_fields[row->id].capacity - 1);
         break;
     }
     }

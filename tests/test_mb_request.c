@@ -1,0 +1,125 @@
+/* test_mb_request.c - which requests get which exception. */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <string.h>
+
+#include "mb_request.h"
+
+static struct regmap map;
+static struct regmap_image img;
+
+static int setup(void **state)
+{
+    (void)state;
+    if (regmap_init(&map) || regmap_image_init(&img, &map, REGMAP_HIGH_WORD_FIRST))
+        return -1;
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    regmap_image_free(&img);
+    regmap_free(&map);
+    return 0;
+}
+
+#define CHECK(...)                                                             \
+    ({                                                                         \
+        const uint8_t pdu_[] = {__VA_ARGS__};                                  \
+        mb_request_check(&img, pdu_, sizeof(pdu_));                            \
+    })
+
+static void reads(void **state)
+{
+    (void)state;
+    unsigned ir = map.size[REGMAP_INPUT_REGISTER];
+    assert_int_equal(CHECK(0x04, 0, 0, 0, 20), 0);
+    assert_int_equal(CHECK(0x04, 0, 0, 0, 125), 0);
+    assert_int_equal(CHECK(0x04, 0, 0, 0, 126), 3);  /* quantity */
+    assert_int_equal(CHECK(0x04, 0, 0, 0, 0), 3);
+    assert_int_equal(CHECK(0x04, (ir - 1) >> 8, (ir - 1) & 0xFF, 0, 1), 0);
+    assert_int_equal(CHECK(0x04, (ir - 1) >> 8, (ir - 1) & 0xFF, 0, 2), 2);
+    assert_int_equal(CHECK(0x04, 0xFF, 0xFF, 0, 1), 2);
+    assert_int_equal(CHECK(0x04, 0, 0, 0), 3);        /* short PDU */
+    assert_int_equal(CHECK(0x04, 0, 0, 0, 1, 9), 3);  /* long PDU */
+    /* 2000 bits is a valid quantity, beyond this table: address error;
+     * 2001 is an invalid quantity, which is checked first. */
+    assert_true(map.size[REGMAP_DISCRETE_INPUT] < 2000);
+    assert_int_equal(CHECK(0x02, 0, 0, 0x07, 0xD0), 2);
+    assert_int_equal(CHECK(0x02, 0, 0, 0x07, 0xD1), 3);
+    assert_int_equal(CHECK(0x02, 0, 0, 0x04, 0x00), 0); /* 1024 bits */
+    assert_int_equal(CHECK(0x01, 0, 0, 0, 1), 0);
+    assert_int_equal(CHECK(0x01, 0, 1, 0, 1), 2);     /* one coil only */
+    assert_int_equal(CHECK(0x03, 0, 0, 0, 1), 0);
+    assert_int_equal(CHECK(0x03, 0, 0, 0, 2), 2);
+}
+
+static void writes(void **state)
+{
+    (void)state;
+    assert_int_equal(CHECK(0x06, 0, 0, 0x12, 0x34), 0);
+    assert_int_equal(CHECK(0x06, 0, 1, 0, 1), 2);
+    assert_int_equal(CHECK(0x05, 0, 0, 0xFF, 0x00), 0);
+    assert_int_equal(CHECK(0x05, 0, 0, 0x00, 0x00), 0);
+    assert_int_equal(CHECK(0x05, 0, 0, 0x12, 0x34), 3); /* not ON/OFF */
+    assert_int_equal(CHECK(0x05, 0, 5, 0xFF, 0x00), 2);
+    assert_int_equal(CHECK(0x0F, 0, 0, 0, 1, 1, 0x01), 0);
+    assert_int_equal(CHECK(0x0F, 0, 0, 0, 1, 2, 0x01, 0), 3); /* byte count */
+    assert_int_equal(CHECK(0x0F, 0, 0, 0, 2, 1, 0x03), 2);
+    assert_int_equal(CHECK(0x10, 0, 0, 0, 1, 2, 0xAB, 0xCD), 0);
+    assert_int_equal(CHECK(0x10, 0, 0, 0, 1, 4, 0xAB, 0xCD, 0, 0), 3);
+    assert_int_equal(CHECK(0x10, 0, 0, 0, 1, 2, 0xAB), 3); /* byte count lies */
+    assert_int_equal(CHECK(0x10, 0, 0, 0, 2, 4, 0, 1, 0, 2), 2);
+    assert_int_equal(CHECK(0x16, 0, 0, 0xFF, 0x00, 0x00, 0x12), 0);
+    assert_int_equal(CHECK(0x16, 0, 3, 0xFF, 0x00, 0x00, 0x12), 2);
+    assert_int_equal(CHECK(0x17, 0, 0, 0, 1, 0, 0, 0, 1, 2, 0, 9), 0);
+    assert_int_equal(CHECK(0x17, 0, 0, 0, 2, 0, 0, 0, 1, 2, 0, 9), 2);
+    assert_int_equal(CHECK(0x17, 0, 0, 0, 1, 0, 0, 0, 1, 3, 0, 9), 3);
+}
+
+static void other_functions(void **state)
+{
+    (void)state;
+    assert_int_equal(CHECK(0x11), 0);
+    assert_int_equal(CHECK(0x11, 0), 3);
+    assert_int_equal(CHECK(0x2B, 0x0E, 1, 0), 0);
+    assert_int_equal(CHECK(0x2B, 0x0E, 4, 0x80), 0);
+    assert_int_equal(CHECK(0x2B, 0x0E, 5, 0), 3);
+    assert_int_equal(CHECK(0x2B, 0x0D, 1, 0), 1); /* CANopen: not supported */
+    assert_int_equal(CHECK(0x07), 1);
+    assert_int_equal(CHECK(0x08, 0, 0, 0, 0), 1);
+    assert_int_equal(CHECK(0x80), 1);
+}
+
+static void write_ranges(void **state)
+{
+    (void)state;
+    enum regmap_table t;
+    unsigned a, n;
+    const uint8_t fc16[] = {0x10, 0, 5, 0, 3, 6, 0, 0, 0, 0, 0, 0};
+    assert_int_equal(mb_request_write_range(fc16, sizeof(fc16), &t, &a, &n), 0);
+    assert_int_equal(t, REGMAP_HOLDING_REGISTER);
+    assert_int_equal(a, 5);
+    assert_int_equal(n, 3);
+    const uint8_t fc23[] = {0x17, 0, 0, 0, 1, 0, 7, 0, 1, 2, 0, 9};
+    assert_int_equal(mb_request_write_range(fc23, sizeof(fc23), &t, &a, &n), 0);
+    assert_int_equal(a, 7);
+    const uint8_t fc4[] = {0x04, 0, 0, 0, 1};
+    assert_int_equal(mb_request_write_range(fc4, sizeof(fc4), &t, &a, &n), -1);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(reads),
+        cmocka_unit_test(writes),
+        cmocka_unit_test(other_functions),
+        cmocka_unit_test(write_ranges),
+    };
+    return cmocka_run_group_tests_name("mb_request", tests, setup, teardown);
+}
