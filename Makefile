@@ -78,7 +78,7 @@ docs: $(BUILD)/jakagw
 	$(BUILD)/jakagw --print-map csv > docs/register-map.csv
 
 valgrind: all unit-tests
-	@VALGRIND=1 tests/run.sh unit
+	@BUILDS=build VALGRIND=1 tests/run.sh unit
 
 install: all
 	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(SYSCONFDIR)/jakagw \

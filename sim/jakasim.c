@@ -47,6 +47,8 @@ struct peer {
     uv_tcp_t tcp;
     struct sim *sim;
     bool status; /* a status-port client, else a command-port client */
+    bool synced; /* has seen a document start: a client joining while a
+                    document is sent in pieces waits for the next one */
     struct framer framer;
     bool framer_ready;
     bool closing;
@@ -136,9 +138,16 @@ static void broadcast_status(struct sim *sim, const char *data, size_t size)
     struct peer *next;
     for (struct peer *p = sim->peers; p; p = next) {
         next = p->next;
-        if (p->status)
+        if (p->status && p->synced)
             send_to(p, data, size);
     }
+}
+
+/* A document starts: every status client may receive it from here on. */
+static void start_document(struct sim *sim)
+{
+    for (struct peer *p = sim->peers; p; p = p->next)
+        p->synced = true;
 }
 
 static void on_split_timer(uv_timer_t *t)
@@ -159,6 +168,14 @@ static void emit_document(struct sim *sim, const char *doc, size_t size)
     const struct sim_options *o = &sim->opt;
     uint64_t n = ++sim->documents;
 
+    /* Finish a document still being sent in pieces before the next. */
+    if (sim->piece_sent < sim->piece_size) {
+        broadcast_status(sim, sim->pieces + sim->piece_sent,
+                         sim->piece_size - sim->piece_sent);
+        sim->piece_sent = sim->piece_size;
+        uv_timer_stop(&sim->split_timer);
+    }
+    start_document(sim);
     if (o->garbage_every && n % o->garbage_every == 0) {
         static const char garbage[] = "\x01\x02GARBAGE\xff\xfe not json ]] 123 ";
         broadcast_status(sim, garbage, sizeof(garbage) - 1);

@@ -1,0 +1,41 @@
+#!/bin/sh
+# Runs jakasim (a simulated robot running a program, so values move) and
+# jakagw in front of it. Modbus TCP on 127.0.0.1:1502 unless MODBUS_BIND /
+# MODBUS_PORT say otherwise. Ctrl-C stops both. DEMO_SECONDS=N stops after N s.
+set -eu
+cd "$(dirname "$0")/.."
+MODBUS_BIND=${MODBUS_BIND:-127.0.0.1}
+MODBUS_PORT=${MODBUS_PORT:-1502}
+STATUS_PORT=${STATUS_PORT:-10000}
+COMMAND_PORT=${COMMAND_PORT:-10001}
+
+build/jakasim --status-port "$STATUS_PORT" --command-port "$COMMAND_PORT" --auto-run &
+SIM=$!
+GW=
+cleanup() {
+    [ -n "$GW" ] && kill "$GW" 2>/dev/null
+    kill "$SIM" 2>/dev/null
+    wait 2>/dev/null
+}
+trap cleanup EXIT INT TERM
+
+cat <<MSG
+
+jakagw demo: the simulated robot runs a program; its status is served over
+Modbus TCP on $MODBUS_BIND:$MODBUS_PORT. In another terminal, try:
+
+  mbpoll -m tcp -p $MODBUS_PORT -t 3 -r 1 -c 20 $MODBUS_BIND            # self-description, diagnostics
+  mbpoll -m tcp -p $MODBUS_PORT -t 3:float -B -r 201 -c 6 $MODBUS_BIND  # joint positions (deg), moving
+  mbpoll -m tcp -p $MODBUS_PORT -t 1 -r 17 -c 8 $MODBUS_BIND            # robot flags
+
+Register map: docs/register-map.md. Press Ctrl-C to stop.
+
+MSG
+build/jakagw -c /dev/null --robot-host 127.0.0.1 --status-port "$STATUS_PORT" \
+    --command-port "$COMMAND_PORT" --modbus-bind "$MODBUS_BIND" --modbus-port "$MODBUS_PORT" &
+GW=$!
+if [ -n "${DEMO_SECONDS:-}" ]; then
+    sleep "$DEMO_SECONDS"
+    exit 0
+fi
+wait "$GW"

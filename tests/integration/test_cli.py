@@ -1,0 +1,103 @@
+#!/usr/bin/env python3
+"""jakagw's command line: the generated docs are current, a bad flag or
+configuration gets one line naming the key and exit code 2."""
+import os
+import subprocess
+
+from harness import JAKAGW, JAKASIM, check, print_map, run
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+
+
+def jakagw(*args, config=None):
+    return subprocess.run([JAKAGW] + list(args), capture_output=True, text=True, timeout=10)
+
+
+def test_committed_register_map_is_current():
+    for fmt, name in (("md", "register-map.md"), ("csv", "register-map.csv")):
+        with open(os.path.join(ROOT, "docs", name), "rb") as f:
+            committed = f.read()
+        check(committed == print_map(fmt),
+              "docs/%s is out of date: run 'make docs' and commit it" % name)
+
+
+def test_bad_flags_and_config_exit_2():
+    cases = [
+        (["--modbus-port", "99999"], "--modbus-port: 99999 is out of range 1..65535"),
+        (["--status-port", "x"], "--status-port: 'x' is not a whole number"),
+        (["--print-map", "xml"], "--print-map: 'xml' must be csv or md"),
+        (["--bogus"], "see jakagw --help"),
+        (["-c", "/nonexistent.conf"], "/nonexistent.conf: cannot open"),
+        (["extra"], "unexpected argument 'extra'"),
+    ]
+    for args, message in cases:
+        r = jakagw(*args)
+        check(r.returncode == 2, "%s: exit %d, expected 2" % (args, r.returncode))
+        lines = [l for l in r.stderr.splitlines() if l.startswith("jakagw:")]
+        check(lines and message in lines[-1], "%s: stderr %r lacks %r" % (args, r.stderr, message))
+    conf = "/tmp/jakagw-cli-%d.conf" % os.getpid()
+    with open(conf, "w") as f:
+        f.write("[modbus]\nmax_clients = 0\n")
+    r = jakagw("-c", conf, "--check-config")
+    os.unlink(conf)
+    check(r.returncode == 2 and ":2: [modbus] max_clients: 0 is out of range 1..1024" in r.stderr,
+          "bad config file: %r" % r.stderr)
+
+
+def test_check_config_prints_the_effective_settings():
+    r = jakagw("-c", os.path.join(ROOT, "config", "jakagw.conf"), "--modbus-port", "1502",
+               "--check-config")
+    check(r.returncode == 0, "exit %d: %s" % (r.returncode, r.stderr))
+    check("[modbus]" in r.stdout and "port = 1502" in r.stdout, r.stdout)
+    check("word_order = high_first" in r.stdout, r.stdout)
+
+
+def test_version_and_help():
+    r = jakagw("--version")
+    check(r.returncode == 0 and r.stdout.startswith("jakagw 0.1.0"), r.stdout)
+    r = jakagw("--help")
+    check(r.returncode == 0 and "--print-map" in r.stdout, r.stdout)
+    r = subprocess.run([JAKASIM, "--profile", "nope"], capture_output=True, text=True)
+    check(r.returncode == 2 and "must be manual, zu5s or full" in r.stderr, r.stderr)
+
+
+def test_port_in_use_is_a_clear_runtime_failure():
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        r = subprocess.run([JAKAGW, "-c", "/dev/null", "--modbus-bind", "127.0.0.1",
+                            "--modbus-port", str(port), "--robot-host", "127.0.0.1",
+                            "--status-port", "1", "--command-port", "1"],
+                           capture_output=True, text=True, timeout=10)
+    check(r.returncode == 1, "exit %d" % r.returncode)
+    check("cannot listen on 127.0.0.1 port %d: address already in use" % port in r.stderr,
+          r.stderr)
+
+
+def test_systemd_unit_exposure_below_2():
+    import re
+    import shutil
+    import tempfile
+    if not shutil.which("systemd-analyze"):
+        print("  systemd-analyze not installed: unit not rated")
+        return
+    with open(os.path.join(ROOT, "systemd", "jakagw.service.in")) as f:
+        unit = f.read().replace("@BINDIR@", "/usr/local/bin").replace("@SYSCONFDIR@", "/etc")
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "jakagw.service")
+        with open(path, "w") as f:
+            f.write(unit)
+        r = subprocess.run(["systemd-analyze", "security", "--offline=true", path],
+                           capture_output=True, text=True, timeout=60)
+    m = re.search(r"Overall exposure level for jakagw.service: ([0-9.]+)", r.stdout)
+    check(m, "no rating: %s %s" % (r.stdout[-500:], r.stderr))
+    print("  systemd-analyze security: %s" % m.group(1))
+    check(float(m.group(1)) < 2.0, "exposure %s is not below 2" % m.group(1))
+
+
+if __name__ == "__main__":
+    run([test_committed_register_map_is_current, test_bad_flags_and_config_exit_2,
+         test_check_config_prints_the_effective_settings, test_version_and_help,
+         test_port_in_use_is_a_clear_runtime_failure, test_systemd_unit_exposure_below_2])

@@ -1,0 +1,278 @@
+#!/usr/bin/env python3
+"""The Modbus TCP slave as a PLC sees it: framing, pipelining, exceptions,
+writes, identification, client limits. Byte-exact requests go over raw
+sockets; mbpoll and pymodbus check that independent masters agree."""
+import socket
+import struct
+import subprocess
+import time
+
+from pymodbus.client import ModbusTcpClient
+
+from harness import (Gateway, Sim, TestFailure, check, mbap, raw_client, read_bits,
+                     read_input_registers, recv_adu, run, wait_until)
+
+
+def start(config=""):
+    sim = Sim("--test-pattern")
+    try:
+        gw = Gateway(sim, config)
+    except Exception:
+        sim.stop()
+        raise
+    return sim, gw
+
+
+def stop(sim, gw):
+    try:
+        gw.stop()
+    finally:
+        sim.stop()
+
+
+def expect_exception(sock, tid, pdu, function, code):
+    sock.sendall(mbap(tid, pdu))
+    rtid, _, reply = recv_adu(sock)
+    check(rtid == tid, "tid %d, expected %d" % (rtid, tid))
+    check(reply == bytes([function | 0x80, code]),
+          "request %s: reply %s, expected exception %02x" % (pdu.hex(), reply.hex(), code))
+
+
+def closed_by_server(sock, timeout):
+    sock.settimeout(timeout)
+    try:
+        while True:
+            data = sock.recv(4096)
+            if not data:
+                return True
+    except ConnectionResetError:
+        return True
+    except socket.timeout:
+        return False
+
+
+def test_stalled_half_request_delays_nobody():
+    sim, gw = start("[modbus]\nframe_timeout_ms = 3000\n")
+    try:
+        stalled = raw_client(gw.modbus_port)
+        stalled.sendall(mbap(1, struct.pack(">BHH", 4, 0, 10))[:6])  # half a request
+        other = raw_client(gw.modbus_port)
+        t0 = time.monotonic()
+        worst = 0.0
+        for i in range(200):
+            t = time.monotonic()
+            regs = read_input_registers(other, 0, 20, tid=i + 1)
+            worst = max(worst, time.monotonic() - t)
+            check(regs[0] == 0x4A4B, "magic register %04x" % regs[0])
+        elapsed = time.monotonic() - t0
+        print("  200 reads beside a stalled client: %.3f s in all, slowest %.1f ms"
+              % (elapsed, worst * 1000))
+        # All of them finished while the stalled request was still pending.
+        check(elapsed < 3.0, "reads took %.2f s: they waited for the stalled client" % elapsed)
+        check(not closed_by_server(stalled, 0.05), "stalled client closed too early")
+        check(closed_by_server(stalled, 5), "the stalled half request was never timed out")
+        check("request incomplete after" in gw.output(), "no log line for the stalled request")
+        # The other client is unaffected and still served.
+        check(read_input_registers(other, 0, 1, tid=999)[0] == 0x4A4B, "other client broken")
+        other.close()
+        stalled.close()
+    finally:
+        stop(sim, gw)
+
+
+def test_pipelined_requests_answered_in_order():
+    sim, gw = start()
+    try:
+        s = raw_client(gw.modbus_port)
+        burst = (mbap(10, struct.pack(">BHH", 4, 0, 2))            # valid
+                 + mbap(11, bytes([0x07]))                          # unsupported function
+                 + mbap(12, struct.pack(">BHH", 4, 0, 126))         # bad quantity
+                 + mbap(13, struct.pack(">BHH", 4, 0xFFF0, 2))      # bad address
+                 + mbap(14, struct.pack(">BHH", 2, 17, 1))          # valid: enabled bit
+                 + mbap(15, struct.pack(">BHH", 6, 0, 0x1234)[:4]))  # short PDU
+        s.sendall(burst)
+        replies = [recv_adu(s) for _ in range(6)]
+        check([r[0] for r in replies] == [10, 11, 12, 13, 14, 15],
+              "order %s" % [r[0] for r in replies])
+        check(replies[0][2][:2] == b"\x04\x04" and replies[0][2][2:4] == b"\x4a\x4b",
+              "first reply %s" % replies[0][2].hex())
+        check(replies[1][2] == b"\x87\x01", "unsupported function: %s" % replies[1][2].hex())
+        check(replies[2][2] == b"\x84\x03", "bad quantity: %s" % replies[2][2].hex())
+        check(replies[3][2] == b"\x84\x02", "bad address: %s" % replies[3][2].hex())
+        check(replies[4][2][:2] == b"\x02\x01", "discrete input reply %s" % replies[4][2].hex())
+        check(replies[5][2] == b"\x86\x03", "short PDU: %s" % replies[5][2].hex())
+        # The connection stays usable after exceptions.
+        check(read_input_registers(s, 1, 1, tid=16)[0] == 1, "map version")
+        s.close()
+    finally:
+        stop(sim, gw)
+
+
+def test_exceptions_for_bad_requests():
+    sim, gw = start()
+    try:
+        s = raw_client(gw.modbus_port)
+        expect_exception(s, 1, struct.pack(">BHH", 3, 1, 1), 3, 2)         # past HR table
+        expect_exception(s, 2, struct.pack(">BHH", 6, 5, 1), 6, 2)         # not writable
+        expect_exception(s, 3, struct.pack(">BHH", 5, 0, 0x1234), 5, 3)    # coil value
+        expect_exception(s, 4, struct.pack(">BHHB", 16, 0, 1, 4) + b"\0\0\0\0", 16, 3)
+        expect_exception(s, 5, struct.pack(">BHHB", 15, 0, 1, 1) + b"\x01\x00", 15, 3)
+        expect_exception(s, 6, bytes([0x2B, 0x0E, 0x07, 0x00]), 0x2B, 3)   # bad read code
+        expect_exception(s, 7, bytes([0x2B, 0x0E, 0x04, 0x33]), 0x2B, 2)   # no such object
+        expect_exception(s, 8, bytes([0x08, 0, 0, 0x12, 0x34]), 0x08, 1)   # diagnostics
+        s.close()
+    finally:
+        stop(sim, gw)
+
+
+def test_writes_heartbeat_and_clear_counters():
+    sim, gw = start()
+    try:
+        c = ModbusTcpClient("127.0.0.1", port=gw.modbus_port, timeout=5)
+        check(c.connect(), "connect")
+        age = lambda: (lambda r: r[0] << 16 | r[1])(c.read_input_registers(48, 2, slave=1).registers)
+        check(age() == 0xFFFFFFFF, "heartbeat age before any write")
+        check(not c.write_register(0, 7, slave=1).isError(), "FC6")
+        check(c.read_holding_registers(0, 1, slave=1).registers == [7], "FC3 after FC6")
+        check(age() < 1000, "heartbeat age after a write: %d" % age())
+        check(not c.write_registers(0, [8], slave=1).isError(), "FC16")
+        rr = c.readwrite_registers(read_address=0, read_count=1, write_address=0,
+                                   write_registers=[9], slave=1)
+        check(not rr.isError() and rr.registers == [9], "FC23: %s" % rr)
+        check(not c.mask_write_register(0, 0x00F0, 0x0003, slave=1).isError(), "FC22")
+        check(c.read_holding_registers(0, 1, slave=1).registers == [(9 & 0xF0) | (3 & ~0xF0)],
+              "FC22 result")
+        requests = lambda: (lambda r: r[0] << 16 | r[1])(c.read_input_registers(36, 2, slave=1).registers)
+        check(requests() > 5, "request counter")
+        check(not c.write_coil(0, True, slave=1).isError(), "FC5")
+        check(requests() <= 2, "counters not cleared: %d" % requests())
+        check(c.read_coils(0, 1, slave=1).bits[0] is False, "command coil reads 0 afterwards")
+        check(not c.write_coils(0, [True], slave=1).isError(), "FC15")
+        check("counters cleared" in gw.output(), "no log line for clearing counters")
+        c.close()
+    finally:
+        stop(sim, gw)
+
+
+def test_identification_17_and_43():
+    sim, gw = start()
+    try:
+        s = raw_client(gw.modbus_port)
+        wait_until(lambda: read_bits(s, 2, 2, 1)[0] == 1, 10, "fresh status")
+        s.sendall(mbap(1, bytes([0x11]), unit=9))
+        tid, unit, pdu = recv_adu(s)
+        check(unit == 9 and pdu[0] == 0x11, "FC17 reply %s" % pdu.hex())
+        check(pdu[3] == 0xFF, "run indicator should be ON with live data")
+        check(b"jakagw" in pdu[4:], "FC17 text %r" % pdu[4:])
+        s.sendall(mbap(2, bytes([0x2B, 0x0E, 0x03, 0x00])))
+        _, _, pdu = recv_adu(s)
+        objects, p = {}, 7
+        for _ in range(pdu[6]):
+            objects[pdu[p]] = pdu[p + 2:p + 2 + pdu[p + 1]].decode()
+            p += 2 + pdu[p + 1]
+        check(objects.get(0) == "jakagw", "vendor %r" % objects)
+        check(objects.get(2) == "0.1.0", "revision %r" % objects)
+        check(objects.get(0x80, "").startswith("map 1 crc "), "map version object %r" % objects)
+        s.sendall(mbap(3, bytes([0x2B, 0x0E, 0x04, 0x80])))
+        _, _, pdu = recv_adu(s)
+        check(pdu[6] == 1 and pdu[7] == 0x80, "individual access %s" % pdu.hex())
+        s.close()
+    finally:
+        stop(sim, gw)
+
+
+def test_full_server_evicts_the_longest_idle():
+    sim, gw = start("[modbus]\nmax_clients = 32\n")
+    try:
+        clients = []
+        for i in range(32):
+            c = raw_client(gw.modbus_port)
+            read_input_registers(c, 0, 1, tid=i)
+            clients.append(c)
+            time.sleep(0.005)
+        # Client 0 is now the longest idle; 1..31 read again, 2 ms apart so
+        # that their idle times are distinct.
+        for i, c in enumerate(clients[1:], 1):
+            read_input_registers(c, 0, 1, tid=100 + i)
+            time.sleep(0.002)
+        newcomer = raw_client(gw.modbus_port)
+        check(read_input_registers(newcomer, 0, 1, tid=7)[0] == 0x4A4B, "newcomer not served")
+        check(closed_by_server(clients[0], 3), "the longest idle client was not evicted")
+        # Eight more newcomers: each evicts the longest idle (clients 1..8),
+        # nobody is refused.
+        later = []
+        for i in range(8):
+            time.sleep(0.002)
+            n = raw_client(gw.modbus_port)
+            check(read_input_registers(n, 0, 1, tid=300 + i)[0] == 0x4A4B, "newcomer %d" % i)
+            later.append(n)
+        for i in range(1, 9):
+            check(closed_by_server(clients[i], 3), "client %d was not evicted" % i)
+        for i in range(9, 32):
+            read_input_registers(clients[i], 0, 1, tid=400 + i)  # still served
+        read_input_registers(newcomer, 0, 1, tid=8)
+        count = read_input_registers(newcomer, 40, 1, tid=9)[0]
+        check(count == 32, "clients register %d, expected 32" % count)
+        evictions = read_input_registers(newcomer, 42, 2, tid=10)
+        check(evictions[1] == 9, "evictions %s" % evictions)
+        check("evicted after" in gw.output(), "no log line for eviction")
+        for c in clients + later + [newcomer]:
+            c.close()
+    finally:
+        stop(sim, gw)
+
+
+def test_bad_header_closes_only_that_connection():
+    sim, gw = start()
+    try:
+        good = raw_client(gw.modbus_port)
+        bad = raw_client(gw.modbus_port)
+        bad.sendall(struct.pack(">HHHB", 1, 7, 6, 1) + b"\x04\x00\x00\x00\x01")
+        check(closed_by_server(bad, 3), "bad protocol id not closed")
+        bad = raw_client(gw.modbus_port)
+        bad.sendall(struct.pack(">HHHB", 1, 0, 1000, 1))
+        check(closed_by_server(bad, 3), "bad length not closed")
+        check(read_input_registers(good, 0, 1)[0] == 0x4A4B, "good client broken")
+        good.close()
+    finally:
+        stop(sim, gw)
+
+
+def test_unit_id_filter_and_idle_timeout():
+    sim, gw = start("[modbus]\nunit_id = 5\nidle_timeout_ms = 400\n")
+    try:
+        s = raw_client(gw.modbus_port)
+        s.sendall(mbap(1, struct.pack(">BHH", 4, 0, 1), unit=1))
+        _, _, pdu = recv_adu(s)
+        check(pdu == b"\x84\x0a", "other unit: %s" % pdu.hex())
+        s.sendall(mbap(2, struct.pack(">BHH", 4, 0, 1), unit=5))
+        _, unit, pdu = recv_adu(s)
+        check(unit == 5 and pdu[:2] == b"\x04\x02", "own unit: %s" % pdu.hex())
+        check(closed_by_server(s, 3), "idle client not closed")
+        check("idle for" in gw.output(), "no log line for the idle close")
+    finally:
+        stop(sim, gw)
+
+
+def test_mbpoll_reads_live_status():
+    sim, gw = start()
+    try:
+        out = subprocess.run(["mbpoll", "-m", "tcp", "-p", str(gw.modbus_port), "-t", "3",
+                              "-r", "1", "-c", "20", "-1", "127.0.0.1"],
+                             capture_output=True, text=True, timeout=20)
+        check(out.returncode == 0, "mbpoll failed: %s %s" % (out.stdout, out.stderr))
+        check("[1]: \t19019" in out.stdout, "mbpoll did not read the magic 0x4A4B:\n" + out.stdout)
+        out = subprocess.run(["mbpoll", "-m", "tcp", "-p", str(gw.modbus_port), "-t", "3:float",
+                              "-B", "-r", "7", "-c", "1", "-1", "127.0.0.1"],
+                             capture_output=True, text=True, timeout=20)
+        check("[7]: \t-1234.5" in out.stdout, "mbpoll float probe:\n" + out.stdout)
+    finally:
+        stop(sim, gw)
+
+
+if __name__ == "__main__":
+    run([test_stalled_half_request_delays_nobody, test_pipelined_requests_answered_in_order,
+         test_exceptions_for_bad_requests, test_writes_heartbeat_and_clear_counters,
+         test_identification_17_and_43, test_full_server_evicts_the_longest_idle,
+         test_bad_header_closes_only_that_connection, test_unit_id_filter_and_idle_timeout,
+         test_mbpoll_reads_live_status])

@@ -1,0 +1,143 @@
+#!/usr/bin/env python3
+"""The robot side under faults: documents split, merged, garbled, cut short
+or oversize; connections dropped; a robot that falls silent; a robot that
+starts after the gateway. Each time the gateway keeps serving, counts the
+trouble in its diagnostic registers, and its data is live again after."""
+import time
+
+from harness import (Gateway, Sim, check, raw_client, read_bits, read_input_registers,
+                     run, wait_until)
+
+DOCS, PARSE_ERR, FRAMING, OVERSIZE, GARBAGE, LEN_MISMATCH, STATUS_RECONNECTS = \
+    20, 22, 24, 26, 28, 30, 32
+
+
+def u32(sock, address):
+    hi, lo = read_input_registers(sock, address, 2)
+    return hi << 16 | lo
+
+
+def fresh(sock):
+    return read_bits(sock, 2, 2, 1)[0] == 1
+
+
+def with_fault(sim_args, config="", check_fn=None, settle=1.5):
+    sim = Sim("--period-ms", "20", *sim_args)
+    gw = None
+    try:
+        gw = Gateway(sim, config)
+        s = raw_client(gw.modbus_port)
+        wait_until(lambda: u32(s, DOCS) > 0, 10, "a first document")
+        time.sleep(settle)
+        check_fn(s, gw)
+        check(read_input_registers(s, 0, 1)[0] == 0x4A4B, "gateway no longer serving")
+        s.close()
+    finally:
+        if gw:
+            gw.stop()
+        sim.stop()
+
+
+def test_split_documents():
+    def verify(s, gw):
+        docs = u32(s, DOCS)
+        check(docs >= 40, "only %d documents in 1.5 s at 20 ms" % docs)
+        check(u32(s, PARSE_ERR) == 0 and u32(s, FRAMING) == 0, "errors on split documents")
+        check(fresh(s), "not fresh")
+    with_fault(["--split"], check_fn=verify)
+
+
+def test_merged_documents():
+    def verify(s, gw):
+        check(u32(s, DOCS) >= 40, "merged documents lost: %d" % u32(s, DOCS))
+        check(u32(s, PARSE_ERR) == 0 and u32(s, FRAMING) == 0, "errors on merged documents")
+        check(fresh(s), "not fresh")
+    with_fault(["--merge", "4"], check_fn=verify)
+
+
+def test_garbage_between_documents():
+    def verify(s, gw):
+        docs, garbage = u32(s, DOCS), u32(s, GARBAGE)
+        check(garbage > 0 and u32(s, FRAMING) > 0, "garbage not counted")
+        check(u32(s, PARSE_ERR) == 0, "garbage reached the parser")
+        # One document in five is preceded by garbage; none is lost.
+        check(docs >= 40, "documents lost around garbage: %d" % docs)
+        check(fresh(s), "not fresh")
+        check("skipped bytes that belong to no document" in gw.output(), "no log line")
+    with_fault(["--garbage-every", "5"], check_fn=verify)
+
+
+def test_documents_cut_short():
+    def verify(s, gw):
+        check(u32(s, FRAMING) > 0, "cut-short documents not counted")
+        check(u32(s, PARSE_ERR) == 0, "a cut-short document reached the parser")
+        check(u32(s, DOCS) >= 40, "whole documents lost: %d" % u32(s, DOCS))
+        check(fresh(s), "not fresh")
+    with_fault(["--truncate-every", "3"], check_fn=verify)
+
+
+def test_oversize_documents():
+    def verify(s, gw):
+        check(u32(s, OVERSIZE) > 0, "oversize documents not counted")
+        check(u32(s, DOCS) >= 30, "the stream did not recover: %d" % u32(s, DOCS))
+        check(fresh(s), "not fresh")
+        check("larger than max_document_bytes" in gw.output(), "no log line")
+    with_fault(["--oversize-every", "4"], check_fn=verify)
+
+
+def test_dropped_connections_reconnect():
+    def verify(s, gw):
+        wait_until(lambda: u32(s, STATUS_RECONNECTS) >= 2, 10, "two reconnects")
+        wait_until(lambda: fresh(s), 5, "live data after reconnecting")
+        out = gw.output()
+        check(out.count("status link: connection to") >= 2, "no log line per loss")
+    with_fault(["--drop-every-ms", "600"], "[robot]\nreconnect_min_ms = 50\n",
+               check_fn=verify, settle=0.5)
+
+
+def test_silent_robot_goes_stale():
+    def verify(s, gw):
+        wait_until(lambda: not fresh(s), 3, "status_fresh to drop")
+        age = u32(s, 18)
+        check(300 <= age < 5000, "status age %d ms" % age)
+        state = read_input_registers(s, 16, 1)[0]
+        check(state in (0, 1, 3), "link state %d, expected anything but live (2)" % state)
+        check(u32(s, DOCS) > 0, "documents")
+        wait_until(lambda: "no complete document for" in gw.output(), 3, "a log line")
+        time.sleep(0.5)
+        check(u32(s, 18) > age, "status age does not grow while the robot is silent")
+    with_fault(["--silent-after-ms", "800"], "[robot]\nstatus_timeout_ms = 300\n",
+               check_fn=verify, settle=0)
+
+
+def test_robot_starting_after_the_gateway():
+    gw = Gateway(None, "[robot]\nreconnect_min_ms = 50\nreconnect_max_ms = 400\n")
+    sim = None
+    try:
+        s = raw_client(gw.modbus_port)
+        check(read_input_registers(s, 16, 1)[0] in (0, 1), "link up without a robot")
+        check(u32(s, 18) == 0xFFFFFFFF, "status age before any document")
+        check(read_bits(s, 2, 2, 1)[0] == 0, "fresh without a robot")
+        time.sleep(1.0)
+        # Repeated refusals are logged once, not once per attempt.
+        check(gw.output().count("cannot connect to") <= 2,
+              "connection failures flood the log:\n" + gw.output())
+        port = int(gw.proc.args[gw.proc.args.index("--status-port") + 1])
+        cport = int(gw.proc.args[gw.proc.args.index("--command-port") + 1])
+        from harness import JAKASIM, Process
+        sim = Process("jakasim", [JAKASIM, "--status-port", str(port),
+                                  "--command-port", str(cport)])
+        wait_until(lambda: fresh(s), 5, "live data once the robot is up")
+        check(read_input_registers(s, 17, 1)[0] == 2, "command link not connected")
+        s.close()
+    finally:
+        gw.stop()
+        if sim:
+            sim.stop()
+
+
+if __name__ == "__main__":
+    run([test_split_documents, test_merged_documents, test_garbage_between_documents,
+         test_documents_cut_short, test_oversize_documents,
+         test_dropped_connections_reconnect, test_silent_robot_goes_stale,
+         test_robot_starting_after_the_gateway])
