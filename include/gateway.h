@@ -54,6 +54,7 @@ struct gateway {
     uint64_t heartbeat_changed_ms; /* 0: never */
     double heartbeat_value;
     struct log_ratelimit parse_log_limit;
+    struct log_ratelimit command_log_limit;
 
     /* Called when a link or the freshness changes (for sd_notify STATUS=). */
     void (*on_change)(struct gateway *gw);

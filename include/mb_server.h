@@ -32,6 +32,7 @@
 
 #include <modbus.h>
 
+#include "log.h"
 #include "regmap.h"
 
 struct mb_server_config {
@@ -77,6 +78,9 @@ struct mb_server {
     struct mb_client *clients; /* doubly linked, newest first */
     struct mb_server_stats stats;
     char device_info[64];
+    /* Lines a client can trigger, at most one per second per kind. */
+    struct log_ratelimit close_log_limit;
+    struct log_ratelimit refuse_log_limit;
     bool closing;
     int open_handles;
     void (*close_cb)(struct mb_server *srv);

@@ -96,10 +96,15 @@ static void on_link_state(struct robot_link *link, enum robot_link_state state)
 
 static void on_command_reply(struct robot_link *link, const char *json, size_t size)
 {
+    struct gateway *gw = gateway_of_link(link);
+    uint64_t suppressed;
+
     /* No command is sent yet: anything arriving is unsolicited. */
-    (void)link;
-    log_info("command link: unsolicited %zu-byte message from the robot: %.*s",
-             size, (int)(size > 200 ? 200 : size), json);
+    if (log_ratelimit_pass(&gw->command_log_limit, uv_now(gw->loop), &suppressed))
+        log_warn("command link: unsolicited %zu-byte message from the robot "
+                 "(%llu more since the last line): %.*s",
+                 size, (unsigned long long)suppressed, (int)(size > 200 ? 200 : size),
+                 json);
 }
 
 bool gateway_status_fresh(const struct gateway *gw)
@@ -264,6 +269,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     gw->cfg = *cfg;
     gw->started_ms = uv_now(loop);
     gw->parse_log_limit.interval_ms = 5000;
+    gw->command_log_limit.interval_ms = 5000;
     rc = regmap_init(&gw->map);
     if (rc)
         return rc;

@@ -33,13 +33,12 @@ struct reply {
     uint8_t data[];
 };
 
-static struct log_ratelimit client_log_limit = {.interval_ms = 1000};
-
-static void client_log(struct mb_server *srv, const char *peer, const char *fmt,
-                       const char *why)
+/* Logs a client event, rate-limited per kind of event ('limit'). */
+static void client_log(struct mb_server *srv, struct log_ratelimit *limit,
+                       const char *peer, const char *fmt, const char *why)
 {
     uint64_t suppressed;
-    if (!log_ratelimit_pass(&client_log_limit, uv_now(srv->loop), &suppressed))
+    if (!log_ratelimit_pass(limit, uv_now(srv->loop), &suppressed))
         return;
     if (suppressed)
         log_warn("modbus: client %s: %s: %s (%llu similar lines suppressed)", peer,
@@ -72,7 +71,7 @@ static void close_client(struct mb_client *c, const char *why)
         return;
     c->closing = true;
     if (why)
-        client_log(srv, c->peer, "closing connection", why);
+        client_log(srv, &srv->close_log_limit, c->peer, "closing connection", why);
     if (c->prev)
         c->prev->next = c->next;
     else
@@ -143,6 +142,37 @@ static void send_pdu(struct mb_client *c, const uint8_t *req, const uint8_t *pdu
     adu[6] = req[6];
     memcpy(adu + MBAP_SIZE, pdu, pdu_size);
     send_bytes(c, adu, MBAP_SIZE + pdu_size);
+}
+
+static const char *exception_name(int code)
+{
+    switch (code) {
+    case MODBUS_EXCEPTION_ILLEGAL_FUNCTION: return "illegal function";
+    case MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS: return "illegal data address";
+    case MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE: return "illegal data value";
+    case MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE: return "server failure";
+    case MB_EXCEPTION_GATEWAY_PATH: return "no such unit id";
+    default: return "exception";
+    }
+}
+
+/* Says what a refused request asked for, and why it was refused. */
+static void log_refused(struct mb_client *c, const uint8_t *req, size_t size, int code)
+{
+    char what[160];
+    const uint8_t *pdu = req + MBAP_SIZE;
+    size_t pdu_size = size - MBAP_SIZE;
+
+    if (pdu_size >= 5)
+        snprintf(what, sizeof(what),
+                 "unit %u function %u address %u quantity/value %u: exception %02X (%s)",
+                 req[6], pdu[0], (unsigned)pdu[1] << 8 | pdu[2],
+                 (unsigned)pdu[3] << 8 | pdu[4], (unsigned)code, exception_name(code));
+    else
+        snprintf(what, sizeof(what), "unit %u function %u, %zu-byte PDU: exception %02X (%s)",
+                 req[6], pdu_size ? pdu[0] : 0, pdu_size, (unsigned)code,
+                 exception_name(code));
+    client_log(c->srv, &c->srv->refuse_log_limit, c->peer, "request refused", what);
 }
 
 static void reply_exception(struct mb_client *c, const uint8_t *req, int code)
@@ -247,6 +277,7 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
     srv->stats.requests++;
     if (srv->cfg.unit_id >= 0 && req[6] != srv->cfg.unit_id) {
         /* Nothing stands behind this gateway at that unit id. */
+        log_refused(c, req, size, MB_EXCEPTION_GATEWAY_PATH);
         reply_exception(c, req, MB_EXCEPTION_GATEWAY_PATH);
         return;
     }
@@ -254,6 +285,7 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         srv->hooks.before_request(srv->hooks.user);
     ex = mb_request_check(srv->img, pdu, pdu_size);
     if (ex) {
+        log_refused(c, req, size, ex);
         reply_exception(c, req, ex);
         return;
     }
@@ -482,6 +514,8 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
     srv->cfg.bind = srv->bind;
     srv->hooks = *hooks;
     srv->img = img;
+    srv->close_log_limit.interval_ms = 1000;
+    srv->refuse_log_limit.interval_ms = 1000;
     snprintf(srv->device_info, sizeof(srv->device_info), "jakagw %s map %d",
              JAKAGW_VERSION, REGMAP_VERSION);
 

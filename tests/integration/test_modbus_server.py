@@ -121,6 +121,12 @@ def test_exceptions_for_bad_requests():
         expect_exception(s, 7, bytes([0x2B, 0x0E, 0x04, 0x33]), 0x2B, 2)   # no such object
         expect_exception(s, 8, bytes([0x08, 0, 0, 0x12, 0x34]), 0x08, 1)   # diagnostics
         s.close()
+        # The first refusal is logged with what was asked and why; a burst
+        # of them is rate-limited, not one line each.
+        out = gw.output()
+        check("request refused: unit 1 function 3 address 1 quantity/value 1: exception 02 "
+              "(illegal data address)" in out, "no log line for the refusal:\n" + out)
+        check(out.count("request refused") < 4, "refusals are not rate-limited:\n" + out)
     finally:
         stop(sim, gw)
 
