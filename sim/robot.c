@@ -261,6 +261,16 @@ static bool reply_ok(struct command_ctx *c)
     return true;
 }
 
+/* An OK reply with one more text member. */
+static bool reply_ok_text(struct command_ctx *c, const char *key, const char *value)
+{
+    reply_head(c, "0", "", c->name);
+    pyjson_key(c->w, key);
+    pyjson_string(c->w, value);
+    pyjson_end_object(c->w);
+    return true;
+}
+
 static bool reply_refused(struct command_ctx *c, const char *why)
 {
     char msg[160];
@@ -530,11 +540,7 @@ static bool cmd_load_program(struct command_ctx *c)
 
 static bool cmd_get_loaded_program(struct command_ctx *c)
 {
-    reply_head(c, "0", "", c->name);
-    pyjson_key(c->w, "programName");
-    pyjson_string(c->w, c->r->program);
-    pyjson_end_object(c->w);
-    return true;
+    return reply_ok_text(c, "programName", c->r->program);
 }
 
 static bool cmd_play_program(struct command_ctx *c)
@@ -578,11 +584,7 @@ static bool cmd_stop_program(struct command_ctx *c)
 static bool cmd_get_program_state(struct command_ctx *c)
 {
     static const char *const names[] = {"idle", "idle", "paused", "running"};
-    reply_head(c, "0", "", c->name);
-    pyjson_key(c->w, "programState");
-    pyjson_string(c->w, names[c->r->interp_state & 3]);
-    pyjson_end_object(c->w);
-    return true;
+    return reply_ok_text(c, "programState", names[c->r->interp_state & 3]);
 }
 
 static bool cmd_set_digital_output(struct command_ctx *c)
@@ -715,11 +717,7 @@ static bool cmd_drag_status(struct command_ctx *c)
 
 static bool cmd_protective_stop_status(struct command_ctx *c)
 {
-    reply_head(c, "0", "", c->name);
-    pyjson_key(c->w, "protective_stop");
-    pyjson_string(c->w, c->r->protective_stop ? "1" : "0");
-    pyjson_end_object(c->w);
-    return true;
+    return reply_ok_text(c, "protective_stop", c->r->protective_stop ? "1" : "0");
 }
 
 static bool cmd_emergency_stop_status(struct command_ctx *c)
@@ -844,11 +842,7 @@ static bool cmd_get_tcp_pos(struct command_ctx *c)
 
 static bool cmd_get_version(struct command_ctx *c)
 {
-    reply_head(c, "0", "", c->name);
-    pyjson_key(c->w, "version");
-    pyjson_string(c->w, "1.5.14_13_X64 (jakasim)");
-    pyjson_end_object(c->w);
-    return true;
+    return reply_ok_text(c, "version", "1.5.14_13_X64 (jakasim)");
 }
 
 static bool cmd_set_network_exception_handle(struct command_ctx *c)

@@ -168,6 +168,18 @@ static bool seek_object(struct framer *f)
     return true;
 }
 
+/* A new document begins at 'at': drops what came before and restarts there. */
+static void restart_at(struct framer *f, size_t at, bool report)
+{
+    if (report) {
+        f->stats.truncated++;
+        emit(f, FRAMER_EVENT_TRUNCATED, f->buf, at);
+    }
+    consume(f, at);
+    start_seek(f);
+    f->resync = true;
+}
+
 static void finish_object(struct framer *f, size_t size)
 {
     f->stats.objects++;
@@ -259,11 +271,7 @@ static int frame_by_len(struct framer *f)
                 finish_object(f, end);
                 return 1;
             }
-            f->stats.truncated++;
-            emit(f, FRAMER_EVENT_TRUNCATED, f->buf, k);
-            consume(f, k);
-            start_seek(f);
-            f->resync = true;
+            restart_at(f, k, true);
             return 1;
         }
     }
@@ -310,11 +318,7 @@ static bool scan_object(struct framer *f)
                 break;
             if (opens > 0) {
                 /* A new document began before this one ended. */
-                f->stats.truncated++;
-                emit(f, FRAMER_EVENT_TRUNCATED, f->buf, at);
-                consume(f, at);
-                start_seek(f);
-                f->resync = true;
+                restart_at(f, at, true);
                 return true;
             }
         }
@@ -347,8 +351,7 @@ static bool discard_object(struct framer *f)
             if (opens < 0)
                 break;
             if (opens > 0) {
-                consume(f, at);
-                start_seek(f);
+                restart_at(f, at, false);
                 return true;
             }
         }

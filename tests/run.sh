@@ -1,29 +1,34 @@
-#!/bin/sh
+#!/bin/bash
 # Runs every test against the plain build (build/) and the ASan+UBSan build
 # (build-san/): the cmocka unit tests, then the integration tests, which
-# start the real jakasim and jakagw on free loopback ports.
+# start the real jakasim and jakagw on free loopback ports. Ends with one
+# line counting the test cases: "N passed, N failed".
 #
-#   tests/run.sh              everything
-#   tests/run.sh unit         unit tests only (VALGRIND=1: under valgrind)
-#   BUILDS="build" tests/run.sh   one build only
+#   tests/run.sh                  everything
+#   tests/run.sh unit             unit tests only (VALGRIND=1: under valgrind)
+#   BUILDS=build tests/run.sh     one build only
 set -u
 cd "$(dirname "$0")/.."
 
 what=${1:-all}
 BUILDS=${BUILDS:-"build build-san"}
 PYTHON=${PYTHON:-/usr/bin/python3}
-export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=0:exitcode=23}
+export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:exitcode=23}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 passed=0
 failed=0
 failures=""
+log=$(mktemp)
+trap 'rm -f "$log"' EXIT
 
-record() { # name status
-    if [ "$2" -eq 0 ]; then
-        passed=$((passed + 1))
-    else
-        failed=$((failed + 1))
+# Adds a suite's cases to the totals; a suite that exits non-zero without
+# reporting a failed case (a crash, a sanitizer abort) counts one failure.
+record() { # name exit-status passed-cases failed-cases
+    passed=$((passed + $3))
+    failed=$((failed + $4))
+    if [ "$2" -ne 0 ]; then
         failures="$failures $1"
+        [ "$4" -eq 0 ] && failed=$((failed + 1))
     fi
 }
 
@@ -33,21 +38,30 @@ for build in $BUILDS; do
         case "$t" in *.d) continue ;; esac
         echo "== $t"
         if [ "${VALGRIND:-0}" = 1 ]; then
-            valgrind -q --error-exitcode=99 --leak-check=full --errors-for-leak-kinds=definite "$t"
+            valgrind -q --error-exitcode=99 --leak-check=full \
+                --errors-for-leak-kinds=definite "$t" 2>&1 | tee "$log"
         else
-            "$t"
+            "$t" 2>&1 | tee "$log"
         fi
-        record "$t" $?
+        status=${PIPESTATUS[0]}
+        ok=$(sed -n 's/^\[  PASSED  \] \([0-9]*\) test.*/\1/p' "$log" | tail -1)
+        bad=$(sed -n 's/^\[  FAILED  \] \([0-9]*\) test.*/\1/p' "$log" | tail -1)
+        record "$t" "$status" "${ok:-0}" "${bad:-0}"
     done
     [ "$what" = unit ] && continue
     for t in tests/integration/test_*.py; do
         echo "== $t ($build)"
-        JAKAGW_BIN_DIR="$build" "$PYTHON" "$t"
-        record "$t($build)" $?
+        JAKAGW_BIN_DIR="$build" "$PYTHON" "$t" 2>&1 | tee "$log"
+        status=${PIPESTATUS[0]}
+        line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
+        ok=${line%% passed*}
+        bad=${line#*, }
+        bad=${bad%% failed}
+        record "$t($build)" "$status" "${ok:-0}" "${bad:-0}"
     done
 done
 
 echo
-[ -n "$failures" ] && echo "failed:$failures"
+[ -n "$failures" ] && echo "failed suites:$failures"
 echo "$passed passed, $failed failed"
-[ "$failed" -eq 0 ]
+[ "$failed" -eq 0 ] && [ -z "$failures" ]
