@@ -77,8 +77,13 @@ docs: $(BUILD)/jakagw
 	$(BUILD)/jakagw --print-map md > docs/register-map.md
 	$(BUILD)/jakagw --print-map csv > docs/register-map.csv
 
+# Unit tests, then jakagw and jakasim themselves under valgrind in the
+# integration suites that do not depend on timing (valgrind runs 20-50x slower).
 valgrind: all unit-tests
 	@BUILDS=build VALGRIND=1 tests/run.sh unit
+	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_status_map.py
+	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_modbus_server.py
+	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_jakasim.py
 
 install: all
 	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(SYSCONFDIR)/jakagw \

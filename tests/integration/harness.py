@@ -49,10 +49,18 @@ def wait_until(cond, timeout, what, interval=0.02):
     raise TestFailure("timed out after %.1f s waiting for %s" % (timeout, what))
 
 
+VALGRIND = ["valgrind", "-q", "--error-exitcode=99", "--leak-check=full",
+            "--errors-for-leak-kinds=definite"]
+
+
 class Process:
-    """A child process with its output in a temporary log file."""
+    """A child process with its output in a temporary log file. With
+    JAKAGW_VALGRIND=1 it runs under valgrind, and a valgrind error fails
+    the test through the exit code."""
 
     def __init__(self, name, argv):
+        if os.environ.get("JAKAGW_VALGRIND") == "1":
+            argv = VALGRIND + argv
         self.name = name
         self.log = tempfile.NamedTemporaryFile(prefix=name + "-", suffix=".log", delete=False)
         self.proc = subprocess.Popen(argv, stdout=self.log, stderr=subprocess.STDOUT)
@@ -91,7 +99,7 @@ class Sim(Process):
         self.command_port = free_port()
         super().__init__("jakasim", [JAKASIM, "--status-port", str(self.status_port),
                                      "--command-port", str(self.command_port)] + list(args))
-        wait_until(lambda: port_open(self.status_port) and port_open(self.command_port), 10,
+        wait_until(lambda: port_open(self.status_port) and port_open(self.command_port), 30,
                    "jakasim to listen")
 
     def read_document(self, timeout=5):
@@ -124,7 +132,7 @@ class Gateway(Process):
                 "--command-port", str(sim.command_port if sim else free_port()),
                 "--modbus-bind", "127.0.0.1", "--modbus-port", str(self.modbus_port)] + list(extra)
         super().__init__("jakagw", argv)
-        wait_until(lambda: port_open(self.modbus_port) or not self.alive(), 10,
+        wait_until(lambda: port_open(self.modbus_port) or not self.alive(), 30,
                    "jakagw to listen")
         check(self.alive(), "jakagw exited at start:\n" + self.output())
 
