@@ -32,7 +32,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o)
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: all deps demo test unit-tests check-docs docs install uninstall clean san valgrind
+.PHONY: all deps demo test unit-tests check-docs docs install uninstall clean san valgrind bench
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -54,6 +54,14 @@ $(BUILD)/tests/%: tests/%.c $(BUILD)/libjakagw.a
 	$(CC) $(ALL_CFLAGS) -Isrc -DSAMPLES_DIR="\"$(SAMPLES_DIR)\"" -DCONFIG_FILE="\"$(abspath config/jakagw.conf)\"" $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
 
 unit-tests: $(UNIT_TESTS:%=$(BUILD)/tests/%)
+
+$(BUILD)/bench/%: bench/%.c $(BUILD)/libjakagw.a
+	@mkdir -p $(dir $@)
+	$(CC) $(ALL_CFLAGS) $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) -lm
+
+# Prints costs as ratios to references measured in the same run.
+bench: $(BUILD)/bench/bench_pipeline
+	$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
 
 # Installs the Debian packages the build and the tests need, if missing.
 deps:
