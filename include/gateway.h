@@ -41,7 +41,9 @@ struct gateway {
     struct gw_config cfg;
     struct regmap map;
     struct regmap_image image;
-    struct jaka_status status;
+    struct jaka_status *status;  /* the last good document */
+    struct jaka_status *scratch; /* where the next one is parsed */
+    struct jaka_status status_buffers[2];
     struct robot_link status_link;
     struct robot_link command_link;
     struct mb_server modbus;

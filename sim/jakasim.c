@@ -37,6 +37,7 @@ struct sim_options {
     unsigned garbage_every;
     unsigned truncate_every;
     unsigned oversize_every;
+    unsigned corrupt_every;
     const char *fail_command;
     const char *ignore_command;
     unsigned reply_delay_ms;
@@ -162,11 +163,34 @@ static void on_split_timer(uv_timer_t *t)
         uv_timer_stop(t);
 }
 
+static void send_document(struct sim *sim, const char *doc, size_t size);
+
 /* Sends one document, as the fault options shape it. */
 static void emit_document(struct sim *sim, const char *doc, size_t size)
 {
     const struct sim_options *o = &sim->opt;
     uint64_t n = ++sim->documents;
+    char *corrupt = NULL;
+
+    if (o->corrupt_every && n % o->corrupt_every == 0) {
+        /* Same length, braces intact: framed fine, but not JSON. */
+        corrupt = malloc(size);
+        if (corrupt) {
+            memcpy(corrupt, doc, size);
+            char *sep = strstr(corrupt + size / 2, ", \"");
+            if (sep)
+                *sep = '#';
+            doc = corrupt;
+        }
+    }
+    send_document(sim, doc, size);
+    free(corrupt);
+}
+
+static void send_document(struct sim *sim, const char *doc, size_t size)
+{
+    const struct sim_options *o = &sim->opt;
+    uint64_t n = sim->documents;
 
     /* Finish a document still being sent in pieces before the next. */
     if (sim->piece_sent < sim->piece_size) {
@@ -458,6 +482,7 @@ static void usage(FILE *out)
         "  --garbage-every N      send garbage bytes before every Nth document\n"
         "  --truncate-every N     send half of every Nth document first\n"
         "  --oversize-every N     make every Nth document larger than 64 KiB\n"
+        "  --corrupt-every N      break the JSON of every Nth document, keeping its length\n"
         "  --fail-command NAME    answer command NAME with errorCode \"2\"\n"
         "  --ignore-command NAME  never answer NAME (\"all\": any command)\n"
         "  --reply-delay-ms N     answer commands after N ms\n");
@@ -496,6 +521,7 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         {"garbage-every", required_argument, NULL, 'g'},
         {"truncate-every", required_argument, NULL, 'T'},
         {"oversize-every", required_argument, NULL, 'O'},
+        {"corrupt-every", required_argument, NULL, 'C'},
         {"fail-command", required_argument, NULL, 'f'},
         {"ignore-command", required_argument, NULL, 'i'},
         {"reply-delay-ms", required_argument, NULL, 'd'},
@@ -531,6 +557,7 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         case 'g': if (parse_uint("garbage-every", optarg, 1000000, &o->garbage_every)) return -1; break;
         case 'T': if (parse_uint("truncate-every", optarg, 1000000, &o->truncate_every)) return -1; break;
         case 'O': if (parse_uint("oversize-every", optarg, 1000000, &o->oversize_every)) return -1; break;
+        case 'C': if (parse_uint("corrupt-every", optarg, 1000000, &o->corrupt_every)) return -1; break;
         case 'f': o->fail_command = optarg; break;
         case 'i': o->ignore_command = optarg; break;
         case 'd': if (parse_uint("reply-delay-ms", optarg, 600000, &o->reply_delay_ms)) return -1; break;

@@ -25,7 +25,8 @@ static void on_status_document(struct robot_link *link, const char *json,
 {
     struct gateway *gw = gateway_of_link(link);
     bool was_fresh = gateway_status_fresh(gw);
-    int rc = status_parse(&gw->status, json, size);
+    /* Parse aside: a bad document must not wipe the last good status. */
+    int rc = status_parse(gw->scratch, json, size);
 
     if (rc != STATUS_PARSE_OK) {
         uint64_t suppressed;
@@ -38,10 +39,13 @@ static void on_status_document(struct robot_link *link, const char *json,
                      (unsigned long long)suppressed);
         return;
     }
+    struct jaka_status *previous = gw->status;
+    gw->status = gw->scratch;
+    gw->scratch = previous;
     gw->counters.documents_parsed++;
     gw->last_document_ms = uv_now(gw->loop);
     gw->last_document_bytes = size;
-    regmap_encode_status(&gw->image, &gw->status);
+    regmap_encode_status(&gw->image, gw->status);
     if (!was_fresh)
         notify_change(gw);
 }
@@ -128,19 +132,8 @@ void gateway_refresh_values(struct gateway *gw)
     const struct mb_server_stats *mb = &gw->modbus.stats;
     const struct gateway_counters *c = &gw->counters;
     bool fresh = gateway_status_fresh(gw);
-    unsigned major = 0, minor = 0, patch = 0;
 
-    sscanf(JAKAGW_VERSION, "%u.%u.%u", &major, &minor, &patch);
-    v[GW_map_magic] = REGMAP_MAGIC;
-    v[GW_map_version] = REGMAP_VERSION;
-    v[GW_map_crc] = gw->map.crc;
-    v[GW_word_order] = gw->image.word_order;
-    v[GW_address_base] = 0;
-    v[GW_probe_f32] = REGMAP_PROBE_F32;
-    v[GW_probe_u32] = REGMAP_PROBE_U32;
-    v[GW_version_major] = major;
-    v[GW_version_minor] = minor;
-    v[GW_version_patch] = patch;
+    /* The constant values are set once, in set_constant_values(). */
     v[GW_status_link_up] = gw->status_link.state == ROBOT_LINK_CONNECTED;
     v[GW_command_link_up] = gw->command_link.state == ROBOT_LINK_CONNECTED;
     v[GW_status_fresh] = fresh;
@@ -260,6 +253,25 @@ static int start_links(struct gateway *gw)
     return 0;
 }
 
+/* The self-description values, which never change while running. */
+static void set_constant_values(struct gateway *gw)
+{
+    double *v = gw->gw_values;
+    unsigned major = 0, minor = 0, patch = 0;
+
+    sscanf(JAKAGW_VERSION, "%u.%u.%u", &major, &minor, &patch);
+    v[GW_map_magic] = REGMAP_MAGIC;
+    v[GW_map_version] = REGMAP_VERSION;
+    v[GW_map_crc] = gw->map.crc;
+    v[GW_word_order] = gw->image.word_order;
+    v[GW_address_base] = 0;
+    v[GW_probe_f32] = REGMAP_PROBE_F32;
+    v[GW_probe_u32] = REGMAP_PROBE_U32;
+    v[GW_version_major] = major;
+    v[GW_version_minor] = minor;
+    v[GW_version_patch] = patch;
+}
+
 int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *cfg)
 {
     int rc;
@@ -276,8 +288,11 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = regmap_image_init(&gw->image, &gw->map, (enum regmap_word_order)cfg->word_order);
     if (rc)
         return rc;
+    gw->status = &gw->status_buffers[0];
+    gw->scratch = &gw->status_buffers[1];
     /* Nothing received yet: every value reads as absent. */
-    regmap_encode_status(&gw->image, &gw->status);
+    regmap_encode_status(&gw->image, gw->status);
+    set_constant_values(gw);
     gateway_refresh_values(gw);
 
     struct mb_server_config mc = {

@@ -5,8 +5,8 @@ starts after the gateway. Each time the gateway keeps serving, counts the
 trouble in its diagnostic registers, and its data is live again after."""
 import time
 
-from harness import (Gateway, Sim, check, raw_client, read_bits, read_input_registers,
-                     run, wait_until)
+from harness import (Gateway, Sim, check, map_rows, raw_client, read_bits,
+                     read_input_registers, run, wait_until)
 
 DOCS, PARSE_ERR, FRAMING, OVERSIZE, GARBAGE, LEN_MISMATCH, STATUS_RECONNECTS = \
     20, 22, 24, 26, 28, 30, 32
@@ -85,6 +85,22 @@ def test_oversize_documents():
     with_fault(["--oversize-every", "4"], check_fn=verify)
 
 
+def test_corrupt_documents_are_counted_and_values_kept():
+    present_din = next(int(r["address"]) for r in map_rows() if r["name"] == "present_din")
+
+    def verify(s, gw):
+        check(u32(s, PARSE_ERR) > 0, "corrupt documents not counted")
+        check(u32(s, DOCS) >= 30, "good documents lost: %d" % u32(s, DOCS))
+        # Whatever the last document was, the image shows the last good one.
+        for _ in range(20):
+            check(read_input_registers(s, 0, 1)[0] == 0x4A4B, "magic")
+            check(read_input_registers(s, 104, 2) == [3, 2], "tool and user id lost")
+            check(read_bits(s, 2, present_din, 1) == [1], "presence of din lost")
+            time.sleep(0.01)
+        check("not valid JSON" in gw.output(), "no log line for a corrupt document")
+    with_fault(["--corrupt-every", "2", "--test-pattern"], check_fn=verify)
+
+
 def test_dropped_connections_reconnect():
     def verify(s, gw):
         wait_until(lambda: u32(s, STATUS_RECONNECTS) >= 2, 10, "two reconnects")
@@ -139,5 +155,6 @@ def test_robot_starting_after_the_gateway():
 if __name__ == "__main__":
     run([test_split_documents, test_merged_documents, test_garbage_between_documents,
          test_documents_cut_short, test_oversize_documents,
+         test_corrupt_documents_are_counted_and_values_kept,
          test_dropped_connections_reconnect, test_silent_robot_goes_stale,
          test_robot_starting_after_the_gateway])
