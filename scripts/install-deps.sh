@@ -4,7 +4,8 @@
 set -eu
 
 PACKAGES="build-essential pkg-config libuv1-dev libmodbus-dev libcjson-dev
-libinih-dev libsystemd-dev libcmocka-dev mbpoll python3 python3-pymodbus valgrind"
+libinih-dev libsystemd-dev libcmocka-dev mbpoll python3 python3-pymodbus valgrind
+systemd"
 
 missing=""
 for p in $PACKAGES; do
