@@ -32,7 +32,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o)
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: all deps demo test unit-tests check-docs docs install uninstall clean san valgrind bench
+.PHONY: all deps demo test unit-tests check-docs docs install uninstall clean san valgrind bench fuzz
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -93,6 +93,23 @@ valgrind: all unit-tests
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_modbus_server.py
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_jakasim.py
 
+# libFuzzer targets (needs clang): the robot's byte stream and Modbus
+# requests, with ASan and UBSan. FUZZ_SECONDS per target.
+FUZZ_SECONDS ?= 60
+FUZZ_SRCS := src/framer.c src/status.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c
+FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -g -O1 -Iinclude $(PKG_CFLAGS) \
+              -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all
+build-fuzz/%: fuzz/%.c $(FUZZ_SRCS)
+	@mkdir -p build-fuzz
+	clang $(FUZZ_FLAGS) $^ -o $@ $(PKG_LIBS) -lm
+
+fuzz:
+	@command -v clang >/dev/null || { echo "make fuzz needs clang: apt-get install clang" >&2; exit 1; }
+	$(MAKE) build-fuzz/fuzz_stream build-fuzz/fuzz_modbus
+	@mkdir -p build-fuzz/corpus-stream build-fuzz/corpus-modbus
+	build-fuzz/fuzz_stream -max_total_time=$(FUZZ_SECONDS) -max_len=20000 build-fuzz/corpus-stream fuzz/seeds/stream
+	build-fuzz/fuzz_modbus -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-modbus fuzz/seeds/modbus
+
 install: all
 	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(SYSCONFDIR)/jakagw \
 	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(PREFIX)/share/doc/jakagw
@@ -110,6 +127,6 @@ uninstall:
 	rm -rf $(DESTDIR)$(PREFIX)/share/doc/jakagw
 
 clean:
-	rm -rf build build-san
+	rm -rf build build-san build-fuzz
 
 -include $(shell find $(BUILD) -name '*.d' 2>/dev/null)
