@@ -112,19 +112,6 @@ static void send_bytes(struct mb_client *c, const uint8_t *data, size_t size)
     }
 }
 
-/* Moves the reply libmodbus just wrote into the socketpair to the client. */
-static void forward_libmodbus_reply(struct mb_client *c)
-{
-    uint8_t rsp[MAX_ADU + 16];
-    ssize_t n = recv(c->srv->pair[1], rsp, sizeof(rsp), MSG_DONTWAIT);
-
-    if (n > 0)
-        send_bytes(c, rsp, (size_t)n);
-    else
-        log_err("modbus: libmodbus produced no reply (%s)",
-                n < 0 ? strerror(errno) : "empty");
-}
-
 static void put16(uint8_t *p, unsigned v)
 {
     p[0] = (uint8_t)(v >> 8);
@@ -142,6 +129,29 @@ static void send_pdu(struct mb_client *c, const uint8_t *req, const uint8_t *pdu
     adu[6] = req[6];
     memcpy(adu + MBAP_SIZE, pdu, pdu_size);
     send_bytes(c, adu, MBAP_SIZE + pdu_size);
+}
+
+/*
+ * Moves the reply libmodbus just wrote into the socketpair to the client.
+ * Should libmodbus have produced none, the client still gets an answer:
+ * exception 04, built here.
+ */
+static void forward_libmodbus_reply(struct mb_client *c, const uint8_t *req)
+{
+    uint8_t rsp[MAX_ADU + 16];
+    ssize_t n = recv(c->srv->pair[1], rsp, sizeof(rsp), MSG_DONTWAIT);
+
+    if (n > 0) {
+        send_bytes(c, rsp, (size_t)n);
+        return;
+    }
+    log_err("modbus: libmodbus produced no reply to function %u (%s); "
+            "answering exception 04",
+            req[MBAP_SIZE], n < 0 ? strerror(errno) : "empty");
+    uint8_t pdu[2] = {(uint8_t)(req[MBAP_SIZE] | 0x80),
+                      MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE};
+    c->srv->stats.exceptions++;
+    send_pdu(c, req, pdu, sizeof(pdu));
 }
 
 static const char *exception_name(int code)
@@ -179,10 +189,14 @@ static void reply_exception(struct mb_client *c, const uint8_t *req, int code)
 {
     c->srv->stats.exceptions++;
     if (modbus_reply_exception(c->srv->ctx, req, (unsigned)code) < 0) {
-        log_err("modbus: cannot build exception reply: %s", modbus_strerror(errno));
+        /* Build it here rather than leave the client without an answer. */
+        uint8_t pdu[2] = {(uint8_t)(req[MBAP_SIZE] | 0x80), (uint8_t)code};
+        log_err("modbus: libmodbus cannot build exception %02X: %s", (unsigned)code,
+                modbus_strerror(errno));
+        send_pdu(c, req, pdu, sizeof(pdu));
         return;
     }
-    forward_libmodbus_reply(c);
+    forward_libmodbus_reply(c, req);
 }
 
 static void reply_server_id(struct mb_client *c, const uint8_t *req)
@@ -303,7 +317,7 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         reply_exception(c, req, MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE);
         return;
     }
-    forward_libmodbus_reply(c);
+    forward_libmodbus_reply(c, req);
     if (mb_request_is_write(pdu[0]) && srv->hooks.after_write) {
         enum regmap_table table;
         unsigned address, count;
