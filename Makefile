@@ -72,7 +72,10 @@ SAN_FLAGS := -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sa
 san:
 	$(MAKE) BUILD=build-san CFLAGS="$(SAN_FLAGS)" EXTRA_LDFLAGS="-fsanitize=address,undefined" all unit-tests
 
-demo: deps all
+# The builds run in a sub-make: pkg-config's flags are read when a make
+# starts, and on a fresh machine the packages arrive only with 'deps'.
+demo: deps
+	$(MAKE) all
 	@scripts/demo.sh
 
 test: deps
