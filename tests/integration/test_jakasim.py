@@ -92,9 +92,8 @@ def test_commands_follow_the_state_machine():
         check(r.call("play_program")["errorCode"] == "0", "play")
         wait_until(lambda: status(sim)["interp_state"] == 3, 3, "program running")
         a = status(sim)["joint_actual_position"]
-        time.sleep(0.3)
-        b = status(sim)["joint_actual_position"]
-        check(a != b, "joints do not move while the program runs")
+        wait_until(lambda: status(sim)["joint_actual_position"] != a, 2,
+                   "joints to move while the program runs")
         check(r.call("pause_program")["errorCode"] == "0", "pause")
         wait_until(lambda: status(sim)["paused"] is True, 3, "paused in status")
         check(r.call("get_program_state")["programState"] == "paused", "program state")
