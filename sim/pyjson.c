@@ -171,6 +171,16 @@ void pyjson_float(struct pyjson *w, double v)
     pyjson_raw(w, b);
 }
 
+void pyjson_float_array(struct pyjson *w, const char *key, const double *v, int n)
+{
+    if (key)
+        pyjson_key(w, key);
+    pyjson_begin_array(w);
+    for (int i = 0; i < n; i++)
+        pyjson_float(w, v[i]);
+    pyjson_end_array(w);
+}
+
 void pyjson_bool(struct pyjson *w, bool v) { pyjson_raw(w, v ? "true" : "false"); }
 
 void pyjson_string(struct pyjson *w, const char *s)

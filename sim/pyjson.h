@@ -30,6 +30,9 @@ void pyjson_int(struct pyjson *w, long long v);
 void pyjson_float(struct pyjson *w, double v);
 void pyjson_bool(struct pyjson *w, bool v);
 void pyjson_string(struct pyjson *w, const char *s);
+/* An array of floats; with a non-NULL key, as that member's value. */
+void pyjson_float_array(struct pyjson *w, const char *key, const double *v, int n);
+
 /* Raw text as one value (e.g. a number formatted elsewhere). */
 void pyjson_raw(struct pyjson *w, const char *text);
 

@@ -7,6 +7,8 @@
 #include <string.h>
 
 #define DEG (M_PI / 180.0)
+/* A controller's errorMsg for errorCode "1". */
+#define CALL_FAILED "Exception:function call failed"
 
 /* ---- kinematics ---- */
 
@@ -241,6 +243,21 @@ struct command_ctx {
     struct pyjson *w;
 };
 
+/*
+ * A reply of text members in exactly the order given, as key, value pairs
+ * ending with NULL: the manual's replies do not all share one order.
+ */
+static bool reply_in_order(struct pyjson *w, const char *const *pairs)
+{
+    pyjson_begin_object(w);
+    for (; pairs[0]; pairs += 2) {
+        pyjson_key(w, pairs[0]);
+        pyjson_string(w, pairs[1]);
+    }
+    pyjson_end_object(w);
+    return true;
+}
+
 /* Starts a reply the common way: errorCode, errorMsg, cmdName. */
 static void reply_head(struct command_ctx *c, const char *code, const char *msg,
                        const char *cmd_name)
@@ -261,21 +278,30 @@ static bool reply_ok(struct command_ctx *c)
     return true;
 }
 
-/* An OK reply with one more text member. */
-static bool reply_ok_text(struct command_ctx *c, const char *key, const char *value)
+/* An OK reply with one more member, already formatted as JSON ('raw'). */
+static bool reply_ok_member(struct command_ctx *c, const char *key, const char *raw)
 {
     reply_head(c, "0", "", c->name);
     pyjson_key(c->w, key);
-    pyjson_string(c->w, value);
+    pyjson_raw(c->w, raw);
     pyjson_end_object(c->w);
     return true;
 }
 
+/* An OK reply with one more text member. */
+static bool reply_ok_text(struct command_ctx *c, const char *key, const char *value)
+{
+    struct pyjson text;
+    pyjson_init(&text);
+    pyjson_string(&text, value);
+    bool ok = reply_ok_member(c, key, text.failed ? "\"\"" : text.buf);
+    pyjson_free(&text);
+    return ok;
+}
+
 static bool reply_refused(struct command_ctx *c, const char *why)
 {
-    char msg[160];
-    snprintf(msg, sizeof(msg), "%s", why);
-    reply_head(c, "2", msg, c->name);
+    reply_head(c, "2", why, c->name);
     pyjson_end_object(c->w);
     return true;
 }
@@ -310,13 +336,11 @@ static bool get_vector(const cJSON *req, const char *key, double *out, int n)
     return true;
 }
 
-static void put_vector(struct pyjson *w, const char *key, const double *v, int n)
+/* Reads member 'key' as a number within [min, max]. */
+static bool get_bounded(const cJSON *req, const char *key, double min, double max,
+                        double *out)
 {
-    pyjson_key(w, key);
-    pyjson_begin_array(w);
-    for (int i = 0; i < n; i++)
-        pyjson_float(w, v[i]);
-    pyjson_end_array(w);
+    return get_number(req, key, out) && *out >= min && *out <= max;
 }
 
 static bool can_move(struct command_ctx *c)
@@ -364,17 +388,9 @@ static bool cmd_enable(struct command_ctx *c)
     if (!c->r->powered_on)
         return reply_refused(c, "robot is powered off");
     c->r->enabled = true;
-    pyjson_begin_object(c->w);
-    pyjson_key(c->w, "errorCode");
-    pyjson_string(c->w, "0");
-    pyjson_key(c->w, "enabled status");
-    pyjson_string(c->w, "True");
-    pyjson_key(c->w, "cmdName");
-    pyjson_string(c->w, c->name);
-    pyjson_key(c->w, "errorMsg");
-    pyjson_string(c->w, "");
-    pyjson_end_object(c->w);
-    return true;
+    return reply_in_order(c->w, (const char *const[]){"errorCode", "0", "enabled status",
+                                                      "True", "cmdName", c->name,
+                                                      "errorMsg", "", NULL});
 }
 
 static bool cmd_disable(struct command_ctx *c)
@@ -458,19 +474,11 @@ static bool cmd_jog(struct command_ctx *c)
 
 static bool cmd_get_robot_state(struct command_ctx *c)
 {
-    pyjson_begin_object(c->w);
-    pyjson_key(c->w, "cmdName");
-    pyjson_string(c->w, c->name);
-    pyjson_key(c->w, "errorCode");
-    pyjson_string(c->w, "0");
-    pyjson_key(c->w, "errorMsg");
-    pyjson_string(c->w, "unknown");
-    pyjson_key(c->w, "enable");
-    pyjson_string(c->w, c->r->enabled ? "robot_enabled" : "robot_disabled");
-    pyjson_key(c->w, "power");
-    pyjson_string(c->w, c->r->powered_on ? "powered_on" : "powered_off");
-    pyjson_end_object(c->w);
-    return true;
+    return reply_in_order(
+        c->w, (const char *const[]){"cmdName", c->name, "errorCode", "0", "errorMsg", "unknown",
+                                    "enable", c->r->enabled ? "robot_enabled" : "robot_disabled",
+                                    "power", c->r->powered_on ? "powered_on" : "powered_off",
+                                    NULL});
 }
 
 static bool cmd_servo_move(struct command_ctx *c)
@@ -484,11 +492,7 @@ static bool cmd_servo_move(struct command_ctx *c)
 
 static bool cmd_is_in_servomove(struct command_ctx *c)
 {
-    reply_head(c, "0", "", c->name);
-    pyjson_key(c->w, "in_servomove");
-    pyjson_bool(c->w, c->r->servo_mode);
-    pyjson_end_object(c->w);
-    return true;
+    return reply_ok_member(c, "in_servomove", c->r->servo_mode ? "true" : "false");
 }
 
 static bool cmd_servo_j(struct command_ctx *c)
@@ -520,7 +524,7 @@ static bool cmd_servo_j(struct command_ctx *c)
 static bool cmd_rapid_rate(struct command_ctx *c)
 {
     double v;
-    if (!get_number(c->req, "rate_value", &v) || v < 0 || v > 1)
+    if (!get_bounded(c->req, "rate_value", 0, 1, &v))
         return call_failed(c);
     c->r->rapid_rate = v;
     return reply_ok(c);
@@ -632,8 +636,7 @@ static bool set_offsets(struct command_ctx *c, const char *key,
                         double table[11][6])
 {
     double v[6], id;
-    if (!get_vector(c->req, key, v, 6) || !get_number(c->req, "id", &id) || id < 1 ||
-        id > 10)
+    if (!get_vector(c->req, key, v, 6) || !get_bounded(c->req, "id", 1, 10, &id))
         return call_failed(c);
     memcpy(table[(int)id], v, sizeof(v));
     return reply_ok(c);
@@ -676,7 +679,7 @@ static bool cmd_get_user_offsets(struct command_ctx *c)
 static bool set_id(struct command_ctx *c, const char *key, int *out)
 {
     double id;
-    if (!get_number(c->req, key, &id) || id < 0 || id > 10)
+    if (!get_bounded(c->req, key, 0, 10, &id))
         return call_failed(c);
     *out = (int)id;
     return reply_ok(c);
@@ -702,17 +705,10 @@ static bool cmd_torque_control_enable(struct command_ctx *c)
 
 static bool cmd_drag_status(struct command_ctx *c)
 {
-    pyjson_begin_object(c->w);
-    pyjson_key(c->w, "drag_status");
-    pyjson_string(c->w, c->r->drag ? "True" : "False");
-    pyjson_key(c->w, "errorCode");
-    pyjson_string(c->w, "0");
-    pyjson_key(c->w, "cmdName");
-    pyjson_string(c->w, c->name);
-    pyjson_key(c->w, "errorMsg");
-    pyjson_string(c->w, "");
-    pyjson_end_object(c->w);
-    return true;
+    return reply_in_order(c->w, (const char *const[]){"drag_status",
+                                                      c->r->drag ? "True" : "False",
+                                                      "errorCode", "0", "cmdName", c->name,
+                                                      "errorMsg", "", NULL});
 }
 
 static bool cmd_protective_stop_status(struct command_ctx *c)
@@ -723,14 +719,8 @@ static bool cmd_protective_stop_status(struct command_ctx *c)
 static bool cmd_emergency_stop_status(struct command_ctx *c)
 {
     /* Seen on a real Zu 5s: no cmdName at all, errorCode "1". */
-    (void)c;
-    pyjson_begin_object(c->w);
-    pyjson_key(c->w, "errorCode");
-    pyjson_string(c->w, "1");
-    pyjson_key(c->w, "errorMsg");
-    pyjson_string(c->w, "Exception:function call failed");
-    pyjson_end_object(c->w);
-    return true;
+    return reply_in_order(c->w, (const char *const[]){"errorCode", "1", "errorMsg",
+                                                      CALL_FAILED, NULL});
 }
 
 static bool cmd_wait_complete(struct command_ctx *c)
@@ -759,7 +749,7 @@ static bool cmd_get_payload(struct command_ctx *c)
     pyjson_begin_object(c->w);
     pyjson_key(c->w, "errorCode");
     pyjson_string(c->w, "0");
-    put_vector(c->w, "centroid", c->r->payload_centroid, 3);
+    pyjson_float_array(c->w, "centroid", c->r->payload_centroid, 3);
     pyjson_key(c->w, "mass");
     pyjson_float(c->w, c->r->payload_mass);
     pyjson_key(c->w, "cmdName");
@@ -773,7 +763,7 @@ static bool cmd_get_payload(struct command_ctx *c)
 static bool cmd_set_clsn_sensitivity(struct command_ctx *c)
 {
     double level;
-    if (!get_number(c->req, "sensitivityVal", &level) || level < 0 || level > 5)
+    if (!get_bounded(c->req, "sensitivityVal", 0, 5, &level))
         return call_failed(c);
     c->r->collision_level = (int)level;
     return reply_ok(c);
@@ -781,11 +771,9 @@ static bool cmd_set_clsn_sensitivity(struct command_ctx *c)
 
 static bool cmd_get_clsn_sensitivity(struct command_ctx *c)
 {
-    reply_head(c, "0", "", c->name);
-    pyjson_key(c->w, "sensitivityLevel");
-    pyjson_int(c->w, c->r->collision_level);
-    pyjson_end_object(c->w);
-    return true;
+    char level[16];
+    snprintf(level, sizeof(level), "%d", c->r->collision_level);
+    return reply_ok_member(c, "sensitivityLevel", level);
 }
 
 static bool cmd_kine_forward(struct command_ctx *c)
@@ -795,7 +783,7 @@ static bool cmd_kine_forward(struct command_ctx *c)
         return call_failed(c);
     sim_forward_kinematics(q, pose);
     reply_head(c, "0", "", c->name);
-    put_vector(c->w, "cartPosition", pose, 6);
+    pyjson_float_array(c->w, "cartPosition", pose, 6);
     pyjson_end_object(c->w);
     return true;
 }
@@ -811,7 +799,7 @@ static bool cmd_kine_inverse(struct command_ctx *c)
         return true;
     }
     reply_head(c, "0", "", c->name);
-    put_vector(c->w, "jointPosition", q, 6);
+    pyjson_float_array(c->w, "jointPosition", q, 6);
     pyjson_end_object(c->w);
     return true;
 }
@@ -827,7 +815,7 @@ static bool cmd_clear_error(struct command_ctx *c)
 static bool cmd_get_joint_pos(struct command_ctx *c)
 {
     reply_head(c, "0", "", c->name);
-    put_vector(c->w, "joint_pos", c->r->joints, 6);
+    pyjson_float_array(c->w, "joint_pos", c->r->joints, 6);
     pyjson_end_object(c->w);
     return true;
 }
@@ -835,7 +823,7 @@ static bool cmd_get_joint_pos(struct command_ctx *c)
 static bool cmd_get_tcp_pos(struct command_ctx *c)
 {
     reply_head(c, "0", "", " get_tcp_pos");
-    put_vector(c->w, "tcp_pos", c->r->cart, 6);
+    pyjson_float_array(c->w, "tcp_pos", c->r->cart, 6);
     pyjson_end_object(c->w);
     return true;
 }
@@ -848,8 +836,8 @@ static bool cmd_get_version(struct command_ctx *c)
 static bool cmd_set_network_exception_handle(struct command_ctx *c)
 {
     double ms, mot;
-    if (!get_number(c->req, "timeLimit", &ms) || !get_number(c->req, "motType", &mot) ||
-        mot < 0 || mot > 2 || ms < 0)
+    if (!get_bounded(c->req, "timeLimit", 0, 1e9, &ms) ||
+        !get_bounded(c->req, "motType", 0, 2, &mot))
         return call_failed(c);
     c->r->net_exception_ms = (int)ms;
     c->r->net_exception_motion = (int)mot;
@@ -953,12 +941,8 @@ bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
              cJSON_IsString(name) ? name->valuestring : "?");
     if (!cJSON_IsString(name)) {
         /* What a controller answers to something it cannot call. */
-        pyjson_begin_object(reply);
-        pyjson_key(reply, "errorCode");
-        pyjson_string(reply, "1");
-        pyjson_key(reply, "errorMsg");
-        pyjson_string(reply, "Exception:function call failed");
-        pyjson_end_object(reply);
+        reply_in_order(reply, (const char *const[]){"errorCode", "1", "errorMsg", CALL_FAILED,
+                                                    NULL});
         cJSON_Delete(req);
         return true;
     }
@@ -968,14 +952,8 @@ bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
         if (strcmp(commands[i].name, c.name) == 0)
             cmd = &commands[i];
     if (!cmd) {
-        pyjson_begin_object(reply);
-        pyjson_key(reply, "errorCode");
-        pyjson_string(reply, "1");
-        pyjson_key(reply, "errorMsg");
-        pyjson_string(reply, "Exception:function call failed");
-        pyjson_key(reply, "cmdName");
-        pyjson_string(reply, c.name);
-        pyjson_end_object(reply);
+        reply_in_order(reply, (const char *const[]){"errorCode", "1", "errorMsg", CALL_FAILED,
+                                                    "cmdName", c.name, NULL});
     } else if (fail_cmd && strcmp(fail_cmd, c.name) == 0) {
         call_failed(&c);
     } else {

@@ -20,16 +20,6 @@ const struct sim_profile *sim_profile_find(const char *name)
     return NULL;
 }
 
-static void floats(struct pyjson *w, const char *key, const double *v, int n)
-{
-    if (key)
-        pyjson_key(w, key);
-    pyjson_begin_array(w);
-    for (int i = 0; i < n; i++)
-        pyjson_float(w, v[i]);
-    pyjson_end_array(w);
-}
-
 static void bits(struct pyjson *w, const char *key, const bool *v, int n)
 {
     pyjson_key(w, key);
@@ -143,7 +133,7 @@ static void write_torqsensor(struct pyjson *w, const struct sim_robot *r,
     pyjson_float(w, pattern(r, 3, 0, 0.449));
     double centroid[3] = {pattern(r, 3, 1, 0), pattern(r, 3, 2, 0),
                           pattern(r, 3, 3, 20.0)};
-    floats(w, NULL, centroid, 3);
+    pyjson_float_array(w, NULL, centroid, 3);
     pyjson_end_array(w);
     pyjson_end_array(w);
     pyjson_begin_array(w);
@@ -153,7 +143,7 @@ static void write_torqsensor(struct pyjson *w, const struct sim_robot *r,
         double v[6];
         for (int i = 0; i < 6; i++)
             v[i] = pattern(r, 4 + k, i, 0.0);
-        floats(w, NULL, v, 6);
+        pyjson_float_array(w, NULL, v, 6);
     }
     pyjson_end_array(w);
     pyjson_end_array(w);
@@ -206,24 +196,24 @@ static void write_body(struct pyjson *w, const struct sim_robot *r,
     write_monitor(w, r, p);
     write_torqsensor(w, r, p);
     if (p->extras)
-        floats(w, "instVel", r->joint_vel, SIM_JOINTS);
-    floats(w, "joint_actual_position", r->joints, SIM_JOINTS);
+        pyjson_float_array(w, "instVel", r->joint_vel, SIM_JOINTS);
+    pyjson_float_array(w, "joint_actual_position", r->joints, SIM_JOINTS);
     if (p->extras)
-        floats(w, "joint_position", r->joint_cmd, SIM_JOINTS);
-    floats(w, "actual_position", r->cart, 6);
+        pyjson_float_array(w, "joint_position", r->joint_cmd, SIM_JOINTS);
+    pyjson_float_array(w, "actual_position", r->cart, 6);
     if (p->extras)
-        floats(w, "position", r->cart, 6);
+        pyjson_float_array(w, "position", r->cart, 6);
     bits(w, "din", r->din, p->dio);
     bits(w, "dout", r->dout, p->dio);
-    floats(w, "ain", r->ain, p->aio);
-    floats(w, "aout", r->aout, p->aio);
+    pyjson_float_array(w, "ain", r->ain, p->aio);
+    pyjson_float_array(w, "aout", r->aout, p->aio);
     if (p->extras) {
         bool keys[3] = {false, r->test_pattern, false};
         bits(w, "tio_key", keys, 3);
     }
     bits(w, "tio_din", r->tio_din, 8);
     bits(w, "tio_dout", r->tio_dout, 8);
-    floats(w, "tio_ain", r->tio_ain, p->tio_ain);
+    pyjson_float_array(w, "tio_ain", r->tio_ain, p->tio_ain);
     if (p->extras) {
         bool relay[2] = {r->test_pattern, false};
         bits(w, "relay_io", relay, 2);

@@ -40,14 +40,23 @@ static char *read_file(const char *path, size_t *size)
     return buf;
 }
 
+/* Parses a recorded document from tests/data; it must be there. */
+static void parse_sample(const char *name)
+{
+    char path[512];
+    size_t size = 0;
+    snprintf(path, sizeof(path), "%s/%s", SAMPLES_DIR, name);
+    char *doc = read_file(path, &size);
+    if (!doc)
+        fail_msg("cannot read %s", path);
+    assert_int_equal(status_parse(&st, doc, size), STATUS_PARSE_OK);
+    free(doc);
+}
+
 static void real_zu5s_document(void **state)
 {
     (void)state;
-    size_t size;
-    char *doc = read_file(SAMPLES_DIR "/status-zu5s-1.5.14.json", &size);
-    if (!doc)
-        skip();
-    assert_int_equal(status_parse(&st, doc, size), STATUS_PARSE_OK);
+    parse_sample("status-zu5s-1.5.14.json");
     assert_true(st.len[0].present);
     assert_int_equal((int)st.len[0].value, 3208);
     assert_true(st.errcode[0].present);
@@ -71,17 +80,12 @@ static void real_zu5s_document(void **state)
     assert_true(st.torq_address[0].present);
     assert_string_equal(st.torq_address[0].text, "192.168.2.100");
     assert_float_equal(st.torq_comm[0].value, 8080, 0);
-    free(doc);
 }
 
 static void real_controller_a_document(void **state)
 {
     (void)state;
-    size_t size;
-    char *doc = read_file(SAMPLES_DIR "/status-controller-a.json", &size);
-    if (!doc)
-        skip();
-    assert_int_equal(status_parse(&st, doc, size), STATUS_PARSE_OK);
+    parse_sample("status-controller-a.json");
     assert_int_equal(st.count[STATUS_F_din], 199);
     assert_int_equal(st.count[STATUS_F_ain], 128);
     assert_int_equal(st.count[STATUS_F_eip_adpt_ain], 48);
@@ -94,7 +98,6 @@ static void real_controller_a_document(void **state)
     assert_true(st.tio_rs_name[0].present);
     assert_string_equal(st.tio_rs_name[0].text, "");
     assert_int_equal(st.count[STATUS_F_torq_extra], 6);
-    free(doc);
 }
 
 static void missing_fields_are_not_present(void **state)

@@ -5,6 +5,7 @@ talk to them with real clients (pymodbus, raw sockets, mbpoll), and stop
 exactly the processes they started, by pid. A sanitizer report in any log
 fails the test.
 """
+import contextlib
 import csv
 import io
 import json
@@ -58,12 +59,13 @@ class Process:
     JAKAGW_VALGRIND=1 it runs under valgrind, and a valgrind error fails
     the test through the exit code."""
 
-    def __init__(self, name, argv):
+    def __init__(self, name, argv, env=None):
         if os.environ.get("JAKAGW_VALGRIND") == "1":
             argv = VALGRIND + argv
         self.name = name
         self.log = tempfile.NamedTemporaryFile(prefix=name + "-", suffix=".log", delete=False)
-        self.proc = subprocess.Popen(argv, stdout=self.log, stderr=subprocess.STDOUT)
+        self.proc = subprocess.Popen(argv, stdout=self.log, stderr=subprocess.STDOUT,
+                                     env=dict(os.environ, **(env or {})))
 
     def output(self):
         with open(self.log.name, "r", errors="replace") as f:
@@ -122,7 +124,7 @@ class Sim(Process):
 
 
 class Gateway(Process):
-    def __init__(self, sim, config=None, extra=()):
+    def __init__(self, sim, config=None, extra=(), env=None):
         self.modbus_port = free_port()
         self.conf = tempfile.NamedTemporaryFile("w", prefix="jakagw-", suffix=".conf", delete=False)
         self.conf.write(config or "")
@@ -131,7 +133,7 @@ class Gateway(Process):
                 "--status-port", str(sim.status_port if sim else free_port()),
                 "--command-port", str(sim.command_port if sim else free_port()),
                 "--modbus-bind", "127.0.0.1", "--modbus-port", str(self.modbus_port)] + list(extra)
-        super().__init__("jakagw", argv)
+        super().__init__("jakagw", argv, env)
         wait_until(lambda: port_open(self.modbus_port) or not self.alive(), 30,
                    "jakagw to listen")
         check(self.alive(), "jakagw exited at start:\n" + self.output())
@@ -141,6 +143,23 @@ class Gateway(Process):
             return super().stop(expect_code)
         finally:
             os.unlink(self.conf.name)
+
+
+@contextlib.contextmanager
+def running(sim_args=(), config=""):
+    """A jakasim and a jakagw in front of it; both stopped, and checked for
+    a clean exit, whatever the test does."""
+    sim = Sim(*sim_args)
+    gw = None
+    try:
+        gw = Gateway(sim, config)
+        yield sim, gw
+    finally:
+        try:
+            if gw:
+                gw.stop()
+        finally:
+            sim.stop()
 
 
 def port_open(port):

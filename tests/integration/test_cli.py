@@ -97,7 +97,65 @@ def test_systemd_unit_exposure_below_2():
     check(float(m.group(1)) < 2.0, "exposure %s is not below 2" % m.group(1))
 
 
+def test_systemd_notify_ready_status_watchdog():
+    """What systemd sees over NOTIFY_SOCKET: READY=1 once serving, a STATUS=
+    naming the link states, WATCHDOG=1 pings, STOPPING=1 on SIGTERM."""
+    import socket
+    import tempfile
+    from harness import Gateway, Sim
+    d = tempfile.mkdtemp()
+    path = os.path.join(d, "notify")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    sock.settimeout(5)
+    sim = Sim()
+    gw = None
+    try:
+        gw = Gateway(sim, env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000"})
+        messages = []
+
+        def receive_until(text):
+            while not any(text in m for m in messages):
+                messages.append(sock.recv(4096).decode())
+            return True
+        receive_until("READY=1")
+        check(any("STATUS=status link" in m for m in messages), "no STATUS=: %r" % messages)
+        receive_until("WATCHDOG=1")
+        receive_until("status link connected")
+        gw.stop()
+        gw = None
+        receive_until("STOPPING=1")
+    finally:
+        if gw:
+            gw.stop()
+        sim.stop()
+        sock.close()
+        os.unlink(path)
+        os.rmdir(d)
+
+
+def test_make_install_places_every_file():
+    import tempfile
+    # Installs the plain build (build/), also during the sanitizer pass:
+    # building build-san/ with default flags would spoil it.
+    with tempfile.TemporaryDirectory() as stage:
+        r = subprocess.run(["make", "-s", "-C", ROOT, "install",
+                            "DESTDIR=" + stage, "PREFIX=/usr"],
+                           capture_output=True, text=True, timeout=300)
+        check(r.returncode == 0, "make install failed: %s" % r.stderr[-2000:])
+        for f in ("usr/bin/jakagw", "usr/bin/jakasim", "etc/jakagw/jakagw.conf",
+                  "lib/systemd/system/jakagw.service", "usr/share/doc/jakagw/register-map.md"):
+            check(os.path.isfile(os.path.join(stage, f)), "%s not installed" % f)
+        check(os.access(os.path.join(stage, "usr/bin/jakagw"), os.X_OK), "jakagw not executable")
+        with open(os.path.join(stage, "lib/systemd/system/jakagw.service")) as f:
+            unit = f.read()
+        check("ExecStart=/usr/bin/jakagw -c /etc/jakagw/jakagw.conf" in unit
+              and "@BINDIR@" not in unit and "@SYSCONFDIR@" not in unit,
+              "unit paths not filled in")
+
+
 if __name__ == "__main__":
     run([test_committed_register_map_is_current, test_bad_flags_and_config_exit_2,
          test_check_config_prints_the_effective_settings, test_version_and_help,
-         test_port_in_use_is_a_clear_runtime_failure, test_systemd_unit_exposure_below_2])
+         test_port_in_use_is_a_clear_runtime_failure, test_systemd_unit_exposure_below_2,
+         test_systemd_notify_ready_status_watchdog, test_make_install_places_every_file])

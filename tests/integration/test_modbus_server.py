@@ -9,25 +9,12 @@ import time
 
 from pymodbus.client import ModbusTcpClient
 
-from harness import (Gateway, Sim, TestFailure, check, mbap, raw_client, read_bits,
-                     read_input_registers, recv_adu, run, wait_until)
+from harness import (check, mbap, raw_client, read_bits, read_input_registers, recv_adu,
+                     run, running, wait_until)
 
 
 def start(config=""):
-    sim = Sim("--test-pattern")
-    try:
-        gw = Gateway(sim, config)
-    except Exception:
-        sim.stop()
-        raise
-    return sim, gw
-
-
-def stop(sim, gw):
-    try:
-        gw.stop()
-    finally:
-        sim.stop()
+    return running(["--test-pattern"], config)
 
 
 def expect_exception(sock, tid, pdu, function, code):
@@ -52,8 +39,7 @@ def closed_by_server(sock, timeout):
 
 
 def test_stalled_half_request_delays_nobody():
-    sim, gw = start("[modbus]\nframe_timeout_ms = 3000\n")
-    try:
+    with start("[modbus]\nframe_timeout_ms = 3000\n") as (sim, gw):
         stalled = raw_client(gw.modbus_port)
         stalled.sendall(mbap(1, struct.pack(">BHH", 4, 0, 10))[:6])  # half a request
         other = raw_client(gw.modbus_port)
@@ -76,13 +62,10 @@ def test_stalled_half_request_delays_nobody():
         check(read_input_registers(other, 0, 1, tid=999)[0] == 0x4A4B, "other client broken")
         other.close()
         stalled.close()
-    finally:
-        stop(sim, gw)
 
 
 def test_pipelined_requests_answered_in_order():
-    sim, gw = start()
-    try:
+    with start() as (sim, gw):
         s = raw_client(gw.modbus_port)
         burst = (mbap(10, struct.pack(">BHH", 4, 0, 2))            # valid
                  + mbap(11, bytes([0x07]))                          # unsupported function
@@ -104,13 +87,10 @@ def test_pipelined_requests_answered_in_order():
         # The connection stays usable after exceptions.
         check(read_input_registers(s, 1, 1, tid=16)[0] == 1, "map version")
         s.close()
-    finally:
-        stop(sim, gw)
 
 
 def test_exceptions_for_bad_requests():
-    sim, gw = start()
-    try:
+    with start() as (sim, gw):
         s = raw_client(gw.modbus_port)
         expect_exception(s, 1, struct.pack(">BHH", 3, 1, 1), 3, 2)         # past HR table
         expect_exception(s, 2, struct.pack(">BHH", 6, 5, 1), 6, 2)         # not writable
@@ -127,13 +107,10 @@ def test_exceptions_for_bad_requests():
         check("request refused: unit 1 function 3 address 1 quantity/value 1: exception 02 "
               "(illegal data address)" in out, "no log line for the refusal:\n" + out)
         check(out.count("request refused") < 4, "refusals are not rate-limited:\n" + out)
-    finally:
-        stop(sim, gw)
 
 
 def test_writes_heartbeat_and_clear_counters():
-    sim, gw = start()
-    try:
+    with start() as (sim, gw):
         c = ModbusTcpClient("127.0.0.1", port=gw.modbus_port, timeout=5)
         check(c.connect(), "connect")
         age = lambda: (lambda r: r[0] << 16 | r[1])(c.read_input_registers(48, 2, slave=1).registers)
@@ -156,13 +133,10 @@ def test_writes_heartbeat_and_clear_counters():
         check(not c.write_coils(0, [True], slave=1).isError(), "FC15")
         check("counters cleared" in gw.output(), "no log line for clearing counters")
         c.close()
-    finally:
-        stop(sim, gw)
 
 
 def test_identification_17_and_43():
-    sim, gw = start()
-    try:
+    with start() as (sim, gw):
         s = raw_client(gw.modbus_port)
         wait_until(lambda: read_bits(s, 2, 2, 1)[0] == 1, 10, "fresh status")
         s.sendall(mbap(1, bytes([0x11]), unit=9))
@@ -183,13 +157,10 @@ def test_identification_17_and_43():
         _, _, pdu = recv_adu(s)
         check(pdu[6] == 1 and pdu[7] == 0x80, "individual access %s" % pdu.hex())
         s.close()
-    finally:
-        stop(sim, gw)
 
 
 def test_full_server_evicts_the_longest_idle():
-    sim, gw = start("[modbus]\nmax_clients = 32\n")
-    try:
+    with start("[modbus]\nmax_clients = 32\n") as (sim, gw):
         clients = []
         for i in range(32):
             c = raw_client(gw.modbus_port)
@@ -224,13 +195,10 @@ def test_full_server_evicts_the_longest_idle():
         check("evicted after" in gw.output(), "no log line for eviction")
         for c in clients + later + [newcomer]:
             c.close()
-    finally:
-        stop(sim, gw)
 
 
 def test_bad_header_closes_only_that_connection():
-    sim, gw = start()
-    try:
+    with start() as (sim, gw):
         good = raw_client(gw.modbus_port)
         bad = raw_client(gw.modbus_port)
         bad.sendall(struct.pack(">HHHB", 1, 7, 6, 1) + b"\x04\x00\x00\x00\x01")
@@ -240,13 +208,10 @@ def test_bad_header_closes_only_that_connection():
         check(closed_by_server(bad, 3), "bad length not closed")
         check(read_input_registers(good, 0, 1)[0] == 0x4A4B, "good client broken")
         good.close()
-    finally:
-        stop(sim, gw)
 
 
 def test_unit_id_filter_and_idle_timeout():
-    sim, gw = start("[modbus]\nunit_id = 5\nidle_timeout_ms = 400\n")
-    try:
+    with start("[modbus]\nunit_id = 5\nidle_timeout_ms = 400\n") as (sim, gw):
         s = raw_client(gw.modbus_port)
         s.sendall(mbap(1, struct.pack(">BHH", 4, 0, 1), unit=1))
         _, _, pdu = recv_adu(s)
@@ -256,13 +221,10 @@ def test_unit_id_filter_and_idle_timeout():
         check(unit == 5 and pdu[:2] == b"\x04\x02", "own unit: %s" % pdu.hex())
         check(closed_by_server(s, 3), "idle client not closed")
         check("idle for" in gw.output(), "no log line for the idle close")
-    finally:
-        stop(sim, gw)
 
 
 def test_mbpoll_reads_live_status():
-    sim, gw = start()
-    try:
+    with start() as (sim, gw):
         out = subprocess.run(["mbpoll", "-m", "tcp", "-p", str(gw.modbus_port), "-t", "3",
                               "-r", "1", "-c", "20", "-1", "127.0.0.1"],
                              capture_output=True, text=True, timeout=20)
@@ -272,8 +234,6 @@ def test_mbpoll_reads_live_status():
                               "-B", "-r", "7", "-c", "1", "-1", "127.0.0.1"],
                              capture_output=True, text=True, timeout=20)
         check("[7]: \t-1234.5" in out.stdout, "mbpoll float probe:\n" + out.stdout)
-    finally:
-        stop(sim, gw)
 
 
 if __name__ == "__main__":

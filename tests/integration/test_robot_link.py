@@ -5,8 +5,8 @@ starts after the gateway. Each time the gateway keeps serving, counts the
 trouble in its diagnostic registers, and its data is live again after."""
 import time
 
-from harness import (Gateway, Sim, check, map_rows, raw_client, read_bits,
-                     read_input_registers, run, wait_until)
+from harness import (Gateway, check, map_rows, raw_client, read_bits, read_input_registers,
+                     run, running, wait_until)
 
 DOCS, PARSE_ERR, FRAMING, OVERSIZE, GARBAGE, LEN_MISMATCH, STATUS_RECONNECTS = \
     20, 22, 24, 26, 28, 30, 32
@@ -21,27 +21,24 @@ def fresh(sock):
     return read_bits(sock, 2, 2, 1)[0] == 1
 
 
-def with_fault(sim_args, config="", check_fn=None, settle=1.5):
-    sim = Sim("--period-ms", "20", *sim_args)
-    gw = None
-    try:
-        gw = Gateway(sim, config)
+def with_fault(sim_args, config="", check_fn=None):
+    with running(["--period-ms", "20"] + list(sim_args), config) as (sim, gw):
         s = raw_client(gw.modbus_port)
         wait_until(lambda: u32(s, DOCS) > 0, 10, "a first document")
-        time.sleep(settle)
         check_fn(s, gw)
         check(read_input_registers(s, 0, 1)[0] == 0x4A4B, "gateway no longer serving")
         s.close()
-    finally:
-        if gw:
-            gw.stop()
-        sim.stop()
+
+
+def documents_keep_coming(s, n=40):
+    """n more documents parsed (at 20 ms, 0.8 s): the stream is not lost."""
+    start = u32(s, DOCS)
+    wait_until(lambda: u32(s, DOCS) >= start + n, 10, "%d more documents" % n)
 
 
 def test_split_documents():
     def verify(s, gw):
-        docs = u32(s, DOCS)
-        check(docs >= 40, "only %d documents in 1.5 s at 20 ms" % docs)
+        documents_keep_coming(s)
         check(u32(s, PARSE_ERR) == 0 and u32(s, FRAMING) == 0, "errors on split documents")
         check(fresh(s), "not fresh")
     with_fault(["--split"], check_fn=verify)
@@ -49,7 +46,7 @@ def test_split_documents():
 
 def test_merged_documents():
     def verify(s, gw):
-        check(u32(s, DOCS) >= 40, "merged documents lost: %d" % u32(s, DOCS))
+        documents_keep_coming(s)
         check(u32(s, PARSE_ERR) == 0 and u32(s, FRAMING) == 0, "errors on merged documents")
         check(fresh(s), "not fresh")
     with_fault(["--merge", "4"], check_fn=verify)
@@ -57,11 +54,10 @@ def test_merged_documents():
 
 def test_garbage_between_documents():
     def verify(s, gw):
-        docs, garbage = u32(s, DOCS), u32(s, GARBAGE)
-        check(garbage > 0 and u32(s, FRAMING) > 0, "garbage not counted")
-        check(u32(s, PARSE_ERR) == 0, "garbage reached the parser")
         # One document in five is preceded by garbage; none is lost.
-        check(docs >= 40, "documents lost around garbage: %d" % docs)
+        documents_keep_coming(s)
+        check(u32(s, GARBAGE) > 0 and u32(s, FRAMING) > 0, "garbage not counted")
+        check(u32(s, PARSE_ERR) == 0, "garbage reached the parser")
         check(fresh(s), "not fresh")
         check("skipped bytes that belong to no document" in gw.output(), "no log line")
     with_fault(["--garbage-every", "5"], check_fn=verify)
@@ -69,17 +65,17 @@ def test_garbage_between_documents():
 
 def test_documents_cut_short():
     def verify(s, gw):
+        documents_keep_coming(s)
         check(u32(s, FRAMING) > 0, "cut-short documents not counted")
         check(u32(s, PARSE_ERR) == 0, "a cut-short document reached the parser")
-        check(u32(s, DOCS) >= 40, "whole documents lost: %d" % u32(s, DOCS))
         check(fresh(s), "not fresh")
     with_fault(["--truncate-every", "3"], check_fn=verify)
 
 
 def test_oversize_documents():
     def verify(s, gw):
+        documents_keep_coming(s, 30)
         check(u32(s, OVERSIZE) > 0, "oversize documents not counted")
-        check(u32(s, DOCS) >= 30, "the stream did not recover: %d" % u32(s, DOCS))
         check(fresh(s), "not fresh")
         check("larger than max_document_bytes" in gw.output(), "no log line")
     with_fault(["--oversize-every", "4"], check_fn=verify)
@@ -89,14 +85,14 @@ def test_corrupt_documents_are_counted_and_values_kept():
     present_din = next(int(r["address"]) for r in map_rows() if r["name"] == "present_din")
 
     def verify(s, gw):
-        check(u32(s, PARSE_ERR) > 0, "corrupt documents not counted")
-        check(u32(s, DOCS) >= 30, "good documents lost: %d" % u32(s, DOCS))
-        # Whatever the last document was, the image shows the last good one.
-        for _ in range(20):
-            check(read_input_registers(s, 0, 1)[0] == 0x4A4B, "magic")
+        # Right after each of five corrupt documents, the image still shows
+        # the last good one.
+        for _ in range(5):
+            errors = u32(s, PARSE_ERR)
+            wait_until(lambda: u32(s, PARSE_ERR) > errors, 5, "a corrupt document")
             check(read_input_registers(s, 104, 2) == [3, 2], "tool and user id lost")
             check(read_bits(s, 2, present_din, 1) == [1], "presence of din lost")
-            time.sleep(0.01)
+        documents_keep_coming(s, 10)
         check("not valid JSON" in gw.output(), "no log line for a corrupt document")
     with_fault(["--corrupt-every", "2", "--test-pattern"], check_fn=verify)
 
@@ -108,7 +104,7 @@ def test_dropped_connections_reconnect():
         out = gw.output()
         check(out.count("status link: connection to") >= 2, "no log line per loss")
     with_fault(["--drop-every-ms", "600"], "[robot]\nreconnect_min_ms = 50\n",
-               check_fn=verify, settle=0.5)
+               check_fn=verify)
 
 
 def test_silent_robot_goes_stale():
@@ -118,12 +114,11 @@ def test_silent_robot_goes_stale():
         check(300 <= age < 5000, "status age %d ms" % age)
         state = read_input_registers(s, 16, 1)[0]
         check(state in (0, 1, 3), "link state %d, expected anything but live (2)" % state)
-        check(u32(s, DOCS) > 0, "documents")
         wait_until(lambda: "no complete document for" in gw.output(), 3, "a log line")
         wait_until(lambda: u32(s, 18) > age + 200, 2,
                    "status age to grow while the robot is silent")
     with_fault(["--silent-after-ms", "800"], "[robot]\nstatus_timeout_ms = 300\n",
-               check_fn=verify, settle=0)
+               check_fn=verify)
 
 
 def test_robot_starting_after_the_gateway():
@@ -134,8 +129,10 @@ def test_robot_starting_after_the_gateway():
         check(read_input_registers(s, 16, 1)[0] in (0, 1), "link up without a robot")
         check(u32(s, 18) == 0xFFFFFFFF, "status age before any document")
         check(read_bits(s, 2, 2, 1)[0] == 0, "fresh without a robot")
+        # Watch a second of refused attempts (every 50 to 400 ms): what is
+        # checked is that nothing more is logged, which no condition can
+        # signal, so this one waits a fixed time.
         time.sleep(1.0)
-        # Repeated refusals are logged once, not once per attempt.
         check(gw.output().count("cannot connect to") <= 2,
               "connection failures flood the log:\n" + gw.output())
         port = int(gw.proc.args[gw.proc.args.index("--status-port") + 1])
