@@ -15,6 +15,18 @@ CC        ?= cc
 SAMPLES_DIR ?= $(abspath tests/data)
 
 PKGS      := libuv libmodbus libcjson inih libsystemd
+# deps, demo, test and clean work on a bare machine (demo and test install
+# the packages first); any other goal needs the compiler and the .pc files,
+# and says how to get them instead of failing with compiler errors.
+NO_PKG_GOALS := deps demo test clean uninstall
+ifneq ($(filter-out $(NO_PKG_GOALS),$(or $(MAKECMDGOALS),all)),)
+MISSING_PKGS := $(shell command -v $(CC) >/dev/null || echo $(CC); \
+    for p in $(PKGS) $(if $(filter unit-tests san valgrind,$(MAKECMDGOALS)),cmocka); do \
+        pkg-config --exists $$p 2>/dev/null || echo $$p; done)
+ifneq ($(MISSING_PKGS),)
+$(error missing $(strip $(MISSING_PKGS)): run 'make deps' first (or make demo / make test))
+endif
+endif
 PKG_CFLAGS := $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
 PKG_LIBS   := $(shell pkg-config --libs $(PKGS) 2>/dev/null)
 TEST_LIBS  := $(shell pkg-config --libs cmocka 2>/dev/null)
@@ -63,9 +75,11 @@ $(BUILD)/bench/%: bench/%.c $(BUILD)/libjakagw.a
 bench: $(BUILD)/bench/bench_pipeline
 	$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
 
-# Installs the Debian packages the build and the tests need, if missing.
+# Installs the Debian packages the build and the tests need, if missing,
+# saying which and why. DEPS_GROUPS="build tests ..." picks groups
+# (scripts/install-deps.sh --list shows them).
 deps:
-	@scripts/install-deps.sh
+	@scripts/install-deps.sh $(DEPS_GROUPS)
 
 # The sanitizer build: the same sources in build-san/ with ASan and UBSan.
 SAN_FLAGS := -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all

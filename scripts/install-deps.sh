@@ -1,30 +1,101 @@
 #!/bin/sh
-# Installs the Debian 12 packages jakagw needs to build, run and test, if any
-# is missing. Runs apt-get as root, or through sudo.
+# Installs the Debian 12 packages jakagw needs, if any is missing, and says
+# which and why. Runs apt-get as root, or through sudo.
+#
+#   scripts/install-deps.sh             the default groups (what make deps,
+#                                       make demo and make test need)
+#   scripts/install-deps.sh GROUP...    those groups only
+#   scripts/install-deps.sh --list      the groups, their reasons and packages
+#
+# Every program and Python module the build and the tests use comes from a
+# package named here, never from a Recommends: packages are installed with
+# --no-install-recommends, as on a minimal machine.
+#
+# To add a group: one group() line below, with a name, a one-line reason and
+# the packages; add the name to DEFAULT_GROUPS if make deps should install it.
 set -eu
 
-PACKAGES="build-essential pkg-config libuv1-dev libmodbus-dev libcjson-dev
-libinih-dev libsystemd-dev libcmocka-dev mbpoll python3 python3-pymodbus valgrind
-systemd"
+GROUPS_ALL=""
+group() { # name reason package...
+    name=$1 reason=$2
+    shift 2
+    GROUPS_ALL="$GROUPS_ALL $name"
+    eval "REASON_$name=\$reason PKGS_$name=\"\$*\""
+}
 
+group build "to compile jakagw and jakasim: compiler, make, pkg-config, library headers" \
+    build-essential pkg-config \
+    libuv1-dev libmodbus-dev libcjson-dev libinih-dev libsystemd-dev
+group tests "to run the tests: cmocka; python3 with pymodbus and serial_asyncio (pymodbus 3.0.0 imports it); mbpoll; systemd-analyze; valgrind (make valgrind)" \
+    libcmocka-dev \
+    python3 python3-pymodbus python3-serial-asyncio \
+    mbpoll systemd valgrind
+
+DEFAULT_GROUPS="build tests"
+
+say() { echo "install-deps: $*"; }
+fail() { echo "install-deps: $*" >&2; exit 1; }
+
+installed() {
+    dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"
+}
+
+if [ "${1:-}" = --list ]; then
+    for g in $GROUPS_ALL; do
+        eval "echo \"$g: \$REASON_$g\"; echo \"    \$PKGS_$g\""
+    done
+    exit 0
+fi
+
+wanted=${*:-$DEFAULT_GROUPS}
 missing=""
-for p in $PACKAGES; do
-    if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
-        missing="$missing $p"
+for g in $wanted; do
+    case " $GROUPS_ALL " in
+        *" $g "*) ;;
+        *) fail "unknown group '$g' (groups:$GROUPS_ALL)" ;;
+    esac
+    eval "reason=\$REASON_$g pkgs=\$PKGS_$g"
+    absent=""
+    for p in $pkgs; do
+        installed "$p" || absent="$absent $p"
+    done
+    missing="$missing$absent"
+    if [ -z "$absent" ]; then
+        say "$g ($reason): $pkgs - all installed"
+    else
+        say "$g ($reason): $pkgs - installing:$absent"
     fi
 done
 [ -z "$missing" ] && exit 0
 
-echo "install-deps: installing:$missing"
 if [ "$(id -u)" -eq 0 ]; then
     SUDO=""
 elif command -v sudo >/dev/null 2>&1; then
     SUDO="sudo"
 else
-    echo "install-deps: missing packages:$missing; run as root or install sudo" >&2
-    exit 1
+    fail "cannot install$missing: run as root, or install sudo"
 fi
+command -v apt-get >/dev/null 2>&1 || fail "cannot install$missing: no apt-get (this needs Debian 12)"
+
+count=$(echo $missing | wc -w)
+start=$(date +%s)
+log=$(mktemp)
+trap 'rm -f "$log"' EXIT
 export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
+if ! $SUDO apt-get update -qq >"$log" 2>&1; then
+    tail -n 30 "$log" >&2
+    fail "apt-get update failed: $(grep '^E:' "$log" | head -1)"
+fi
+for p in $missing; do
+    apt-cache show --no-all-versions "$p" >/dev/null 2>&1 ||
+        fail "cannot install $p: no such package in the apt sources"
+done
 # shellcheck disable=SC2086
-$SUDO apt-get install -y -qq --no-install-recommends $missing >/dev/null
+if ! $SUDO apt-get install -y -q --no-install-recommends $missing >"$log" 2>&1; then
+    tail -n 30 "$log" >&2
+    fail "apt-get install failed: $(grep '^E:' "$log" | head -1)"
+fi
+for p in $missing; do
+    installed "$p" || fail "cannot install $p: apt-get did not install it"
+done
+say "installed $count packages, $(grep -c '^Setting up ' "$log" || true) with their dependencies, in $(($(date +%s) - start)) s"

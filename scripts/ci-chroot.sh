@@ -1,0 +1,92 @@
+#!/bin/bash
+# Runs a command in a root filesystem, as root, with /proc, /sys, /dev,
+# /dev/pts and /dev/shm mounted, and exits with the command's status.
+#
+#   scripts/ci-chroot.sh ROOT COMMAND [ARG...]
+#
+# The mounts are made in a private mount namespace, so the host never sees
+# them and they cannot outlive this script's namespace. On every exit path
+# (success, failure, SIGINT, SIGTERM, SIGHUP) the processes still running in
+# ROOT are stopped, the mounts are undone in reverse order, and the script
+# checks that nothing is left mounted under ROOT. The environment inside is
+# minimal: PATH, HOME, LANG, TERM and CI.
+set -euo pipefail
+
+say() { echo "ci-chroot: $*"; }
+[ $# -ge 2 ] || { echo "usage: $0 ROOT COMMAND [ARG...]" >&2; exit 2; }
+[ "$(id -u)" -eq 0 ] || { echo "ci-chroot: must run as root" >&2; exit 2; }
+ROOT=$(realpath "$1")
+shift
+[ "$ROOT" != / ] && [ -x "$ROOT/bin/sh" ] || { echo "ci-chroot: $ROOT is not a root filesystem" >&2; exit 2; }
+
+# Same process, new mount namespace in which every mount is private.
+if [ "${JAKAGW_CI_PRIVATE_NS:-}" != "$ROOT" ]; then
+    export JAKAGW_CI_PRIVATE_NS=$ROOT
+    exec unshare --mount --propagation private -- "$0" "$ROOT" "$@"
+fi
+
+MOUNTED=()
+mnt() { # target mount-arguments...
+    local target=$ROOT$1
+    shift
+    mount "$@" "$target"
+    MOUNTED+=("$target")
+}
+
+# Processes whose root directory is ROOT: what the command left running.
+in_root() {
+    local p r
+    for p in /proc/[0-9]*; do
+        r=$(readlink "$p/root" 2>/dev/null) || continue
+        [ "$r" = "$ROOT" ] && echo "${p#/proc/}"
+    done
+    return 0
+}
+
+cleanup() {
+    local status=$? pids i target left
+    trap '' INT TERM HUP PIPE
+    pids=$(in_root)
+    if [ -n "$pids" ]; then
+        say "stopping what still runs in $ROOT:" $pids
+        kill -TERM $pids 2>/dev/null || true
+        for i in 1 2 3 4 5 6 7 8 9 10; do
+            pids=$(in_root)
+            [ -z "$pids" ] && break
+            sleep 0.5
+        done
+        [ -n "$pids" ] && kill -KILL $pids 2>/dev/null || true
+        sleep 0.2
+    fi
+    for ((i = ${#MOUNTED[@]} - 1; i >= 0; i--)); do
+        target=${MOUNTED[i]}
+        umount "$target" 2>/dev/null || { sleep 1; umount "$target"; } ||
+            { say "umount $target failed; detaching it"; umount -l "$target" || true; }
+    done
+    left=$(findmnt -rn -o TARGET | grep -F "$ROOT/" || true)
+    if [ -n "$left" ]; then
+        say "still mounted under $ROOT:" $left
+        [ "$status" -eq 0 ] && status=1
+    fi
+    exit "$status"
+}
+trap cleanup EXIT
+trap 'exit 130' INT
+trap 'exit 143' TERM
+trap 'exit 129' HUP
+
+mnt /proc -t proc -o nosuid,nodev,noexec proc
+mnt /sys -t sysfs -o ro,nosuid,nodev,noexec sysfs
+mnt /dev --bind /dev
+mnt /dev/pts --bind /dev/pts
+mnt /dev/shm -t tmpfs -o nosuid,nodev,mode=1777 shm
+if [ -f /etc/resolv.conf ]; then   # for apt-get
+    rm -f "$ROOT/etc/resolv.conf"
+    cp -L /etc/resolv.conf "$ROOT/etc/resolv.conf"
+fi
+
+# In the background so that a signal interrupts the wait at once.
+chroot "$ROOT" /usr/bin/env -i \
+    PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
+    HOME=/root LANG=C.UTF-8 TERM=dumb CI="${CI:-}" "$@" </dev/null &
+wait $!
