@@ -45,15 +45,23 @@ void config_defaults(struct gw_config *cfg);
 
 /*
  * Sets one key from text. Returns 0, or -EINVAL with a reason ("not a
- * number", "must be 1..65535", "unknown key") written to 'why'.
+ * number", "must be 1..65535", "unknown key") written to 'why'. [modbus]
+ * bind must be a literal IPv4 or IPv6 address; [robot] host an address or a
+ * host name.
  */
 int config_set(struct gw_config *cfg, const char *section, const char *key,
                const char *value, char *why, size_t why_size);
 
 /*
- * Reads an INI file over 'cfg'. Returns 0; -ENOENT when the file cannot be
- * opened; -EINVAL for a bad line, with "FILE:LINE: [section] key: reason"
- * written to 'why'.
+ * Reads an INI file over 'cfg', with "FILE: reason" or
+ * "FILE:LINE: [section] key: reason" written to 'why' on failure. Returns 0;
+ * -ENOENT when the file does not exist (only then may a caller fall back to
+ * the defaults); another negative errno when it cannot be opened or read,
+ * -EISDIR for a directory, -EFBIG above 1 MiB; -EINVAL for the first bad line:
+ * a bad value, an unknown or duplicate key, a key outside a section or on an
+ * indented (continuation) line, an unterminated [section], a NUL byte, or a
+ * line longer than libinih's line buffer (INI_MAX_LINE - 1 characters; longer
+ * comments are allowed).
  */
 int config_load(struct gw_config *cfg, const char *path, char *why,
                 size_t why_size);

@@ -3,14 +3,32 @@
 
 #include "log.h"
 
+#include <ctype.h>
 #include <errno.h>
 #include <ini.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
+#include <sys/stat.h>
+#include <uv.h>
 
-enum key_type { KEY_STRING, KEY_UINT, KEY_UNIT_ID, KEY_WORD_ORDER, KEY_LOG_LEVEL };
+/*
+ * KEY_HOST: an IP address or a host name, resolved when connecting.
+ * KEY_IP_ADDRESS: a literal IPv4 or IPv6 address, checked with the same
+ * uv_ip4_addr/uv_ip6_addr calls that the Modbus server binds with, so
+ * --check-config refuses what the daemon would refuse at start.
+ */
+enum key_type {
+    KEY_STRING,
+    KEY_HOST,
+    KEY_IP_ADDRESS,
+    KEY_UINT,
+    KEY_UNIT_ID,
+    KEY_WORD_ORDER,
+    KEY_LOG_LEVEL
+};
 
 struct key_info {
     const char *section;
@@ -27,15 +45,21 @@ struct key_info {
      sizeof(((struct gw_config *)0)->member), min, max, def}
 
 static const struct key_info keys[] = {
-    KEY("robot", "host", KEY_STRING, robot_host, 1, 0, "127.0.0.1"),
+    KEY("robot", "host", KEY_HOST, robot_host, 1, 0, "127.0.0.1"),
     KEY("robot", "status_port", KEY_UINT, status_port, 1, 65535, "10000"),
     KEY("robot", "command_port", KEY_UINT, command_port, 1, 65535, "10001"),
     KEY("robot", "connect_timeout_ms", KEY_UINT, connect_timeout_ms, 100, 600000, "3000"),
     KEY("robot", "reconnect_min_ms", KEY_UINT, reconnect_min_ms, 10, 600000, "200"),
     KEY("robot", "reconnect_max_ms", KEY_UINT, reconnect_max_ms, 10, 600000, "5000"),
     KEY("robot", "status_timeout_ms", KEY_UINT, status_timeout_ms, 50, 600000, "1000"),
-    KEY("robot", "max_document_bytes", KEY_UINT, max_document_bytes, 65536, 16777216, "65536"),
-    KEY("modbus", "bind", KEY_STRING, modbus_bind, 1, 0, "0.0.0.0"),
+    /*
+     * The framer buffers a whole document and cJSON parses it on the loop
+     * thread: a real document is about 9 KB, a 256 KiB one parses in a few
+     * milliseconds, while a 14 MB one stalled the loop (Modbus answers, the
+     * systemd watchdog) for 1.2-1.6 s.
+     */
+    KEY("robot", "max_document_bytes", KEY_UINT, max_document_bytes, 65536, 262144, "65536"),
+    KEY("modbus", "bind", KEY_IP_ADDRESS, modbus_bind, 1, 0, "0.0.0.0"),
     KEY("modbus", "port", KEY_UINT, modbus_port, 1, 65535, "502"),
     KEY("modbus", "max_clients", KEY_UINT, max_clients, 1, 1024, "32"),
     KEY("modbus", "idle_timeout_ms", KEY_UINT, idle_timeout_ms, 0, 86400000, "60000"),
@@ -44,6 +68,8 @@ static const struct key_info keys[] = {
     KEY("modbus", "word_order", KEY_WORD_ORDER, word_order, 0, 1, "high_first"),
     KEY("log", "level", KEY_LOG_LEVEL, log_level, 0, 0, "info"),
 };
+
+#define N_KEYS (sizeof(keys) / sizeof(keys[0]))
 
 static const char *const log_level_names[] = {
     [LOG_LEVEL_ERR] = "error", [LOG_LEVEL_WARNING] = "warning",
@@ -75,6 +101,41 @@ static int parse_uint(const char *text, uint32_t min, uint32_t max, uint32_t *ou
     return 0;
 }
 
+static bool is_ip_address(const char *text)
+{
+    struct sockaddr_in a4;
+    struct sockaddr_in6 a6;
+
+    return uv_ip4_addr(text, 0, &a4) == 0 || uv_ip6_addr(text, 0, &a6) == 0;
+}
+
+/*
+ * A host name as RFC 1123 has it (letters, digits, '-' inside labels of 1..63
+ * characters, 253 at most), with '_' tolerated as resolvers do. Digits and
+ * dots alone must make an IPv4 address: getaddrinfo would otherwise send
+ * "999.1.1.1" to DNS and the link would retry it forever.
+ */
+static bool is_host_name(const char *text)
+{
+    size_t len = strlen(text), label = 0;
+
+    if (len > 253 || strspn(text, "0123456789.") == len)
+        return false;
+    for (const char *p = text; *p; p++) {
+        if (*p == '.') {
+            if (label == 0 || p[-1] == '-')
+                return false;
+            label = 0;
+            continue;
+        }
+        if (!isalnum((unsigned char)*p) && *p != '-' && *p != '_')
+            return false;
+        if ((label == 0 && *p == '-') || ++label > 63)
+            return false;
+    }
+    return len > 0 && text[len - 1] != '-';
+}
+
 static int set_key(struct gw_config *cfg, const struct key_info *k,
                    const char *value, char *why, size_t why_size)
 {
@@ -83,8 +144,18 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
 
     switch (k->type) {
     case KEY_STRING:
+    case KEY_HOST:
+    case KEY_IP_ADDRESS:
         if (value[0] == '\0' || strlen(value) >= k->size) {
             snprintf(why, why_size, "must be 1..%zu characters", k->size - 1);
+            return -EINVAL;
+        }
+        if (k->type == KEY_IP_ADDRESS && !is_ip_address(value)) {
+            snprintf(why, why_size, "'%s' is not an IPv4 or IPv6 address", value);
+            return -EINVAL;
+        }
+        if (k->type == KEY_HOST && !is_ip_address(value) && !is_host_name(value)) {
+            snprintf(why, why_size, "'%s' is not an IP address or a host name", value);
             return -EINVAL;
         }
         memcpy(member, value, strlen(value) + 1);
@@ -134,65 +205,301 @@ void config_defaults(struct gw_config *cfg)
     char why[128];
 
     memset(cfg, 0, sizeof(*cfg));
-    for (size_t i = 0; i < sizeof(keys) / sizeof(keys[0]); i++)
+    for (size_t i = 0; i < N_KEYS; i++)
         set_key(cfg, &keys[i], keys[i].default_value, why, sizeof(why));
+}
+
+static const struct key_info *find_key(const char *section, const char *key)
+{
+    for (size_t i = 0; i < N_KEYS; i++) {
+        if (strcmp(keys[i].section, section) == 0 && strcmp(keys[i].key, key) == 0)
+            return &keys[i];
+    }
+    return NULL;
 }
 
 int config_set(struct gw_config *cfg, const char *section, const char *key,
                const char *value, char *why, size_t why_size)
 {
-    for (size_t i = 0; i < sizeof(keys) / sizeof(keys[0]); i++) {
-        if (strcmp(keys[i].section, section) == 0 && strcmp(keys[i].key, key) == 0)
-            return set_key(cfg, &keys[i], value, why, why_size);
+    const struct key_info *k = find_key(section, key);
+
+    if (!k) {
+        snprintf(why, why_size, "unknown key");
+        return -EINVAL;
     }
-    snprintf(why, why_size, "unknown key");
-    return -EINVAL;
+    return set_key(cfg, k, value, why, why_size);
 }
+
+/*
+ * The file is read whole, then handed to libinih one line at a time by
+ * read_line(), so that the loader knows the number and the text of the line
+ * libinih is working on. libinih's own reader (fgets into a fixed buffer)
+ * cuts a long line in two, so the error named a line that does not exist
+ * and no key; and it cannot see a NUL byte, which silently ended the value.
+ */
+#define CONFIG_MAX_FILE_BYTES (1024 * 1024)
 
 struct load_state {
     struct gw_config *cfg;
-    const char *path;
-    char *why;
-    size_t why_size;
-    int line;
+    const char *text; /* the whole file */
+    size_t size;
+    size_t next;                /* offset of the next line to hand over */
+    int line;                   /* number of the line last handed over */
+    const char *line_start;     /* its text, without the line end */
+    size_t line_len;
+    char line_defect[64];       /* why that line cannot be used, or "" */
+    int key_line[N_KEYS];       /* where each key was set, 0: not set */
+    int error_line;             /* the first error the loader found, 0: none */
+    char error[400];
 };
+
+static void fail(struct load_state *st, const char *fmt, ...)
+    __attribute__((format(printf, 2, 3)));
+
+/* Records the first error only: it is the one the user must fix first. */
+static void fail(struct load_state *st, const char *fmt, ...)
+{
+    va_list ap;
+
+    if (st->error_line)
+        return;
+    st->error_line = st->line;
+    va_start(ap, fmt);
+    vsnprintf(st->error, sizeof(st->error), fmt, ap);
+    va_end(ap);
+}
+
+static bool is_comment_or_blank(const char *text, size_t len)
+{
+    while (len && (*text == ' ' || *text == '\t')) {
+        text++;
+        len--;
+    }
+    return len == 0 || *text == ';' || *text == '#';
+}
+
+/* An ini_reader: hands libinih the next line, at most 'size' - 1 bytes. */
+static char *read_line(char *buf, int size, void *stream)
+{
+    struct load_state *st = stream;
+    const char *start, *end;
+    size_t len, usable, max = (size_t)size - 1;
+
+    if (st->line_defect[0]) {
+        /* libinih skipped the line (a comment or a [section]) without
+         * calling on_ini_entry; it is refused all the same. */
+        fail(st, "the line %s", st->line_defect);
+        st->line_defect[0] = '\0';
+    }
+    if (st->error_line || st->next >= st->size)
+        return NULL; /* the end of the file, for libinih */
+    start = st->text + st->next;
+    end = memchr(start, '\n', st->size - st->next);
+    len = end ? (size_t)(end - start) : st->size - st->next;
+    st->next += len + (end ? 1 : 0);
+    if (len && start[len - 1] == '\r')
+        len--;
+    st->line++;
+    st->line_start = start;
+    st->line_len = len;
+
+    usable = len;
+    const char *nul = memchr(start, '\0', len);
+    if (nul) {
+        snprintf(st->line_defect, sizeof(st->line_defect), "contains a NUL byte");
+        usable = (size_t)(nul - start);
+    }
+    if (usable > max) {
+        /* The rest of a long comment is dropped; anything else is refused. */
+        if (!is_comment_or_blank(start, usable))
+            snprintf(st->line_defect, sizeof(st->line_defect), "is longer than %zu characters",
+                     max);
+        usable = max;
+    }
+    memcpy(buf, start, usable);
+    buf[usable] = '\0';
+    return buf;
+}
+
+/*
+ * libinih calls an indented line that follows a key a continuation of its
+ * value, and calls the handler again with that key and the whole line as the
+ * value. No jakagw value spans lines, and an indented key that was meant as
+ * a key of its own would be swallowed: it is refused.
+ */
+static bool is_continuation(const struct load_state *st, const char *value)
+{
+    const char *p = st->line_start, *end = st->line_start + st->line_len;
+
+    if (st->line_len == 0 || (*p != ' ' && *p != '\t'))
+        return false;
+    while (p < end && (*p == ' ' || *p == '\t'))
+        p++;
+    while (end > p && isspace((unsigned char)end[-1]))
+        end--;
+    return (size_t)(end - p) == strlen(value) && memcmp(p, value, strlen(value)) == 0;
+}
 
 static int on_ini_entry(void *user, const char *section, const char *name,
                         const char *value)
 {
     struct load_state *st = user;
-    char reason[160];
+    const struct key_info *k;
+    char reason[200];
 
-    if (config_set(st->cfg, section, name, value, reason, sizeof(reason)) == 0)
-        return 1;
-    snprintf(st->why, st->why_size, "[%s] %s: %s", section, name, reason);
+    if (st->error_line)
+        return 0;
+    if (st->line_defect[0]) {
+        fail(st, "[%s] %s: the line %s", section, name, st->line_defect);
+        st->line_defect[0] = '\0';
+        return 0;
+    }
+    if (is_continuation(st, value)) {
+        fail(st, "[%s] %s: an indented line continues the value above; remove the "
+                 "indentation",
+             section, name);
+        return 0;
+    }
+    if (section[0] == '\0') {
+        fail(st, "%s: a key before any [section] line", name);
+        return 0;
+    }
+    k = find_key(section, name);
+    if (!k) {
+        fail(st, "[%s] %s: unknown key", section, name);
+        return 0;
+    }
+    if (st->key_line[k - keys]) {
+        fail(st, "[%s] %s: duplicate key, first set on line %d", section, name,
+             st->key_line[k - keys]);
+        return 0;
+    }
+    if (set_key(st->cfg, k, value, reason, sizeof(reason)) != 0) {
+        fail(st, "[%s] %s: %s", section, name, reason);
+        return 0;
+    }
+    st->key_line[k - keys] = st->line;
+    return 1;
+}
+
+/* Why libinih refused line 'n', which it read without calling the handler. */
+static void describe_bad_line(const struct load_state *st, int n, char *out, size_t out_size)
+{
+    const char *p = st->text, *end = st->text + st->size;
+    char shown[64];
+    size_t len, i;
+
+    for (int line = 1; line < n && p < end; line++) {
+        const char *nl = memchr(p, '\n', (size_t)(end - p));
+        p = nl ? nl + 1 : end;
+    }
+    while (p < end && (*p == ' ' || *p == '\t'))
+        p++;
+    len = 0;
+    while (p + len < end && p[len] != '\n' && p[len] != '\r')
+        len++;
+    for (i = 0; i < len && i < sizeof(shown) - 1; i++)
+        shown[i] = isprint((unsigned char)p[i]) ? p[i] : '?';
+    shown[i] = '\0';
+    if (len && p[0] == '[')
+        snprintf(out, out_size, "'%s': a [section] line must end with ']'", shown);
+    else
+        snprintf(out, out_size, "not a 'key = value' or [section] line: '%s'", shown);
+}
+
+static int read_whole_file(const char *path, char **text, size_t *size, char *why,
+                           size_t why_size)
+{
+    FILE *f = fopen(path, "rb");
+    struct stat sb;
+    size_t cap = 4096, n = 0;
+    char *buf;
+    int err;
+
+    if (!f) {
+        err = errno;
+        snprintf(why, why_size, "%s: cannot open: %s", path, strerror(err));
+        return -err;
+    }
+    /* A directory opens; reading it then fails, which libinih took for an
+     * empty file. */
+    if (fstat(fileno(f), &sb) == 0 && S_ISDIR(sb.st_mode)) {
+        snprintf(why, why_size, "%s: is a directory, not a configuration file", path);
+        fclose(f);
+        return -EISDIR;
+    }
+    buf = malloc(cap);
+    while (buf) {
+        size_t got;
+        if (n == cap) {
+            if (cap > CONFIG_MAX_FILE_BYTES)
+                break;
+            char *bigger = realloc(buf, cap * 2);
+            if (!bigger)
+                free(buf);
+            buf = bigger;
+            cap *= 2;
+            continue;
+        }
+        got = fread(buf + n, 1, cap - n, f);
+        if (got == 0)
+            break; /* the end of the file, or an error */
+        n += got;
+    }
+    if (!buf) {
+        snprintf(why, why_size, "%s: out of memory", path);
+        fclose(f);
+        return -ENOMEM;
+    }
+    if (n > CONFIG_MAX_FILE_BYTES) {
+        snprintf(why, why_size, "%s: larger than %d bytes, not a configuration file", path,
+                 CONFIG_MAX_FILE_BYTES);
+        free(buf);
+        fclose(f);
+        return -EFBIG;
+    }
+    if (ferror(f)) {
+        err = errno ? errno : EIO;
+        snprintf(why, why_size, "%s: cannot read: %s", path, strerror(err));
+        free(buf);
+        fclose(f);
+        return -err;
+    }
+    fclose(f);
+    *text = buf;
+    *size = n;
     return 0;
 }
 
 int config_load(struct gw_config *cfg, const char *path, char *why,
                 size_t why_size)
 {
-    struct load_state st = {cfg, path, why, why_size, 0};
-    char reason[384] = "";
+    char *text = NULL;
+    size_t size = 0;
+    char reason[200];
     int rc;
 
-    st.why = reason;
-    st.why_size = sizeof(reason);
-    rc = ini_parse(path, on_ini_entry, &st);
-    if (rc == -1) {
-        snprintf(why, why_size, "%s: cannot open: %s", path, strerror(errno));
-        return -ENOENT;
+    rc = read_whole_file(path, &text, &size, why, why_size);
+    if (rc)
+        return rc;
+    struct load_state st = {.cfg = cfg, .text = text, .size = size};
+    rc = ini_parse_stream(read_line, &st, on_ini_entry, &st);
+    if (st.line_defect[0]) /* the last line, skipped by libinih */
+        fail(&st, "the line %s", st.line_defect);
+    if (rc < 0) {
+        snprintf(why, why_size, "%s: out of memory", path);
+        rc = -ENOMEM;
+    } else if (rc > 0 && (st.error_line == 0 || rc < st.error_line)) {
+        /* libinih goes on after a line it cannot parse; it was the first. */
+        describe_bad_line(&st, rc, reason, sizeof(reason));
+        snprintf(why, why_size, "%s:%d: %s", path, rc, reason);
+        rc = -EINVAL;
+    } else if (st.error_line) {
+        snprintf(why, why_size, "%s:%d: %s", path, st.error_line, st.error);
+        rc = -EINVAL;
     }
-    if (rc != 0) {
-        /* ini_parse reports the first bad line; our handler says why. */
-        if (reason[0])
-            snprintf(why, why_size, "%s:%d: %s", path, rc, reason);
-        else
-            snprintf(why, why_size, "%s:%d: not a 'key = value' or [section] line",
-                     path, rc);
-        return -EINVAL;
-    }
-    return 0;
+    free(text);
+    return rc;
 }
 
 int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
@@ -210,7 +517,7 @@ void config_print(const struct gw_config *cfg, FILE *out)
 {
     const char *section = "";
 
-    for (size_t i = 0; i < sizeof(keys) / sizeof(keys[0]); i++) {
+    for (size_t i = 0; i < N_KEYS; i++) {
         const struct key_info *k = &keys[i];
         const void *m = (const char *)cfg + k->offset;
         if (strcmp(section, k->section) != 0) {
@@ -220,6 +527,8 @@ void config_print(const struct gw_config *cfg, FILE *out)
         fprintf(out, "%s = ", k->key);
         switch (k->type) {
         case KEY_STRING:
+        case KEY_HOST:
+        case KEY_IP_ADDRESS:
             fprintf(out, "%s\n", (const char *)m);
             break;
         case KEY_UINT:

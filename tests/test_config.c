@@ -11,17 +11,53 @@
 #include <string.h>
 #include <unistd.h>
 
+#include <ini.h>
+
 #include "config.h"
 
 static char path[64];
 
-static void write_conf(const char *text)
+/* Writes 'size' bytes, so a test can put a NUL byte in the file. */
+static void write_conf_bytes(const char *text, size_t size)
 {
     snprintf(path, sizeof(path), "/tmp/jakagw-test-%d.conf", (int)getpid());
     FILE *f = fopen(path, "w");
     assert_non_null(f);
-    fputs(text, f);
+    assert_int_equal(fwrite(text, 1, size, f), size);
     fclose(f);
+}
+
+static void write_conf(const char *text)
+{
+    write_conf_bytes(text, strlen(text));
+}
+
+/* Loads 'text' over the defaults; expects -EINVAL and 'expect' in the reason. */
+static void expect_refused(const char *text, size_t size, const char *expect)
+{
+    struct gw_config c;
+    char why[512];
+
+    config_defaults(&c);
+    write_conf_bytes(text, size);
+    int rc = config_load(&c, path, why, sizeof(why));
+    unlink(path);
+    if (rc != -EINVAL)
+        fail_msg("'%s': returned %d, expected -EINVAL", text, rc);
+    if (!strstr(why, expect))
+        fail_msg("'%s' lacks '%s'", why, expect);
+}
+
+static void expect_loaded(const char *text, struct gw_config *c)
+{
+    char why[512];
+
+    config_defaults(c);
+    write_conf(text);
+    int rc = config_load(c, path, why, sizeof(why));
+    unlink(path);
+    if (rc != 0)
+        fail_msg("refused: %s", why);
 }
 
 static void defaults(void **state)
@@ -92,6 +128,203 @@ static void missing_file(void **state)
     assert_non_null(strstr(why, "cannot open"));
 }
 
+/* A directory opens and reads as an empty file with libinih's ini_parse. */
+static void directory_is_refused(void **state)
+{
+    (void)state;
+    struct gw_config c;
+    char why[256];
+    config_defaults(&c);
+    assert_int_equal(config_load(&c, "/tmp", why, sizeof(why)), -EISDIR);
+    assert_non_null(strstr(why, "/tmp: is a directory"));
+}
+
+/* Only a file that does not exist is "missing": the default path may be
+ * absent, but a file that is there and cannot be read is an error. */
+static void unreadable_path_is_not_missing(void **state)
+{
+    (void)state;
+    struct gw_config c;
+    char why[256], below_a_file[128];
+    config_defaults(&c);
+    write_conf("");
+    snprintf(below_a_file, sizeof(below_a_file), "%s/jakagw.conf", path);
+    assert_int_equal(config_load(&c, below_a_file, why, sizeof(why)), -ENOTDIR);
+    unlink(path);
+    assert_non_null(strstr(why, "cannot open"));
+}
+
+/* The Modbus bind address is used as a literal by uv_ip4_addr/uv_ip6_addr;
+ * anything else passed --check-config and then failed at start. */
+static void modbus_bind_must_be_an_ip_address(void **state)
+{
+    (void)state;
+    static const char *const good[] = {"0.0.0.0", "127.0.0.1", "::", "::1", "fe80::1"};
+    static const char *const bad[] = {"not-an-ip", "999.1.1.1", "localhost", "1.2.3",
+                                      "127.0.0.1 ", "[::1]"};
+    struct gw_config c;
+    char why[256];
+
+    config_defaults(&c);
+    for (size_t i = 0; i < sizeof(good) / sizeof(*good); i++)
+        if (config_set(&c, "modbus", "bind", good[i], why, sizeof(why)) != 0)
+            fail_msg("bind '%s' refused: %s", good[i], why);
+    for (size_t i = 0; i < sizeof(bad) / sizeof(*bad); i++) {
+        if (config_set(&c, "modbus", "bind", bad[i], why, sizeof(why)) != -EINVAL)
+            fail_msg("bind '%s' accepted", bad[i]);
+        assert_non_null(strstr(why, "is not an IPv4 or IPv6 address"));
+    }
+    const char *text = "[modbus]\nbind = 999.1.1.1\n";
+    expect_refused(text, strlen(text), ":2: [modbus] bind: '999.1.1.1' is not an IPv4 or IPv6 address");
+}
+
+/* The robot host may be a name (resolved when connecting), but not one that
+ * no resolver could ever accept. */
+static void robot_host_is_an_address_or_a_host_name(void **state)
+{
+    (void)state;
+    static const char *const good[] = {"10.0.0.7", "::1", "robot", "robot-1.cell.example",
+                                       "robot_a.local."};
+    static const char *const bad[] = {"999.1.1.1", "10.0.0", "robot 1", "-robot", "robot..lan",
+                                      "status_port = 10001"};
+    struct gw_config c;
+    char why[256];
+
+    config_defaults(&c);
+    for (size_t i = 0; i < sizeof(good) / sizeof(*good); i++)
+        if (config_set(&c, "robot", "host", good[i], why, sizeof(why)) != 0)
+            fail_msg("host '%s' refused: %s", good[i], why);
+    for (size_t i = 0; i < sizeof(bad) / sizeof(*bad); i++)
+        if (config_set(&c, "robot", "host", bad[i], why, sizeof(why)) != -EINVAL)
+            fail_msg("host '%s' accepted", bad[i]);
+}
+
+/* libinih's buffer holds lines of INI_MAX_LINE - 1 characters; a longer one
+ * was cut in two, reported a line too far and never named its key. */
+static void long_line_names_key_and_line(void **state)
+{
+    (void)state;
+    const int limit = INI_MAX_LINE - 1;
+    char text[1024], host[512];
+    struct gw_config c;
+
+    /* Labels of 63 characters at most keep the host a valid name. */
+    for (int i = 0; i < limit - 7; i++)
+        host[i] = (i % 64 == 63) ? '.' : 'h';
+    host[limit - 7] = '\0';
+    snprintf(text, sizeof(text), "[robot]\nhost = %s\n", host);
+    expect_loaded(text, &c);
+    assert_string_equal(c.robot_host, host);
+
+    snprintf(text, sizeof(text), "[robot]\nhost = %sh\n", host);
+    char expect[128];
+    snprintf(expect, sizeof(expect), ":2: [robot] host: the line is longer than %d characters",
+             limit);
+    expect_refused(text, strlen(text), expect);
+
+    /* A long comment is harmless, and the lines after it keep their numbers. */
+    memset(host, 'c', 300);
+    host[300] = '\0';
+    snprintf(text, sizeof(text), "[robot]\n; %s\nstatus_port = 10002\n", host);
+    expect_loaded(text, &c);
+    assert_int_equal(c.status_port, 10002);
+    snprintf(text, sizeof(text), "[robot]\n; %s\nhots = x\n", host);
+    expect_refused(text, strlen(text), ":3: [robot] hots: unknown key");
+    /* A section line cut by the limit is named as too long, not as bad. */
+    snprintf(text, sizeof(text), "[%s]\n", host);
+    expect_refused(text, strlen(text), ":1: the line is longer than");
+    /* So is a key that starts past the limit. */
+    memset(host, ' ', 300);
+    snprintf(text, sizeof(text), "[robot]\n%sstatus_port = 1\n", host);
+    expect_refused(text, strlen(text), ":2: the line is longer than");
+}
+
+/* libinih kept the section before the bad line, so the next key was
+ * reported instead: "[] port: unknown key". */
+static void unterminated_section_is_named(void **state)
+{
+    (void)state;
+    const char *text = "[modbus\nport = 1502\n";
+    expect_refused(text, strlen(text), ":1: '[modbus': a [section] line must end with ']'");
+    text = "[robot]\nhost = 10.0.0.7\n[modbus ; note]\nport = 1502\n";
+    expect_refused(text, strlen(text), ":3: '[modbus ; note]': a [section] line must end");
+}
+
+/* "port = 15\0 02" was read as 15. */
+static void nul_byte_is_refused(void **state)
+{
+    (void)state;
+    static const char text[] = "[modbus]\nport = 15\0 02\n";
+    expect_refused(text, sizeof(text) - 1, ":2: [modbus] port: the line contains a NUL byte");
+    static const char comment[] = "[modbus]\n; a\0b\nport = 1502\n";
+    expect_refused(comment, sizeof(comment) - 1, ":2: the line contains a NUL byte");
+    static const char last[] = "[modbus]\n\0";
+    expect_refused(last, sizeof(last) - 1, ":2: the line contains a NUL byte");
+}
+
+/* The same key twice in a section: one of them was silently ignored. */
+static void duplicate_key_names_both_lines(void **state)
+{
+    (void)state;
+    const char *text = "[modbus]\nport = 1502\n\nport = 1503\n";
+    expect_refused(text, strlen(text), ":4: [modbus] port: duplicate key, first set on line 2");
+    text = "[modbus]\nport = 1502\n[robot]\nhost = r\n[modbus]\nport = 1502\n";
+    expect_refused(text, strlen(text), ":6: [modbus] port: duplicate key, first set on line 2");
+}
+
+/* libinih goes on after a bad line; the reason given must be the first
+ * bad line's, not the last one's. */
+static void first_error_is_reported(void **state)
+{
+    (void)state;
+    const char *text = "[modbus]\nport = x\nmax_clients = y\n";
+    expect_refused(text, strlen(text), ":2: [modbus] port: 'x' is not a whole number");
+    text = "[modbus]\nthis is not ini\nmax_clients = y\n";
+    expect_refused(text, strlen(text), ":2: not a 'key = value' or [section] line");
+}
+
+/* libinih takes an indented line as the continuation of the value above:
+ * "host = robot1" then "  status_port = 10001" set host to
+ * "status_port = 10001". */
+static void indented_continuation_is_refused(void **state)
+{
+    (void)state;
+    const char *text = "[robot]\nhost = robot1\n  status_port = 10001\n";
+    expect_refused(text, strlen(text),
+                   ":3: [robot] host: an indented line continues the value above");
+    /* Indented keys right after a section line are ordinary keys. */
+    struct gw_config c;
+    expect_loaded("[robot]\n  status_port = 10005\n", &c);
+    assert_int_equal(c.status_port, 10005);
+}
+
+static void key_before_any_section(void **state)
+{
+    (void)state;
+    const char *text = "; settings\nport = 1502\n";
+    expect_refused(text, strlen(text), ":2: port: a key before any [section] line");
+}
+
+/* A 14 MB document stalled the event loop for over a second; a real one is
+ * about 9 KB. */
+static void max_document_bytes_at_its_limits(void **state)
+{
+    (void)state;
+    struct gw_config c;
+    char why[256];
+    config_defaults(&c);
+    assert_int_equal(config_set(&c, "robot", "max_document_bytes", "262144", why, sizeof(why)),
+                     0);
+    assert_int_equal(c.max_document_bytes, 262144);
+    assert_int_equal(config_set(&c, "robot", "max_document_bytes", "262145", why, sizeof(why)),
+                     -EINVAL);
+    assert_string_equal(why, "262145 is out of range 65536..262144");
+    assert_int_equal(config_set(&c, "robot", "max_document_bytes", "65535", why, sizeof(why)),
+                     -EINVAL);
+    assert_int_equal(config_set(&c, "robot", "max_document_bytes", "65536", why, sizeof(why)),
+                     0);
+}
+
 static void rules_between_keys(void **state)
 {
     (void)state;
@@ -122,6 +355,18 @@ int main(void)
         cmocka_unit_test(file_overrides_defaults),
         cmocka_unit_test(bad_values_name_key_and_line),
         cmocka_unit_test(missing_file),
+        cmocka_unit_test(directory_is_refused),
+        cmocka_unit_test(unreadable_path_is_not_missing),
+        cmocka_unit_test(modbus_bind_must_be_an_ip_address),
+        cmocka_unit_test(robot_host_is_an_address_or_a_host_name),
+        cmocka_unit_test(long_line_names_key_and_line),
+        cmocka_unit_test(unterminated_section_is_named),
+        cmocka_unit_test(nul_byte_is_refused),
+        cmocka_unit_test(duplicate_key_names_both_lines),
+        cmocka_unit_test(first_error_is_reported),
+        cmocka_unit_test(indented_continuation_is_refused),
+        cmocka_unit_test(key_before_any_section),
+        cmocka_unit_test(max_document_bytes_at_its_limits),
         cmocka_unit_test(rules_between_keys),
         cmocka_unit_test(shipped_config_is_valid),
     };
