@@ -126,8 +126,36 @@ static void on_watchdog(uv_timer_t *t)
     on_gateway_change(&svc->gw);
 }
 
+/*
+ * getopt_long's own messages are off (a leading ':' in the option string and
+ * opterr = 0), so a bad flag gets this one line instead of two.
+ */
+static void report_bad_flag(int opt, char **argv, const struct option *options)
+{
+    /* getopt_long has stepped past the offending word. */
+    const char *word = argv[optind - 1];
+    char shown[3] = {'-', (char)optopt, '\0'};
+    bool is_long = strncmp(word, "--", 2) == 0;
+    size_t name_len = strcspn(word + 2, "=");
+    unsigned matches = 0;
+
+    for (const struct option *o = options; is_long && o->name; o++)
+        matches += strncmp(o->name, word + 2, name_len) == 0;
+    if (opt == ':')
+        fprintf(stderr, "jakagw: %s needs a value; see jakagw --help\n",
+                is_long ? word : shown);
+    else if (is_long && optopt != 0)
+        fprintf(stderr, "jakagw: '%s': %.*s takes no value; see jakagw --help\n", word,
+                (int)strcspn(word, "="), word);
+    else if (matches > 1)
+        fprintf(stderr, "jakagw: '%s' is ambiguous; see jakagw --help\n", word);
+    else
+        fprintf(stderr, "jakagw: unknown flag '%s'; see jakagw --help\n",
+                is_long || optopt == 0 ? word : shown);
+}
+
 static int parse_flags(int argc, char **argv, struct gw_config *cfg,
-                       bool *check_only, const char **print_format)
+                       bool *check_only, const char **print_format, bool *file_read)
 {
     enum { OPT_ROBOT_HOST = 256, OPT_STATUS_PORT, OPT_COMMAND_PORT,
            OPT_MODBUS_BIND, OPT_MODBUS_PORT, OPT_LOG_LEVEL, OPT_CHECK,
@@ -153,7 +181,8 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
     char why[512];
     int opt;
 
-    while ((opt = getopt_long(argc, argv, "c:h", options, NULL)) != -1) {
+    opterr = 0;
+    while ((opt = getopt_long(argc, argv, ":c:h", options, NULL)) != -1) {
         const char *section = NULL, *key = NULL;
         switch (opt) {
         case 'c': config_path = optarg; continue;
@@ -169,7 +198,7 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
         case OPT_MODBUS_PORT: section = "modbus"; key = "port"; break;
         case OPT_LOG_LEVEL: section = "log"; key = "level"; break;
         default:
-            fprintf(stderr, "jakagw: bad flag; see jakagw --help\n");
+            report_bad_flag(opt, argv, options);
             return -EINVAL;
         }
         overrides[n_overrides].section = section;
@@ -194,8 +223,11 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
         return 0;
     int rc = config_load(cfg, config_path ? config_path : CONFIG_DEFAULT_PATH, why,
                          sizeof(why));
+    *file_read = rc == 0;
+    /* No file at the default place: defaults and flags only. A file that is
+     * there but cannot be read is an error, like one given with -c. */
     if (rc == -ENOENT && !config_path)
-        rc = 0; /* no file at the default place: defaults and flags only */
+        rc = 0;
     if (rc) {
         fprintf(stderr, "jakagw: configuration error: %s\n", why);
         return -EINVAL;
@@ -221,17 +253,26 @@ int main(int argc, char **argv)
     bool check_only = false;
     const char *print_format = NULL;
     uint64_t watchdog_usec = 0;
+    bool file_read = false;
     char status[160];
 
-    if (parse_flags(argc, argv, &cfg, &check_only, &print_format))
+    if (parse_flags(argc, argv, &cfg, &check_only, &print_format, &file_read))
         return EXIT_CONFIG;
     if (print_format)
         return print_map(print_format);
     if (check_only) {
+        if (!file_read)
+            printf("; no configuration file was read (%s does not exist): defaults and "
+                   "flags in force\n",
+                   CONFIG_DEFAULT_PATH);
         config_print(&cfg, stdout);
         return 0;
     }
     log_set_level((enum log_level)cfg.log_level);
+    if (!file_read)
+        log_notice("no configuration file was read (%s does not exist): defaults and flags "
+                   "in force",
+                   CONFIG_DEFAULT_PATH);
     /* A robot or PLC closing mid-write must not kill the gateway. */
     signal(SIGPIPE, SIG_IGN);
 

@@ -3,8 +3,9 @@
 configuration gets one line naming the key and exit code 2."""
 import os
 import subprocess
+import tempfile
 
-from harness import JAKAGW, JAKASIM, check, print_map, run
+from harness import JAKAGW, JAKASIM, TestFailure, check, free_port, print_map, run
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 
@@ -42,6 +43,89 @@ def test_bad_flags_and_config_exit_2():
     os.unlink(conf)
     check(r.returncode == 2 and ":2: [modbus] max_clients: 0 is out of range 1..1024" in r.stderr,
           "bad config file: %r" % r.stderr)
+
+
+def one_line_exit_2(args, message, what=None):
+    """jakagw refuses with exit code 2 and exactly one line naming the problem."""
+    try:
+        r = jakagw(*args)
+    except subprocess.TimeoutExpired:
+        raise TestFailure("%s: still running after 10 s" % (what or args))
+    check(r.returncode == 2, "%s: exit %d, expected 2; stderr %r"
+          % (what or args, r.returncode, r.stderr))
+    lines = r.stderr.splitlines()
+    check(len(lines) == 1 and message in lines[0],
+          "%s: stderr %r is not one line with %r" % (what or args, r.stderr, message))
+
+
+def test_bad_flags_print_one_line():
+    cases = [
+        (["--bogus"], "jakagw: unknown flag '--bogus'; see jakagw --help"),
+        (["-x"], "jakagw: unknown flag '-x'"),
+        (["--status-port"], "jakagw: --status-port needs a value"),
+        (["--check-config", "-c"], "jakagw: -c needs a value"),
+        (["--check-config=yes"], "--check-config takes no value"),
+        (["--modbus", "1502"], "'--modbus' is ambiguous"),
+    ]
+    for args, message in cases:
+        one_line_exit_2(args, message)
+
+
+def test_config_directory_is_refused():
+    with tempfile.TemporaryDirectory() as d:
+        one_line_exit_2(["-c", d, "--check-config"], "%s: is a directory" % d)
+        # The daemon itself, on a port of its own: it used to start on defaults.
+        one_line_exit_2(["-c", d, "--modbus-bind", "127.0.0.1",
+                         "--modbus-port", str(free_port())], "%s: is a directory" % d)
+
+
+def write_conf(data):
+    conf = "/tmp/jakagw-cli-%d.conf" % os.getpid()
+    with open(conf, "wb") as f:
+        f.write(data)
+    return conf
+
+
+def test_check_config_refuses_what_the_daemon_would():
+    """Each of these passed --check-config (exit 0), or named the wrong line
+    or no key; the daemon then failed at start, or ran on a wrong value."""
+    cases = [
+        (b"[modbus]\nbind = not-an-ip\n",
+         ":2: [modbus] bind: 'not-an-ip' is not an IPv4 or IPv6 address"),
+        (b"[modbus]\nbind = 999.1.1.1\n",
+         ":2: [modbus] bind: '999.1.1.1' is not an IPv4 or IPv6 address"),
+        (b"[robot]\nhost = 999.1.1.1\n",
+         ":2: [robot] host: '999.1.1.1' is not an IP address or a host name"),
+        (b"[robot]\nhost = " + b"h" * 300 + b"\n",
+         ":2: [robot] host: the line is longer than"),
+        (b"[modbus\nport = 1502\n", ":1: '[modbus': a [section] line must end with ']'"),
+        (b"[modbus]\nport = 15\x00 02\n", ":2: [modbus] port: the line contains a NUL byte"),
+        (b"[modbus]\nport = 1502\nport = 1503\n",
+         ":3: [modbus] port: duplicate key, first set on line 2"),
+        (b"[robot]\nmax_document_bytes = 262145\n",
+         ":2: [robot] max_document_bytes: 262145 is out of range 65536..262144"),
+    ]
+    for data, message in cases:
+        conf = write_conf(data)
+        try:
+            one_line_exit_2(["-c", conf, "--check-config"], conf + message, data[:40])
+        finally:
+            os.unlink(conf)
+    one_line_exit_2(["--modbus-bind", "not-an-ip", "--check-config"],
+                    "jakagw: --modbus-bind: 'not-an-ip' is not an IPv4 or IPv6 address")
+
+
+def test_check_config_says_when_no_file_was_read():
+    if os.path.exists("/etc/jakagw/jakagw.conf"):
+        print("  /etc/jakagw/jakagw.conf exists: not tested")
+        return
+    r = jakagw("--check-config")
+    check(r.returncode == 0, "exit %d: %s" % (r.returncode, r.stderr))
+    first = r.stdout.splitlines()[0]
+    check(first.startswith(";") and "no configuration file was read" in first
+          and "defaults" in first, "first line %r" % first)
+    r = jakagw("-c", os.path.join(ROOT, "config", "jakagw.conf"), "--check-config")
+    check(r.returncode == 0 and "no configuration file" not in r.stdout, r.stdout)
 
 
 def test_check_config_prints_the_effective_settings():
@@ -156,6 +240,9 @@ def test_make_install_places_every_file():
 
 if __name__ == "__main__":
     run([test_committed_register_map_is_current, test_bad_flags_and_config_exit_2,
+         test_bad_flags_print_one_line, test_config_directory_is_refused,
+         test_check_config_refuses_what_the_daemon_would,
+         test_check_config_says_when_no_file_was_read,
          test_check_config_prints_the_effective_settings, test_version_and_help,
          test_port_in_use_is_a_clear_runtime_failure, test_systemd_unit_exposure_below_2,
          test_systemd_notify_ready_status_watchdog, test_make_install_places_every_file])
