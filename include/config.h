@@ -38,6 +38,13 @@ struct gw_config {
     uint32_t word_order; /* enum regmap_word_order */
     /* [log] */
     uint32_t log_level; /* enum log_level */
+    /* [can] */
+    bool can_enabled;
+    char can_interface[16]; /* IF_NAMESIZE; "" none */
+    uint32_t can_base_id;
+    bool can_extended_ids;
+    uint32_t can_period_ms;
+    uint32_t can_groups; /* bit per enum can_group */
 };
 
 /* Fills 'cfg' with the defaults. */

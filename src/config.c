@@ -1,6 +1,7 @@
 /* config.c - see config.h. */
 #include "config.h"
 
+#include "can_map.h"
 #include "log.h"
 
 #include <ctype.h>
@@ -27,7 +28,11 @@ enum key_type {
     KEY_UINT,
     KEY_UNIT_ID,
     KEY_WORD_ORDER,
-    KEY_LOG_LEVEL
+    KEY_LOG_LEVEL,
+    KEY_BOOL,
+    KEY_INTERFACE, /* a network interface name, or "" for none */
+    KEY_CAN_ID,    /* decimal or 0x hex, up to 'max' */
+    KEY_CAN_GROUPS /* a frame group list (can_map_parse_groups) */
 };
 
 struct key_info {
@@ -67,6 +72,12 @@ static const struct key_info keys[] = {
     KEY("modbus", "unit_id", KEY_UNIT_ID, unit_id, 0, 255, "any"),
     KEY("modbus", "word_order", KEY_WORD_ORDER, word_order, 0, 1, "high_first"),
     KEY("log", "level", KEY_LOG_LEVEL, log_level, 0, 0, "info"),
+    KEY("can", "enabled", KEY_BOOL, can_enabled, 0, 1, "false"),
+    KEY("can", "interface", KEY_INTERFACE, can_interface, 0, 0, ""),
+    KEY("can", "base_id", KEY_CAN_ID, can_base_id, 0, CAN_MAX_EXT_ID, "0x500"),
+    KEY("can", "extended_ids", KEY_BOOL, can_extended_ids, 0, 1, "false"),
+    KEY("can", "period_ms", KEY_UINT, can_period_ms, 5, 10000, "100"),
+    KEY("can", "frames", KEY_CAN_GROUPS, can_groups, 0, 0, "all"),
 };
 
 #define N_KEYS (sizeof(keys) / sizeof(keys[0]))
@@ -136,6 +147,65 @@ static bool is_host_name(const char *text)
     return len > 0 && text[len - 1] != '-';
 }
 
+static int parse_bool(const char *text, bool *out, char *why, size_t why_size)
+{
+    static const char *const yes[] = {"true", "yes", "on", "1"};
+    static const char *const no[] = {"false", "no", "off", "0"};
+
+    for (size_t i = 0; i < sizeof(yes) / sizeof(yes[0]); i++) {
+        if (strcasecmp(text, yes[i]) == 0 || strcasecmp(text, no[i]) == 0) {
+            *out = strcasecmp(text, yes[i]) == 0;
+            return 0;
+        }
+    }
+    snprintf(why, why_size, "'%s' must be true or false", text);
+    return -EINVAL;
+}
+
+/* As the kernel accepts them: shorter than IF_NAMESIZE, no '/', ':' or space. */
+static int parse_interface(const char *text, char *out, size_t size, char *why,
+                           size_t why_size)
+{
+    if (strlen(text) >= size) {
+        snprintf(why, why_size, "must be at most %zu characters", size - 1);
+        return -EINVAL;
+    }
+    for (const char *p = text; *p; p++) {
+        if (*p == '/' || *p == ':' || !isgraph((unsigned char)*p)) {
+            snprintf(why, why_size, "'%s' is not a network interface name", text);
+            return -EINVAL;
+        }
+    }
+    if (strcmp(text, ".") == 0 || strcmp(text, "..") == 0) {
+        snprintf(why, why_size, "'%s' is not a network interface name", text);
+        return -EINVAL;
+    }
+    memcpy(out, text, strlen(text) + 1);
+    return 0;
+}
+
+static int parse_can_id(const char *text, uint32_t max, uint32_t *out, char *why,
+                        size_t why_size)
+{
+    bool hex = text[0] == '0' && (text[1] == 'x' || text[1] == 'X');
+    const char *digits = hex ? text + 2 : text;
+    unsigned long long v;
+    char *end;
+
+    errno = 0;
+    v = strtoull(digits, &end, hex ? 16 : 10);
+    if (!isxdigit((unsigned char)digits[0]) || errno || *end != '\0') {
+        snprintf(why, why_size, "'%s' is not a CAN identifier (decimal or 0x hex)", text);
+        return -EINVAL;
+    }
+    if (v > max) {
+        snprintf(why, why_size, "%s is out of range 0..0x%X", text, max);
+        return -EINVAL;
+    }
+    *out = (uint32_t)v;
+    return 0;
+}
+
 static int set_key(struct gw_config *cfg, const struct key_info *k,
                    const char *value, char *why, size_t why_size)
 {
@@ -196,6 +266,14 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
         snprintf(why, why_size, "'%s' must be error, warning, notice, info or debug",
                  value);
         return -EINVAL;
+    case KEY_BOOL:
+        return parse_bool(value, member, why, why_size);
+    case KEY_INTERFACE:
+        return parse_interface(value, member, k->size, why, why_size);
+    case KEY_CAN_ID:
+        return parse_can_id(value, k->max, member, why, why_size);
+    case KEY_CAN_GROUPS:
+        return can_map_parse_groups(value, member, why, why_size);
     }
     return -EINVAL;
 }
@@ -510,6 +588,21 @@ int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
                  cfg->reconnect_min_ms, cfg->reconnect_max_ms);
         return -EINVAL;
     }
+    if (cfg->can_enabled) {
+        uint32_t max_id = cfg->can_extended_ids ? CAN_MAX_EXT_ID : CAN_MAX_STD_ID;
+        if (cfg->can_interface[0] == '\0') {
+            snprintf(why, why_size, "[can] enabled: true needs an interface");
+            return -EINVAL;
+        }
+        if (cfg->can_base_id > max_id - can_map_max_offset()) {
+            snprintf(why, why_size,
+                     "[can] base_id: 0x%X leaves no room for the frames: at most 0x%X "
+                     "with %s identifiers",
+                     cfg->can_base_id, max_id - can_map_max_offset(),
+                     cfg->can_extended_ids ? "extended" : "standard (11-bit)");
+            return -EINVAL;
+        }
+    }
     return 0;
 }
 
@@ -546,6 +639,21 @@ void config_print(const struct gw_config *cfg, FILE *out)
         case KEY_LOG_LEVEL:
             fprintf(out, "%s\n", log_level_names[*(const uint32_t *)m]);
             break;
+        case KEY_BOOL:
+            fprintf(out, "%s\n", *(const bool *)m ? "true" : "false");
+            break;
+        case KEY_INTERFACE:
+            fprintf(out, "%s\n", (const char *)m);
+            break;
+        case KEY_CAN_ID:
+            fprintf(out, "0x%X\n", *(const uint32_t *)m);
+            break;
+        case KEY_CAN_GROUPS: {
+            char groups[128];
+            can_map_format_groups(*(const uint32_t *)m, groups, sizeof(groups));
+            fprintf(out, "%s\n", groups);
+            break;
+        }
         }
     }
 }
