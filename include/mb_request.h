@@ -24,8 +24,21 @@
 #define MB_EXCEPTION_GATEWAY_PATH 0x0A
 
 /*
+ * mb_request_check()'s answer for function codes 128-255. The Modbus
+ * specification reserves them for exception responses, whose function code
+ * is the request's plus 0x80: a request that carries one has no exception
+ * reply (0x84 | 0x80 is 0x84 again, which a master reads as exception 01 to
+ * function 4, and libmodbus's 8-bit sum makes it 04, a normal reply). Such a
+ * PDU is a response, not a request; whoever sent it gets no answer, and the
+ * server closes the connection (answering responses with responses could
+ * also keep two servers busy with each other forever).
+ */
+#define MB_REQUEST_NOT_A_REQUEST (-1)
+
+/*
  * Checks the PDU 'pdu' of 'size' bytes (function code first) against the
- * map and the current image. Returns 0 when it may be answered, or the
+ * map and the current image. Returns 0 when it may be answered,
+ * MB_REQUEST_NOT_A_REQUEST for a function code of 128 or more, or the
  * exception code to answer with, in the order the Modbus specification
  * gives: 01 unsupported function; 03 a malformed request or a quantity
  * out of range; 02 an address range outside the table, or a write to an

@@ -12,6 +12,10 @@
  * Connection rules:
  * - a bad MBAP header (protocol id not 0, length outside 2..254) closes the
  *   connection: the stream can no longer be trusted to be framed;
+ * - a function code of 128-255 closes the connection: the Modbus
+ *   specification reserves those codes for exception responses, so no
+ *   exception reply to them exists (see MB_REQUEST_NOT_A_REQUEST); function
+ *   code 0 is answered with exception 01 (80 01);
  * - a request must complete within frame_timeout_ms of its first byte;
  * - a connection idle for idle_timeout_ms (0: never) is closed;
  * - at max_clients, a new connection evicts the one idle the longest, so a

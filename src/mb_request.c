@@ -129,6 +129,8 @@ int mb_request_check(const struct regmap_image *img, const uint8_t *pdu,
 
     if (size < 1)
         return ILLEGAL_VALUE;
+    if (pdu[0] & 0x80)
+        return MB_REQUEST_NOT_A_REQUEST;
     switch (pdu[0]) {
     case MODBUS_FC_READ_COILS:
         return check_read(map, REGMAP_COIL, pdu, size, MODBUS_MAX_READ_BITS);

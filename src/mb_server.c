@@ -288,6 +288,18 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
     size_t pdu_size = size - MBAP_SIZE;
     int ex;
 
+    if (srv->hooks.before_request)
+        srv->hooks.before_request(srv->hooks.user);
+    ex = mb_request_check(srv->img, pdu, pdu_size);
+    if (ex == MB_REQUEST_NOT_A_REQUEST) {
+        /* Whatever the unit id: no exception reply to it exists. */
+        char why[80];
+        snprintf(why, sizeof(why), "function code %u is reserved for exception responses",
+                 pdu[0]);
+        srv->stats.bad_frames++;
+        close_client(c, why);
+        return;
+    }
     srv->stats.requests++;
     if (srv->cfg.unit_id >= 0 && req[6] != srv->cfg.unit_id) {
         /* Nothing stands behind this gateway at that unit id. */
@@ -295,9 +307,6 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         reply_exception(c, req, MB_EXCEPTION_GATEWAY_PATH);
         return;
     }
-    if (srv->hooks.before_request)
-        srv->hooks.before_request(srv->hooks.user);
-    ex = mb_request_check(srv->img, pdu, pdu_size);
     if (ex) {
         log_refused(c, req, size, ex);
         reply_exception(c, req, ex);

@@ -93,7 +93,24 @@ static void other_functions(void **state)
     assert_int_equal(CHECK(0x2B, 0x0D, 1, 0), 1); /* CANopen: not supported */
     assert_int_equal(CHECK(0x07), 1);
     assert_int_equal(CHECK(0x08, 0, 0, 0, 0), 1);
-    assert_int_equal(CHECK(0x80), 1);
+    assert_int_equal(CHECK(0x00), 1);
+    assert_int_equal(CHECK(0x7F), 1);
+}
+
+/* Codes 128-255 mark exception responses: no exception reply to them
+ * exists, so they are not answered at all (the server closes). */
+static void reserved_function_codes(void **state)
+{
+    (void)state;
+    for (unsigned fc = 0x80; fc <= 0xFF; fc++) {
+        const uint8_t pdu[] = {(uint8_t)fc, 0, 0, 0, 1};
+        assert_int_equal(mb_request_check(&img, pdu, sizeof(pdu)),
+                         MB_REQUEST_NOT_A_REQUEST);
+        assert_int_equal(mb_request_check(&img, pdu, 1), MB_REQUEST_NOT_A_REQUEST);
+    }
+    /* 0x84 is a read of input registers with bit 7 set: not a read. */
+    assert_int_equal(CHECK(0x84, 0, 0, 0, 1), MB_REQUEST_NOT_A_REQUEST);
+    assert_int_equal(CHECK(0x04, 0, 0, 0, 1), 0);
 }
 
 static void write_ranges(void **state)
@@ -119,6 +136,7 @@ int main(void)
         cmocka_unit_test(reads),
         cmocka_unit_test(writes),
         cmocka_unit_test(other_functions),
+        cmocka_unit_test(reserved_function_codes),
         cmocka_unit_test(write_ranges),
     };
     return cmocka_run_group_tests_name("mb_request", tests, setup, teardown);

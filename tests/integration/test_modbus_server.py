@@ -197,6 +197,44 @@ def test_full_server_evicts_the_longest_idle():
             c.close()
 
 
+def test_reserved_function_codes_close_the_connection():
+    # Codes 128-255 mark exception responses; no exception reply to them
+    # exists (bit 7 is already set), so the gateway closes the connection
+    # after answering what came before, whatever the unit id.
+    for config, unit in (("", 1), ("[modbus]\nunit_id = 5\n", 1)):
+        with start(config) as (sim, gw):
+            for function in (0x80, 0x84, 0xAB, 0xFF):
+                s = raw_client(gw.modbus_port)
+                s.sendall(mbap(1, struct.pack(">BHH", 4, 0, 1), unit=5)
+                          + mbap(2, struct.pack(">BHH", function, 0, 1), unit=unit)
+                          + mbap(3, struct.pack(">BHH", 4, 0, 1), unit=5))
+                tid, _, pdu = recv_adu(s)
+                check(tid == 1 and pdu[:2] == b"\x04\x02", "first reply %d %s" % (tid, pdu.hex()))
+                extra, closed = b"", False
+                s.settimeout(5)
+                try:
+                    while not closed:
+                        chunk = s.recv(4096)
+                        extra += chunk
+                        closed = not chunk
+                except ConnectionResetError:
+                    closed = True
+                except socket.timeout:
+                    pass
+                check(extra == b"" and closed, "function %02x (%s): answered %s, %s"
+                      % (function, config.strip() or "any unit", extra.hex() or "nothing",
+                         "closed" if closed else "left open"))
+                s.close()
+            # Function 0 is invalid too, but its exception reply (80 01) is
+            # well-formed: answered, and the connection stays usable.
+            s = raw_client(gw.modbus_port)
+            expect_exception(s, 9, bytes([0x00]), 0x00, 1 if not config else 0x0A)
+            s.sendall(mbap(10, struct.pack(">BHH", 4, 0, 1), unit=5))
+            check(recv_adu(s)[0] == 10, "connection unusable after function 0")
+            s.close()
+            check("reserved for exception responses" in gw.output(), "no log line")
+
+
 def test_bad_header_closes_only_that_connection():
     with start() as (sim, gw):
         good = raw_client(gw.modbus_port)
@@ -241,4 +279,4 @@ if __name__ == "__main__":
          test_exceptions_for_bad_requests, test_writes_heartbeat_and_clear_counters,
          test_identification_17_and_43, test_full_server_evicts_the_longest_idle,
          test_bad_header_closes_only_that_connection, test_unit_id_filter_and_idle_timeout,
-         test_mbpoll_reads_live_status])
+         test_mbpoll_reads_live_status, test_reserved_function_codes_close_the_connection])
