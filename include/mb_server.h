@@ -16,8 +16,9 @@
  *   specification reserves those codes for exception responses, so no
  *   exception reply to them exists (see MB_REQUEST_NOT_A_REQUEST); function
  *   code 0 is answered with exception 01 (80 01);
- * - a request must complete within frame_timeout_ms of its first byte;
- * - a connection idle for idle_timeout_ms (0: never) is closed;
+ * - a request must complete within frame_timeout_ms of its first byte; each
+ *   connection has its own timer, so the deadline holds to the millisecond;
+ * - a connection silent for idle_timeout_ms (0: never) is closed;
  * - at max_clients, a new connection evicts the one idle the longest, so a
  *   PLC reconnecting after a cable pull is never locked out by its own
  *   half-dead previous connection;
@@ -76,7 +77,6 @@ struct mb_server {
     struct mb_server_hooks hooks;
     struct regmap_image *img;
     uv_tcp_t listener;
-    uv_timer_t sweep;
     modbus_t *ctx;
     int pair[2]; /* [0] libmodbus writes replies, [1] we read them */
     struct mb_client *clients; /* doubly linked, newest first */

@@ -17,6 +17,8 @@
 
 struct mb_client {
     uv_tcp_t tcp;
+    /* The one deadline in force: the partial frame's or the idle timeout's. */
+    uv_timer_t timer;
     struct mb_server *srv;
     struct mb_client *prev, *next;
     uint8_t buf[2 * MAX_ADU];
@@ -25,6 +27,7 @@ struct mb_client {
     uint64_t frame_start_ms; /* when the first byte of a partial frame came */
     char peer[64];
     bool closing;
+    int open_handles; /* tcp and timer */
 };
 
 struct reply {
@@ -53,11 +56,13 @@ static void maybe_finish_close(struct mb_server *srv)
         srv->close_cb(srv);
 }
 
-static void on_client_closed(uv_handle_t *h)
+static void on_client_handle_closed(uv_handle_t *h)
 {
     struct mb_client *c = h->data;
     struct mb_server *srv = c->srv;
 
+    if (--c->open_handles > 0)
+        return;
     free(c);
     srv->open_handles--;
     maybe_finish_close(srv);
@@ -79,7 +84,8 @@ static void close_client(struct mb_client *c, const char *why)
     if (c->next)
         c->next->prev = c->prev;
     srv->stats.clients--;
-    uv_close((uv_handle_t *)&c->tcp, on_client_closed);
+    uv_close((uv_handle_t *)&c->tcp, on_client_handle_closed);
+    uv_close((uv_handle_t *)&c->timer, on_client_handle_closed);
 }
 
 static void on_reply_written(uv_write_t *req, int status)
@@ -379,6 +385,29 @@ static void on_client_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
     *buf = uv_buf_init((char *)c->buf + c->used, (unsigned)(sizeof(c->buf) - c->used));
 }
 
+static void on_client_timer(uv_timer_t *t);
+
+/*
+ * Arms the client's timer for its earliest deadline: the partial frame's
+ * (frame_timeout_ms after its first byte) or the idle timeout's. One
+ * timer per connection, so each deadline holds to the millisecond.
+ */
+static void arm_deadline(struct mb_client *c)
+{
+    struct mb_server *srv = c->srv;
+    uint64_t now = uv_now(srv->loop), deadline = UINT64_MAX;
+
+    if (c->used)
+        deadline = c->frame_start_ms + srv->cfg.frame_timeout_ms;
+    if (srv->cfg.idle_timeout_ms &&
+        c->last_activity_ms + srv->cfg.idle_timeout_ms < deadline)
+        deadline = c->last_activity_ms + srv->cfg.idle_timeout_ms;
+    if (deadline == UINT64_MAX)
+        uv_timer_stop(&c->timer);
+    else
+        uv_timer_start(&c->timer, on_client_timer, deadline > now ? deadline - now : 0, 0);
+}
+
 static void on_client_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
 {
     struct mb_client *c = s->data;
@@ -401,6 +430,29 @@ static void on_client_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
         c->frame_start_ms = 0;
     else if (consumed > 0 || !had_partial)
         c->frame_start_ms = c->last_activity_ms;
+    arm_deadline(c);
+}
+
+static void on_client_timer(uv_timer_t *t)
+{
+    struct mb_client *c = t->data;
+    struct mb_server *srv = c->srv;
+    uint64_t now = uv_now(srv->loop);
+    char why[96];
+
+    if (c->used && now - c->frame_start_ms >= srv->cfg.frame_timeout_ms) {
+        snprintf(why, sizeof(why), "request incomplete after %llu ms (%zu bytes)",
+                 (unsigned long long)(now - c->frame_start_ms), c->used);
+        srv->stats.bad_frames++;
+        close_client(c, why);
+    } else if (srv->cfg.idle_timeout_ms &&
+               now - c->last_activity_ms >= srv->cfg.idle_timeout_ms) {
+        snprintf(why, sizeof(why), "idle for %llu ms",
+                 (unsigned long long)(now - c->last_activity_ms));
+        close_client(c, why);
+    } else {
+        arm_deadline(c);
+    }
 }
 
 static struct mb_client *longest_idle(struct mb_server *srv)
@@ -448,11 +500,15 @@ static void on_connection(uv_stream_t *listener, int status)
     }
     c->srv = srv;
     uv_tcp_init(srv->loop, &c->tcp);
+    uv_timer_init(srv->loop, &c->timer);
     c->tcp.data = c;
+    c->timer.data = c;
+    c->open_handles = 2;
     srv->open_handles++;
     if (uv_accept(listener, (uv_stream_t *)&c->tcp) < 0) {
         c->closing = true;
-        uv_close((uv_handle_t *)&c->tcp, on_client_closed);
+        uv_close((uv_handle_t *)&c->tcp, on_client_handle_closed);
+        uv_close((uv_handle_t *)&c->timer, on_client_handle_closed);
         return;
     }
     describe_peer(c);
@@ -477,31 +533,11 @@ static void on_connection(uv_stream_t *listener, int status)
     uv_tcp_nodelay(&c->tcp, 1);
     uv_tcp_keepalive(&c->tcp, 1, 10);
     log_debug("modbus: client %s connected (%u now)", c->peer, srv->stats.clients);
-    if (uv_read_start((uv_stream_t *)&c->tcp, on_client_alloc, on_client_read) < 0)
+    if (uv_read_start((uv_stream_t *)&c->tcp, on_client_alloc, on_client_read) < 0) {
         close_client(c, "cannot read");
-}
-
-static void on_sweep(uv_timer_t *t)
-{
-    struct mb_server *srv = t->data;
-    uint64_t now = uv_now(srv->loop);
-    struct mb_client *next;
-    char why[96];
-
-    for (struct mb_client *c = srv->clients; c; c = next) {
-        next = c->next;
-        if (c->used && now - c->frame_start_ms >= srv->cfg.frame_timeout_ms) {
-            snprintf(why, sizeof(why), "request incomplete after %llu ms (%zu bytes)",
-                     (unsigned long long)(now - c->frame_start_ms), c->used);
-            srv->stats.bad_frames++;
-            close_client(c, why);
-        } else if (srv->cfg.idle_timeout_ms &&
-                   now - c->last_activity_ms >= srv->cfg.idle_timeout_ms) {
-            snprintf(why, sizeof(why), "idle for %llu ms",
-                     (unsigned long long)(now - c->last_activity_ms));
-            close_client(c, why);
-        }
+        return;
     }
+    arm_deadline(c);
 }
 
 static int open_reply_pair(struct mb_server *srv)
@@ -523,7 +559,6 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
                     const struct mb_server_hooks *hooks)
 {
     struct sockaddr_storage addr;
-    unsigned sweep_ms;
     int rc;
 
     memset(srv, 0, sizeof(*srv));
@@ -554,9 +589,7 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
     }
     uv_tcp_init(loop, &srv->listener);
     srv->listener.data = srv;
-    uv_timer_init(loop, &srv->sweep);
-    srv->sweep.data = srv;
-    srv->open_handles = 2;
+    srv->open_handles = 1;
     rc = uv_tcp_bind(&srv->listener, (const struct sockaddr *)&addr, 0);
     if (rc == 0)
         rc = uv_listen((uv_stream_t *)&srv->listener, 64, on_connection);
@@ -565,12 +598,6 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
                 uv_strerror(rc));
         return rc;
     }
-    sweep_ms = cfg->frame_timeout_ms / 4;
-    if (cfg->idle_timeout_ms && cfg->idle_timeout_ms / 4 < sweep_ms)
-        sweep_ms = cfg->idle_timeout_ms / 4;
-    if (sweep_ms < 10)
-        sweep_ms = 10;
-    uv_timer_start(&srv->sweep, on_sweep, sweep_ms, sweep_ms);
     log_notice("modbus: listening on %s port %d (max %u clients)", cfg->bind,
                mb_server_port(srv), cfg->max_clients);
     return 0;
@@ -617,5 +644,4 @@ void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv))
         return;
     }
     uv_close((uv_handle_t *)&srv->listener, on_server_handle_closed);
-    uv_close((uv_handle_t *)&srv->sweep, on_server_handle_closed);
 }

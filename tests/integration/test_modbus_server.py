@@ -9,7 +9,7 @@ import time
 
 from pymodbus.client import ModbusTcpClient
 
-from harness import (check, mbap, raw_client, read_bits, read_input_registers, recv_adu,
+from harness import (TestFailure, check, mbap, raw_client, read_bits, read_input_registers, recv_adu,
                      run, running, wait_until)
 
 
@@ -235,6 +235,81 @@ def test_reserved_function_codes_close_the_connection():
             check("reserved for exception responses" in gw.output(), "no log line")
 
 
+def timed_completions(port, first, second, answers_first):
+    """Twelve connections, started 20 ms apart: each sends 'first' (and
+    reads its answer if 'answers_first'), then 'second' 0.9 s (even ones)
+    or 1.1 s (odd ones) later. Returns (late and answered, on time and
+    refused, on time but this client was itself late), as gaps in s."""
+    socks = [raw_client(port) for _ in range(12)]
+    events = [(time.monotonic() + 0.02 * i, "first", i) for i in range(12)]
+    started, gaps = {}, {}
+    while events:
+        events.sort(key=lambda e: e[0])
+        when, kind, i = events.pop(0)
+        pause = when - time.monotonic()
+        if pause > 0:
+            time.sleep(pause)  # the test is about time: act at the moment
+        delay = 1.1 if i % 2 else 0.9
+        if kind == "first":
+            started[i] = time.monotonic()
+            socks[i].sendall(first)
+            if answers_first:
+                check(recv_adu(socks[i])[0] == 1, "first request not answered")
+            events.append((started[i] + delay, "second", i))
+        else:
+            try:
+                socks[i].sendall(second)
+            except OSError:
+                pass  # already closed by the gateway: that is a refusal
+            gaps[i] = time.monotonic() - started[i]
+    late_answered, on_time_refused, client_late = [], [], 0
+    for i, s in enumerate(socks):
+        try:
+            tid, _, pdu = recv_adu(s)
+            answered = tid == 2 and pdu[:2] == b"\x04\x02"
+        except (TestFailure, OSError):
+            answered = False
+        s.close()
+        if i % 2 and answered:
+            late_answered.append(round(gaps[i], 3))
+        elif not i % 2 and not answered:
+            if gaps[i] > 0.97:
+                client_late += 1
+            else:
+                on_time_refused.append(round(gaps[i], 3))
+    return late_answered, on_time_refused, client_late
+
+
+def check_timed_completions(what, result):
+    late_answered, on_time_refused, client_late = result
+    print("  %s: after 1.1 s answered %d of 6; after 0.9 s refused %d of 6 (%d sent late)"
+          % (what, len(late_answered), len(on_time_refused), client_late))
+    check(not late_answered, "%s: answered after %s s" % (what, late_answered))
+    check(not on_time_refused, "%s: refused after %s s" % (what, on_time_refused))
+    check(client_late < 3, "%s: the test client itself was late %d times" % (what, client_late))
+
+
+def test_frame_deadline_is_precise():
+    """frame_timeout_ms = 1000: a request completed 1.1 s after its first
+    byte is refused (connection closed, no answer), one completed after
+    0.9 s is answered."""
+    with start("[modbus]\nframe_timeout_ms = 1000\n") as (sim, gw):
+        request = mbap(2, struct.pack(">BHH", 4, 0, 1))
+        check_timed_completions("request completed",
+                                timed_completions(gw.modbus_port, request[:5], request[5:],
+                                                  False))
+
+
+def test_idle_timeout_is_precise():
+    """idle_timeout_ms = 1000: a client that polls again 1.1 s after its
+    last request has been closed; one that polls after 0.9 s is answered."""
+    with start("[modbus]\nidle_timeout_ms = 1000\n") as (sim, gw):
+        check_timed_completions("next request",
+                                timed_completions(gw.modbus_port,
+                                                  mbap(1, struct.pack(">BHH", 4, 0, 1)),
+                                                  mbap(2, struct.pack(">BHH", 4, 0, 1)), True))
+
+
 def test_bad_header_closes_only_that_connection():
     with start() as (sim, gw):
         good = raw_client(gw.modbus_port)
@@ -279,4 +354,5 @@ if __name__ == "__main__":
          test_exceptions_for_bad_requests, test_writes_heartbeat_and_clear_counters,
          test_identification_17_and_43, test_full_server_evicts_the_longest_idle,
          test_bad_header_closes_only_that_connection, test_unit_id_filter_and_idle_timeout,
-         test_mbpoll_reads_live_status, test_reserved_function_codes_close_the_connection])
+         test_mbpoll_reads_live_status, test_reserved_function_codes_close_the_connection,
+         test_frame_deadline_is_precise, test_idle_timeout_is_precise])
