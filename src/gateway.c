@@ -43,6 +43,9 @@ static void on_status_document(struct robot_link *link, const char *json,
     gw->status = gw->scratch;
     gw->scratch = previous;
     gw->counters.documents_parsed++;
+    /* A fresh clock: the parse may have taken a while, and the age that
+     * PLCs read must count from when the data became available. */
+    uv_update_time(gw->loop);
     gw->last_document_ms = uv_now(gw->loop);
     gw->last_document_bytes = size;
     regmap_encode_status(&gw->image, gw->status);

@@ -25,11 +25,15 @@ static void on_framer_event(void *user, enum framer_event event,
     struct robot_link *link = user;
 
     if (event == FRAMER_EVENT_OBJECT) {
-        link->last_object_ms = uv_now(link->loop);
         /* The robot speaks: a later failure starts the backoff afresh. */
         link->backoff_ms = 0;
         link->last_error = 0;
         link->cb.on_object(link, data, size);
+        /* Handling the object may have taken long (a large document): the
+         * silence watchdog must count from now, not from the loop time
+         * cached before it, or it would take the work for silence. */
+        uv_update_time(link->loop);
+        link->last_object_ms = uv_now(link->loop);
         return;
     }
     if (link->cb.on_framing_error)

@@ -1,0 +1,183 @@
+/*
+ * test_robot_link.c - the robot link on a real libuv loop against an
+ * in-process TCP server: silence detection must not mistake the time spent
+ * handling a large document for silence from the robot.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <signal.h>
+#include <stdlib.h>
+#include <string.h>
+#include <uv.h>
+
+#include "log.h"
+#include "robot_link.h"
+
+#define SILENCE_MS 150
+#define DOC "{\"len\": 19, \"n\": 1}"
+
+struct fixture {
+    uv_loop_t loop;
+    uv_tcp_t server;
+    uv_tcp_t peer;
+    bool peer_open;
+    uv_timer_t pusher;
+    uv_timer_t stop;
+    struct robot_link link;
+    int objects;
+    int connected;
+    unsigned busy_ms; /* how long the first object's handling takes */
+    int pushes;
+    int push_limit; /* 0: no limit */
+};
+
+static void on_written(uv_write_t *req, int status)
+{
+    (void)status;
+    free(req);
+}
+
+/* The robot pushes a document every SILENCE_MS / 3. */
+static void push(uv_timer_t *t)
+{
+    struct fixture *fx = t->data;
+    if (!fx->peer_open || (fx->push_limit && fx->pushes >= fx->push_limit))
+        return;
+    fx->pushes++;
+    uv_write_t *req = malloc(sizeof(*req));
+    uv_buf_t buf = uv_buf_init((char *)DOC, (unsigned)strlen(DOC));
+    assert_int_equal(uv_write(req, (uv_stream_t *)&fx->peer, &buf, 1, on_written), 0);
+}
+
+static void on_peer(uv_stream_t *server, int status)
+{
+    struct fixture *fx = server->data;
+    assert_int_equal(status, 0);
+    if (fx->peer_open) {
+        /* A reconnect: accept and drop, the test counts connections. */
+        uv_tcp_t *extra = malloc(sizeof(*extra));
+        uv_tcp_init(&fx->loop, extra);
+        uv_accept(server, (uv_stream_t *)extra);
+        uv_close((uv_handle_t *)extra, (uv_close_cb)free);
+        return;
+    }
+    uv_tcp_init(&fx->loop, &fx->peer);
+    fx->peer.data = fx;
+    assert_int_equal(uv_accept(server, (uv_stream_t *)&fx->peer), 0);
+    fx->peer_open = true;
+}
+
+static void on_object(struct robot_link *link, const char *json, size_t size)
+{
+    struct fixture *fx = link->user;
+    (void)json;
+    (void)size;
+    if (fx->objects++ == 0 && fx->busy_ms) {
+        /* Stands for parsing a large document: the loop is busy. */
+        uint64_t until = uv_hrtime() + (uint64_t)fx->busy_ms * 1000000;
+        while (uv_hrtime() < until)
+            ;
+    }
+}
+
+static void on_state(struct robot_link *link, enum robot_link_state state)
+{
+    struct fixture *fx = link->user;
+    if (state == ROBOT_LINK_CONNECTED)
+        fx->connected++;
+}
+
+static void on_link_closed(struct robot_link *link)
+{
+    (void)link;
+}
+
+static void close_all(uv_timer_t *t)
+{
+    struct fixture *fx = t->data;
+    robot_link_close(&fx->link, on_link_closed);
+    uv_close((uv_handle_t *)&fx->server, NULL);
+    uv_close((uv_handle_t *)&fx->pusher, NULL);
+    uv_close((uv_handle_t *)&fx->stop, NULL);
+    if (fx->peer_open)
+        uv_close((uv_handle_t *)&fx->peer, NULL);
+}
+
+static void run_link(struct fixture *fx, unsigned run_ms)
+{
+    struct sockaddr_in addr;
+    struct sockaddr_storage bound;
+    int len = sizeof(bound);
+
+    assert_int_equal(uv_loop_init(&fx->loop), 0);
+    uv_tcp_init(&fx->loop, &fx->server);
+    fx->server.data = fx;
+    uv_ip4_addr("127.0.0.1", 0, &addr);
+    assert_int_equal(uv_tcp_bind(&fx->server, (const struct sockaddr *)&addr, 0), 0);
+    assert_int_equal(uv_listen((uv_stream_t *)&fx->server, 8, on_peer), 0);
+    uv_tcp_getsockname(&fx->server, (struct sockaddr *)&bound, &len);
+
+    struct robot_link_config cfg = {
+        .name = "status",
+        .host = "127.0.0.1",
+        .port = ntohs(((struct sockaddr_in *)&bound)->sin_port),
+        .connect_timeout_ms = 1000,
+        .reconnect_min_ms = 50,
+        .reconnect_max_ms = 100,
+        .silence_timeout_ms = SILENCE_MS,
+        .max_object = 4096,
+    };
+    struct robot_link_callbacks cb = {.on_object = on_object, .on_state = on_state};
+    assert_int_equal(robot_link_init(&fx->loop, &fx->link, &cfg, &cb, fx), 0);
+    assert_int_equal(robot_link_start(&fx->link), 0);
+    uv_timer_init(&fx->loop, &fx->pusher);
+    uv_timer_init(&fx->loop, &fx->stop);
+    fx->pusher.data = fx->stop.data = fx;
+    uv_timer_start(&fx->pusher, push, SILENCE_MS / 3, SILENCE_MS / 3);
+    uv_timer_start(&fx->stop, close_all, run_ms, 0);
+    uv_run(&fx->loop, UV_RUN_DEFAULT);
+    /* Every handle closed: the loop closes clean. */
+    assert_int_equal(uv_loop_close(&fx->loop), 0);
+}
+
+/*
+ * The first document takes 2.5 x the silence limit to handle. The robot
+ * kept sending meanwhile, so the link must stay up: one connection only.
+ */
+static void long_handling_is_not_silence(void **state)
+{
+    (void)state;
+    struct fixture fx;
+    memset(&fx, 0, sizeof(fx));
+    fx.busy_ms = SILENCE_MS * 5 / 2;
+    run_link(&fx, SILENCE_MS * 6);
+    assert_true(fx.objects > 3);
+    assert_int_equal(fx.connected, 1);
+}
+
+/* A robot that goes quiet after two documents is restarted: the check works. */
+static void real_silence_restarts(void **state)
+{
+    (void)state;
+    struct fixture fx;
+    memset(&fx, 0, sizeof(fx));
+    fx.push_limit = 2;
+    run_link(&fx, SILENCE_MS * 6);
+    assert_int_equal(fx.objects, 2);
+    assert_true(fx.connected >= 2);
+}
+
+int main(void)
+{
+    signal(SIGPIPE, SIG_IGN); /* a write to a closed peer must not end the test */
+    log_set_level(LOG_LEVEL_ERR);
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(long_handling_is_not_silence),
+        cmocka_unit_test(real_silence_restarts),
+    };
+    return cmocka_run_group_tests_name("robot_link", tests, NULL, NULL);
+}
