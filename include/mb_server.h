@@ -19,11 +19,17 @@
  * - a request must complete within frame_timeout_ms of its first byte; each
  *   connection has its own timer, so the deadline holds to the millisecond;
  * - a connection silent for idle_timeout_ms (0: never) is closed;
- * - at max_clients, a new connection evicts the one idle the longest, so a
- *   PLC reconnecting after a cable pull is never locked out by its own
- *   half-dead previous connection;
- * - a client that does not read its replies (more than 64 KiB queued) is
- *   closed.
+ * - at max_clients, a new connection is always admitted and evicts, first,
+ *   the oldest connection that has not completed a request, then the
+ *   client whose last complete request is the oldest. A burst of silent
+ *   connects only displaces itself, never a polling PLC; a PLC reconnecting
+ *   after a cable pull displaces its own half-dead previous connection.
+ *   Before judging, the server reads what the kernel already holds for
+ *   every client: requests that have arrived are answered, and peers that
+ *   have closed are let go and do not count;
+ * - a client that closes its side (or is closed by these rules) still gets
+ *   the replies already built, for up to MB_SERVER_FLUSH_MS; one that does
+ *   not read its replies (more than 64 KiB queued) is closed at once.
  * Function codes 17 (report server id) and 43/14 (device identification)
  * are answered here, because libmodbus 3.1.6 reports its own name for 17
  * and does not know 43.
@@ -39,6 +45,9 @@
 
 #include "log.h"
 #include "regmap.h"
+
+/* How long replies may take to leave once a connection is being closed. */
+#define MB_SERVER_FLUSH_MS 5000
 
 struct mb_server_config {
     const char *bind;
@@ -79,7 +88,9 @@ struct mb_server {
     uv_tcp_t listener;
     modbus_t *ctx;
     int pair[2]; /* [0] libmodbus writes replies, [1] we read them */
-    struct mb_client *clients; /* doubly linked, newest first */
+    /* Doubly linked, newest first: the clients still open or flushing. */
+    struct mb_client *clients;
+    uint64_t sequence; /* orders accepts and requests, for eviction */
     struct mb_server_stats stats;
     char device_info[64];
     /* Lines a client can trigger, at most one per second per kind. */

@@ -14,20 +14,36 @@
 #define MBAP_SIZE 7
 #define MAX_ADU (MBAP_SIZE + 253)
 #define MAX_QUEUED_REPLY_BYTES (64 * 1024)
+/* Reads per drain, so a client that never stops sending cannot hold us. */
+#define MAX_DRAIN_READS 16
+
+enum client_state {
+    CLIENT_OPEN,     /* reading requests; counts toward max_clients */
+    CLIENT_FLUSHING, /* no more reading; replies still going out */
+    CLIENT_CLOSING,  /* uv_close() called */
+};
 
 struct mb_client {
     uv_tcp_t tcp;
-    /* The one deadline in force: the partial frame's or the idle timeout's. */
+    /* The one deadline in force: the partial frame's, the idle timeout's,
+     * or (flushing) the bound on delivering the last replies. */
     uv_timer_t timer;
+    uv_shutdown_t shutdown;
     struct mb_server *srv;
     struct mb_client *prev, *next;
     uint8_t buf[2 * MAX_ADU];
     size_t used;
-    uint64_t last_activity_ms;
-    uint64_t frame_start_ms; /* when the first byte of a partial frame came */
+    uint64_t accepted_ms;
+    uint64_t last_activity_ms; /* when bytes last came: the idle timeout */
+    uint64_t frame_start_ms;   /* when the first byte of a partial frame came */
+    uint64_t last_request_ms;  /* when the last complete request came */
+    /* srv->sequence at accept and at the last complete request: the
+     * eviction order, exact where milliseconds tie. */
+    uint64_t accept_seq;
+    uint64_t request_seq;      /* 0: no request completed yet */
     char peer[64];
-    bool closing;
-    int open_handles; /* tcp and timer */
+    enum client_state state;
+    int open_handles;          /* tcp and timer */
 };
 
 struct reply {
@@ -68,13 +84,13 @@ static void on_client_handle_closed(uv_handle_t *h)
     maybe_finish_close(srv);
 }
 
+/* Closes at once; replies not yet written are dropped. */
 static void close_client(struct mb_client *c, const char *why)
 {
     struct mb_server *srv = c->srv;
 
-    if (c->closing)
+    if (c->state == CLIENT_CLOSING)
         return;
-    c->closing = true;
     if (why)
         client_log(srv, &srv->close_log_limit, c->peer, "closing connection", why);
     if (c->prev)
@@ -83,9 +99,46 @@ static void close_client(struct mb_client *c, const char *why)
         srv->clients = c->next;
     if (c->next)
         c->next->prev = c->prev;
-    srv->stats.clients--;
+    if (c->state == CLIENT_OPEN)
+        srv->stats.clients--;
+    c->state = CLIENT_CLOSING;
     uv_close((uv_handle_t *)&c->tcp, on_client_handle_closed);
     uv_close((uv_handle_t *)&c->timer, on_client_handle_closed);
+}
+
+static void on_client_shutdown(uv_shutdown_t *req, int status)
+{
+    (void)status; /* UV_ECANCELED when closed meanwhile: close_client knows */
+    close_client(req->data, NULL);
+}
+
+static void on_client_timer(uv_timer_t *t);
+
+/*
+ * Stops serving 'c' but delivers the replies already built: the client
+ * stops counting toward max_clients at once, reading stops, and the
+ * connection closes when its write queue is empty (at most
+ * MB_SERVER_FLUSH_MS later). Used for every close but those caused by
+ * the write side (a client that does not read, a failed write).
+ */
+static void release_client(struct mb_client *c, const char *why)
+{
+    struct mb_server *srv = c->srv;
+
+    if (c->state != CLIENT_OPEN)
+        return;
+    if (why)
+        client_log(srv, &srv->close_log_limit, c->peer, "closing connection", why);
+    srv->stats.clients--;
+    c->state = CLIENT_FLUSHING;
+    c->used = 0;
+    uv_read_stop((uv_stream_t *)&c->tcp);
+    if (uv_stream_get_write_queue_size((uv_stream_t *)&c->tcp) == 0 ||
+        uv_shutdown(&c->shutdown, (uv_stream_t *)&c->tcp, on_client_shutdown) < 0) {
+        close_client(c, NULL);
+        return;
+    }
+    uv_timer_start(&c->timer, on_client_timer, MB_SERVER_FLUSH_MS, 0);
 }
 
 static void on_reply_written(uv_write_t *req, int status)
@@ -303,7 +356,7 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         snprintf(why, sizeof(why), "function code %u is reserved for exception responses",
                  pdu[0]);
         srv->stats.bad_frames++;
-        close_client(c, why);
+        release_client(c, why);
         return;
     }
     srv->stats.requests++;
@@ -349,7 +402,7 @@ static size_t process_frames(struct mb_client *c)
 {
     size_t off = 0;
 
-    while (!c->closing && c->used - off >= MBAP_SIZE) {
+    while (c->state == CLIENT_OPEN && c->used - off >= MBAP_SIZE) {
         const uint8_t *h = c->buf + off;
         unsigned protocol = (unsigned)h[2] << 8 | h[3];
         unsigned length = (unsigned)h[4] << 8 | h[5];
@@ -360,16 +413,18 @@ static size_t process_frames(struct mb_client *c)
                      "bad MBAP header (protocol id %u, length %u)", protocol,
                      length);
             c->srv->stats.bad_frames++;
-            close_client(c, why);
+            release_client(c, why);
             return off;
         }
         size_t frame = MBAP_SIZE - 1 + length;
         if (c->used - off < frame)
             break;
+        c->request_seq = ++c->srv->sequence;
+        c->last_request_ms = uv_now(c->srv->loop);
         answer(c, h, frame);
         off += frame;
     }
-    if (c->closing)
+    if (c->state != CLIENT_OPEN)
         return off;
     if (off) {
         memmove(c->buf, c->buf + off, c->used - off);
@@ -384,8 +439,6 @@ static void on_client_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
     (void)suggested;
     *buf = uv_buf_init((char *)c->buf + c->used, (unsigned)(sizeof(c->buf) - c->used));
 }
-
-static void on_client_timer(uv_timer_t *t);
 
 /*
  * Arms the client's timer for its earliest deadline: the partial frame's
@@ -408,22 +461,15 @@ static void arm_deadline(struct mb_client *c)
         uv_timer_start(&c->timer, on_client_timer, deadline > now ? deadline - now : 0, 0);
 }
 
-static void on_client_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
+/* Takes 'n' new bytes at c->buf + c->used: answers, then re-arms. */
+static void client_received(struct mb_client *c, size_t n)
 {
-    struct mb_client *c = s->data;
     bool had_partial = c->used > 0;
 
-    (void)buf;
-    if (nread == 0)
-        return;
-    if (nread < 0) {
-        close_client(c, nread == UV_EOF ? NULL : uv_strerror((int)nread));
-        return;
-    }
-    c->used += (size_t)nread;
+    c->used += n;
     c->last_activity_ms = uv_now(c->srv->loop);
     size_t consumed = process_frames(c);
-    if (c->closing)
+    if (c->state != CLIENT_OPEN)
         return;
     /* A partial frame keeps the deadline of its first byte. */
     if (c->used == 0)
@@ -433,36 +479,131 @@ static void on_client_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
     arm_deadline(c);
 }
 
+/*
+ * Reads, without waiting, whatever the kernel already holds for 'c', as
+ * the read callback would have a moment later: requests are answered, an
+ * end of stream releases the client. Every judgement of a connection
+ * (deadline, idle timeout, eviction) comes after this, so a request that
+ * has arrived is answered, and a peer that has closed does not count.
+ * libuv reads the same socket with read(2) and keeps no data of its own,
+ * so reading it here loses nothing.
+ */
+static void drain_client(struct mb_client *c)
+{
+    uv_os_fd_t fd;
+
+    if (c->state != CLIENT_OPEN || uv_fileno((uv_handle_t *)&c->tcp, &fd) != 0)
+        return;
+    for (int i = 0; i < MAX_DRAIN_READS && c->state == CLIENT_OPEN; i++) {
+        ssize_t n = recv(fd, c->buf + c->used, sizeof(c->buf) - c->used, MSG_DONTWAIT);
+        if (n > 0) {
+            client_received(c, (size_t)n);
+        } else if (n == 0) {
+            release_client(c, NULL);
+        } else if (errno != EINTR) {
+            if (errno != EAGAIN && errno != EWOULDBLOCK)
+                close_client(c, strerror(errno));
+            return;
+        }
+    }
+}
+
+static void on_client_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
+{
+    struct mb_client *c = s->data;
+
+    (void)buf;
+    if (nread == 0)
+        return;
+    if (nread == UV_EOF) {
+        /* Replies to what it sent before closing its side still go out. */
+        release_client(c, NULL);
+        return;
+    }
+    if (nread < 0) {
+        close_client(c, uv_strerror((int)nread));
+        return;
+    }
+    client_received(c, (size_t)nread);
+}
+
 static void on_client_timer(uv_timer_t *t)
 {
     struct mb_client *c = t->data;
     struct mb_server *srv = c->srv;
-    uint64_t now = uv_now(srv->loop);
     char why[96];
 
+    if (c->state == CLIENT_FLUSHING) {
+        close_client(c, "replies not taken after the client closed its side");
+        return;
+    }
+    drain_client(c); /* bytes that have arrived count */
+    if (c->state != CLIENT_OPEN)
+        return;
+    uint64_t now = uv_now(srv->loop);
     if (c->used && now - c->frame_start_ms >= srv->cfg.frame_timeout_ms) {
         snprintf(why, sizeof(why), "request incomplete after %llu ms (%zu bytes)",
                  (unsigned long long)(now - c->frame_start_ms), c->used);
         srv->stats.bad_frames++;
-        close_client(c, why);
+        release_client(c, why);
     } else if (srv->cfg.idle_timeout_ms &&
                now - c->last_activity_ms >= srv->cfg.idle_timeout_ms) {
         snprintf(why, sizeof(why), "idle for %llu ms",
                  (unsigned long long)(now - c->last_activity_ms));
-        close_client(c, why);
+        release_client(c, why);
     } else {
         arm_deadline(c);
     }
 }
 
-static struct mb_client *longest_idle(struct mb_server *srv)
+/*
+ * The client to evict for a newcomer. First the connections that never
+ * completed a request, oldest first: a burst of silent connects only
+ * displaces itself. Then the client whose last complete request is the
+ * oldest: a PLC reconnecting after a cable pull displaces its own
+ * half-dead connection, and an actively polling client goes last.
+ */
+static struct mb_client *eviction_victim(struct mb_server *srv)
 {
     struct mb_client *best = NULL;
+
     for (struct mb_client *c = srv->clients; c; c = c->next) {
-        if (!c->closing && (!best || c->last_activity_ms <= best->last_activity_ms))
+        if (c->state != CLIENT_OPEN)
+            continue;
+        if (!best) {
             best = c;
+        } else if ((c->request_seq == 0) != (best->request_seq == 0)) {
+            if (c->request_seq == 0)
+                best = c;
+        } else if (c->request_seq == 0 ? c->accept_seq < best->accept_seq
+                                       : c->request_seq < best->request_seq) {
+            best = c;
+        }
     }
     return best;
+}
+
+static void evict_for(struct mb_server *srv, const char *newcomer)
+{
+    struct mb_client *victim = eviction_victim(srv);
+    uint64_t now = uv_now(srv->loop);
+    char why[160];
+
+    if (!victim)
+        return;
+    if (victim->request_seq == 0)
+        snprintf(why, sizeof(why),
+                 "evicted, no request in the %llu ms since it connected, to admit %s "
+                 "(max_clients %u)",
+                 (unsigned long long)(now - victim->accepted_ms), newcomer,
+                 srv->cfg.max_clients);
+    else
+        snprintf(why, sizeof(why),
+                 "evicted after %llu ms without a request to admit %s (max_clients %u)",
+                 (unsigned long long)(now - victim->last_request_ms), newcomer,
+                 srv->cfg.max_clients);
+    srv->stats.evictions++;
+    release_client(victim, why);
 }
 
 static void describe_peer(struct mb_client *c)
@@ -503,28 +644,30 @@ static void on_connection(uv_stream_t *listener, int status)
     uv_timer_init(srv->loop, &c->timer);
     c->tcp.data = c;
     c->timer.data = c;
+    c->shutdown.data = c;
     c->open_handles = 2;
     srv->open_handles++;
     if (uv_accept(listener, (uv_stream_t *)&c->tcp) < 0) {
-        c->closing = true;
+        c->state = CLIENT_CLOSING;
         uv_close((uv_handle_t *)&c->tcp, on_client_handle_closed);
         uv_close((uv_handle_t *)&c->timer, on_client_handle_closed);
         return;
     }
     describe_peer(c);
     if (srv->stats.clients >= srv->cfg.max_clients) {
-        struct mb_client *victim = longest_idle(srv);
-        if (victim) {
-            char why[128];
-            snprintf(why, sizeof(why), "evicted after %llu ms idle to admit %s "
-                     "(max_clients %u)",
-                     (unsigned long long)(uv_now(srv->loop) - victim->last_activity_ms),
-                     c->peer, srv->cfg.max_clients);
-            srv->stats.evictions++;
-            close_client(victim, why);
+        /* Judge on what has arrived: answer the requests the kernel holds
+         * and let go of the peers that have closed. A burst of connects is
+         * accepted in one go, before any of these would be read. */
+        struct mb_client *next;
+        for (struct mb_client *o = srv->clients; o; o = next) {
+            next = o->next;
+            drain_client(o);
         }
+        if (srv->stats.clients >= srv->cfg.max_clients)
+            evict_for(srv, c->peer);
     }
-    c->last_activity_ms = uv_now(srv->loop);
+    c->accepted_ms = c->last_activity_ms = uv_now(srv->loop);
+    c->accept_seq = ++srv->sequence;
     c->next = srv->clients;
     if (srv->clients)
         srv->clients->prev = c;

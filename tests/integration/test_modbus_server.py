@@ -2,9 +2,11 @@
 """The Modbus TCP slave as a PLC sees it: framing, pipelining, exceptions,
 writes, identification, client limits. Byte-exact requests go over raw
 sockets; mbpoll and pymodbus check that independent masters agree."""
+import signal
 import socket
 import struct
 import subprocess
+import threading
 import time
 
 from pymodbus.client import ModbusTcpClient
@@ -197,6 +199,140 @@ def test_full_server_evicts_the_longest_idle():
             c.close()
 
 
+class Poller:
+    """A PLC on its own thread: reads the client count and the eviction
+    counter (input registers 40-43) every 10 ms, and counts what went wrong.
+    A closed connection counts as an eviction; the poller reconnects."""
+
+    def __init__(self, port, period=0.01):
+        self.port, self.period = port, period
+        self.polls = self.failures = self.evicted = 0
+        self.clients = self.evictions = None
+        self.errors = []
+        self._stop = threading.Event()
+        self._sock = raw_client(port)
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        tid = 0
+        while not self._stop.is_set():
+            tid = (tid + 1) & 0xFFFF
+            try:
+                regs = read_input_registers(self._sock, 40, 4, tid=tid)
+                self.clients, self.evictions = regs[0], regs[2] << 16 | regs[3]
+                self.polls += 1
+            except Exception as e:  # a failed poll: record it, reconnect
+                self.failures += 1
+                self.errors.append("%s: %s" % (type(e).__name__, e))
+                if isinstance(e, (TestFailure, ConnectionError)):
+                    self.evicted += 1
+                self._sock.close()
+                try:
+                    self._sock = raw_client(self.port)
+                except OSError as e2:
+                    self.errors.append("reconnect: %s" % e2)
+            self._stop.wait(self.period)
+
+    def wait_polls(self, n, what="the poller"):
+        target = self.polls + n
+        wait_until(lambda: self.polls >= target or self.failures, 10, what)
+
+    def stop(self):
+        self._stop.set()
+        self._thread.join(10)
+        self._sock.close()
+
+
+def silent_burst(port, n):
+    """n connections that never send anything, opened as fast as possible."""
+    return [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(n)]
+
+
+def test_active_poller_survives_connect_bursts():
+    with start("[modbus]\nmax_clients = 32\n") as (sim, gw):
+        poller = Poller(gw.modbus_port)
+        bursts = [33] * 20 + [100]
+        expected, bursts_evicting_poller, excess = 0, 0, []
+        try:
+            for i, n in enumerate(bursts):
+                poller.wait_polls(2)  # bursts at varying phases of the poll period
+                evicted_before = poller.evicted
+                burst = silent_burst(gw.modbus_port, n)
+                # The poller and the burst need n + 1 - 32 evictions: no
+                # more, so the previous burst, closed just before this one
+                # started, counted for nothing.
+                expected += n + 1 - 32
+                wait_until(lambda: poller.evicted > evicted_before
+                           or (poller.evictions or 0) >= expected, 10,
+                           "%d evictions" % expected)
+                poller.wait_polls(2)
+                for s in burst:
+                    s.close()
+                if poller.evicted > evicted_before:
+                    bursts_evicting_poller += 1
+                if poller.evictions != expected:
+                    excess.append((i, poller.evictions - expected))
+                    expected = poller.evictions
+        finally:
+            poller.stop()
+        print("  %d polls; poller evicted in %d of %d bursts, %d failed polls; "
+              "bursts with evictions beyond need: %s"
+              % (poller.polls, bursts_evicting_poller, len(bursts), poller.failures, excess))
+        check(poller.evicted == 0 and poller.failures == 0,
+              "the active poller was evicted in %d of %d bursts, %d polls failed: %s"
+              % (bursts_evicting_poller, len(bursts), poller.failures, poller.errors[:3]))
+        check(not excess, "(burst, evictions beyond need): %s" % excess)
+
+
+def test_buffered_requests_and_closed_peers_before_eviction():
+    """While the gateway is held (SIGSTOP), the kernel completes the
+    connections and buffers their bytes: 12 clients send a request and
+    shut down their write side, 20 connect and close, 30 connect silently.
+    Released, the gateway finds 62 connections waiting: every request it has
+    received is answered, and the closed ones do not count toward
+    max_clients, so nothing needs evicting."""
+    with start("[modbus]\nmax_clients = 32\n") as (sim, gw):
+        poller = Poller(gw.modbus_port)
+        held = []
+        try:
+            poller.wait_polls(2)
+            gw.proc.send_signal(signal.SIGSTOP)
+            try:
+                half_closed = []
+                for i in range(12):
+                    s = raw_client(gw.modbus_port)
+                    s.sendall(mbap(500 + i, struct.pack(">BHH", 4, 0, 1)))
+                    s.shutdown(socket.SHUT_WR)
+                    half_closed.append(s)
+                for s in silent_burst(gw.modbus_port, 20):
+                    s.close()
+                held = silent_burst(gw.modbus_port, 30)
+            finally:
+                gw.proc.send_signal(signal.SIGCONT)
+            answered = 0
+            for i, s in enumerate(half_closed):
+                try:
+                    tid, _, pdu = recv_adu(s)
+                    answered += tid == 500 + i and pdu[:4] == b"\x04\x02\x4a\x4b"
+                except (TestFailure, OSError):
+                    pass
+                s.close()
+            poller.wait_polls(3)
+        finally:
+            poller.stop()
+            for s in held:
+                s.close()
+        print("  half-closed clients answered: %d of 12; evictions %s; poller evicted %d"
+              % (answered, poller.evictions, poller.evicted))
+        check(answered == 12, "%d of 12 half-closed clients got their answer" % answered)
+        check(poller.evicted == 0 and poller.failures == 0,
+              "the poller was evicted: %s" % poller.errors[:3])
+        check(poller.evictions == 0, "%s evictions with only 31 live clients"
+              % poller.evictions)
+        check(poller.clients == 31, "clients register %s, expected 31" % poller.clients)
+
+
 def test_reserved_function_codes_close_the_connection():
     # Codes 128-255 mark exception responses; no exception reply to them
     # exists (bit 7 is already set), so the gateway closes the connection
@@ -354,5 +490,7 @@ if __name__ == "__main__":
          test_exceptions_for_bad_requests, test_writes_heartbeat_and_clear_counters,
          test_identification_17_and_43, test_full_server_evicts_the_longest_idle,
          test_bad_header_closes_only_that_connection, test_unit_id_filter_and_idle_timeout,
-         test_mbpoll_reads_live_status, test_reserved_function_codes_close_the_connection,
-         test_frame_deadline_is_precise, test_idle_timeout_is_precise])
+         test_mbpoll_reads_live_status, test_active_poller_survives_connect_bursts,
+         test_buffered_requests_and_closed_peers_before_eviction,
+         test_reserved_function_codes_close_the_connection, test_frame_deadline_is_precise,
+         test_idle_timeout_is_precise])
