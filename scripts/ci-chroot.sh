@@ -44,20 +44,18 @@ in_root() {
 }
 
 cleanup() {
-    local status=$? pids i target left
+    local status=$? pids= i target left
+    set +e
     trap '' INT TERM HUP PIPE
-    pids=$(in_root)
-    if [ -n "$pids" ]; then
-        say "stopping what still runs in $ROOT:" $pids
-        kill -TERM $pids 2>/dev/null || true
-        for i in 1 2 3 4 5 6 7 8 9 10; do
-            pids=$(in_root)
-            [ -z "$pids" ] && break
-            sleep 0.5
-        done
-        [ -n "$pids" ] && kill -KILL $pids 2>/dev/null || true
-        sleep 0.2
-    fi
+    # Again and again, to catch what was forked meanwhile; SIGKILL after 5 s.
+    for i in $(seq 1 20); do
+        pids=$(in_root)
+        [ -z "$pids" ] && break
+        [ "$i" -eq 1 ] && say "stopping what still runs in $ROOT:" $pids
+        kill -"$([ "$i" -le 10 ] && echo TERM || echo KILL)" $pids 2>/dev/null || true
+        sleep 0.5
+    done
+    [ -z "$pids" ] || say "could not stop:" $pids
     for ((i = ${#MOUNTED[@]} - 1; i >= 0; i--)); do
         target=${MOUNTED[i]}
         umount "$target" 2>/dev/null || { sleep 1; umount "$target"; } ||
@@ -67,6 +65,8 @@ cleanup() {
     if [ -n "$left" ]; then
         say "still mounted under $ROOT:" $left
         [ "$status" -eq 0 ] && status=1
+    else
+        say "unmounted ${#MOUNTED[@]} file systems; nothing left mounted under $ROOT"
     fi
     exit "$status"
 }
