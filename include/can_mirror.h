@@ -118,6 +118,12 @@ void can_mirror_close(struct can_mirror *m, void (*cb)(struct can_mirror *m));
 /* Closes the sink of a mirror that was never started (tests). */
 void can_mirror_release(struct can_mirror *m);
 
+/* Resets the stats to 0 (the clear_counters coil). */
+void can_mirror_clear_stats(struct can_mirror *m);
+
+/* Failed opens, sends and polls and bus-off reports, all kinds together. */
+uint64_t can_mirror_errors(const struct can_mirror_stats *stats);
+
 /* A short name of a state, for logs and tests. */
 const char *can_mirror_state_name(enum can_mirror_state state);
 

@@ -12,6 +12,7 @@
 #include <stdint.h>
 #include <uv.h>
 
+#include "can_mirror.h"
 #include "config.h"
 #include "log.h"
 #include "mb_server.h"
@@ -34,6 +35,7 @@ enum {
     GATEWAY_PART_MODBUS = 1,
     GATEWAY_PART_STATUS_LINK = 2,
     GATEWAY_PART_COMMAND_LINK = 4,
+    GATEWAY_PART_CAN = 8,
 };
 
 struct gateway {
@@ -47,6 +49,7 @@ struct gateway {
     struct robot_link status_link;
     struct robot_link command_link;
     struct mb_server modbus;
+    struct can_mirror can; /* running when [can] enabled */
     struct gateway_counters counters;
     double gw_values[GW_VALUE_COUNT];
 

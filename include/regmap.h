@@ -94,7 +94,11 @@ enum regmap_word_order {
     X(last_document_bytes)                                                     \
     X(plc_heartbeat)                                                           \
     X(plc_heartbeat_age_ms)                                                    \
-    X(clear_counters)
+    X(clear_counters)                                                          \
+    X(can_state)                                                               \
+    X(can_frames_sent)                                                         \
+    X(can_frames_dropped)                                                      \
+    X(can_errors)
 
 enum gw_value {
 #define GW_ENUM(name) GW_##name,

@@ -294,3 +294,15 @@ void can_mirror_close(struct can_mirror *m, void (*cb)(struct can_mirror *m))
     }
     uv_close((uv_handle_t *)&m->timer, on_timer_closed);
 }
+
+void can_mirror_clear_stats(struct can_mirror *m)
+{
+    memset(&m->stats, 0, sizeof(m->stats));
+    m->dropped_when_sending = 0;
+}
+
+uint64_t can_mirror_errors(const struct can_mirror_stats *stats)
+{
+    return stats->queue_full + stats->interface_down + stats->interface_absent +
+           stats->bus_off + stats->other_errors;
+}

@@ -160,6 +160,10 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_uptime_s] = (double)((uv_now(gw->loop) - gw->started_ms) / 1000);
     v[GW_last_document_bytes] = (double)gw->last_document_bytes;
     v[GW_plc_heartbeat_age_ms] = age_ms(gw, gw->heartbeat_changed_ms);
+    v[GW_can_state] = gw->can.state;
+    v[GW_can_frames_sent] = (double)gw->can.stats.frames_sent;
+    v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
+    v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
     regmap_encode_gw(&gw->image, v);
 }
 
@@ -170,6 +174,7 @@ static void clear_counters(struct gateway *gw)
     gw->modbus.stats.exceptions = 0;
     gw->modbus.stats.evictions = 0;
     gw->modbus.stats.bad_frames = 0;
+    can_mirror_clear_stats(&gw->can);
     log_notice("counters cleared by a Modbus client");
 }
 
@@ -256,6 +261,41 @@ static int start_links(struct gateway *gw)
     return 0;
 }
 
+/* The CAN mirror's view each period: the model and values Modbus reads. */
+static void can_snapshot(void *user, struct can_inputs *in)
+{
+    struct gateway *gw = user;
+
+    gateway_refresh_values(gw);
+    in->status = gw->status;
+    in->gw = gw->gw_values;
+}
+
+static int start_can(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct can_mirror_config cc = {
+        .base_id = cfg->can_base_id,
+        .extended_ids = cfg->can_extended_ids,
+        .period_ms = cfg->can_period_ms,
+        .groups = cfg->can_groups,
+    };
+    int rc;
+
+    if (!cfg->can_enabled)
+        return 0;
+    snprintf(cc.interface, sizeof(cc.interface), "%s", cfg->can_interface);
+    rc = can_mirror_init(&gw->can, &cc, NULL, can_snapshot, gw);
+    if (rc) {
+        log_err("CAN mirror: the [can] settings do not fit the frame map");
+        return rc;
+    }
+    rc = can_mirror_start(gw->loop, &gw->can);
+    if (rc == 0)
+        gw->parts |= GATEWAY_PART_CAN;
+    return rc;
+}
+
 /* The self-description values, which never change while running. */
 static void set_constant_values(struct gateway *gw)
 {
@@ -316,7 +356,10 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = mb_server_start(loop, &gw->modbus, &mc, &gw->image, &hooks);
     if (rc)
         return rc;
-    return start_links(gw);
+    rc = start_links(gw);
+    if (rc)
+        return rc;
+    return start_can(gw);
 }
 
 static void part_closed(struct gateway *gw)
@@ -339,6 +382,11 @@ static void on_server_closed(struct mb_server *srv)
     part_closed(srv->hooks.user);
 }
 
+static void on_can_closed(struct can_mirror *m)
+{
+    part_closed(m->user);
+}
+
 void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
 {
     gw->close_cb = cb;
@@ -355,6 +403,10 @@ void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
     if (gw->parts & GATEWAY_PART_COMMAND_LINK) {
         gw->closing_parts++;
         robot_link_close(&gw->command_link, on_link_closed);
+    }
+    if (gw->parts & GATEWAY_PART_CAN) {
+        gw->closing_parts++;
+        can_mirror_close(&gw->can, on_can_closed);
     }
     part_closed(gw);
 }

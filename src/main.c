@@ -3,6 +3,7 @@
  * events, systemd readiness, status and watchdog; everything else is in
  * gateway.c.
  */
+#include "can_map.h"
 #include "config.h"
 #include "gateway.h"
 #include "log.h"
@@ -43,6 +44,7 @@ static void usage(FILE *out)
             "      --log-level LEVEL    error, warning, notice, info or debug\n"
             "      --check-config       check the configuration, print it, exit\n"
             "      --print-map FORMAT   print the register map as csv or md, exit\n"
+            "      --print-dbc          print the DBC of the CAN frames as configured, exit\n"
             "      --version            print the version, exit\n"
             "  -h, --help               print this help, exit\n\n"
             "Exit status: 0 stopped cleanly, 1 runtime failure, 2 bad flag or "
@@ -72,6 +74,25 @@ static int print_map(const char *format)
     rc = regmap_print(&map, f, stdout);
     regmap_free(&map);
     if (fflush(stdout) != 0 || rc != 0)
+        return 1;
+    return 0;
+}
+
+/* The DBC for the configured identifiers, period and frame groups. */
+static int print_dbc(const struct gw_config *cfg)
+{
+    struct can_dbc_options opt = {
+        .base_id = cfg->can_base_id,
+        .extended_ids = cfg->can_extended_ids,
+        .period_ms = cfg->can_period_ms,
+        .groups = cfg->can_groups,
+    };
+
+    if (can_map_check() != 0) {
+        fprintf(stderr, "jakagw: the built-in CAN frame map is invalid\n");
+        return 1;
+    }
+    if (can_map_print_dbc(&opt, stdout) != 0 || fflush(stdout) != 0)
         return 1;
     return 0;
 }
@@ -155,11 +176,12 @@ static void report_bad_flag(int opt, char **argv, const struct option *options)
 }
 
 static int parse_flags(int argc, char **argv, struct gw_config *cfg,
-                       bool *check_only, const char **print_format, bool *file_read)
+                       bool *check_only, const char **print_format, bool *file_read,
+                       bool *print_dbc_only)
 {
     enum { OPT_ROBOT_HOST = 256, OPT_STATUS_PORT, OPT_COMMAND_PORT,
            OPT_MODBUS_BIND, OPT_MODBUS_PORT, OPT_LOG_LEVEL, OPT_CHECK,
-           OPT_PRINT_MAP, OPT_VERSION };
+           OPT_PRINT_MAP, OPT_VERSION, OPT_PRINT_DBC };
     static const struct option options[] = {
         {"config", required_argument, NULL, 'c'},
         {"robot-host", required_argument, NULL, OPT_ROBOT_HOST},
@@ -170,6 +192,7 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
         {"log-level", required_argument, NULL, OPT_LOG_LEVEL},
         {"check-config", no_argument, NULL, OPT_CHECK},
         {"print-map", required_argument, NULL, OPT_PRINT_MAP},
+        {"print-dbc", no_argument, NULL, OPT_PRINT_DBC},
         {"version", no_argument, NULL, OPT_VERSION},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
@@ -191,6 +214,7 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
                                  REGMAP_VERSION); exit(0);
         case OPT_CHECK: *check_only = true; continue;
         case OPT_PRINT_MAP: *print_format = optarg; continue;
+        case OPT_PRINT_DBC: *print_dbc_only = true; continue;
         case OPT_ROBOT_HOST: section = "robot"; key = "host"; break;
         case OPT_STATUS_PORT: section = "robot"; key = "status_port"; break;
         case OPT_COMMAND_PORT: section = "robot"; key = "command_port"; break;
@@ -254,10 +278,14 @@ int main(int argc, char **argv)
     const char *print_format = NULL;
     uint64_t watchdog_usec = 0;
     bool file_read = false;
+    bool print_dbc_only = false;
     char status[160];
 
-    if (parse_flags(argc, argv, &cfg, &check_only, &print_format, &file_read))
+    if (parse_flags(argc, argv, &cfg, &check_only, &print_format, &file_read,
+                    &print_dbc_only))
         return EXIT_CONFIG;
+    if (print_dbc_only)
+        return print_dbc(&cfg);
     if (print_format)
         return print_map(print_format);
     if (check_only) {

@@ -147,6 +147,14 @@ const struct regmap_row regmap_table_rows[] = {
          "Size of the last status document"),
     G_IR(48, plc_heartbeat_age_ms, REGMAP_U32, "ms",
          "Time since holding register plc_heartbeat last changed; 4294967295 if never"),
+    G_IR(50, can_state, REGMAP_U16, "",
+         "CAN mirror: 0 off, 1 sending, 2 transmit queue full, 3 bus-off, "
+         "4 interface down, 5 interface absent, 6 other error"),
+    G_IR(52, can_frames_sent, REGMAP_U32, "", "CAN frames sent"),
+    G_IR(54, can_frames_dropped, REGMAP_U32, "",
+         "CAN frames due but not sent (queue full, interface down or absent)"),
+    G_IR(56, can_errors, REGMAP_U32, "",
+         "CAN send, open and poll failures and bus-off reports"),
 
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",

@@ -306,6 +306,10 @@ static void full_queue_drops_the_rest_of_the_period(void **state)
     /* The health frame tells the receiver how many were lost (mod 65536). */
     const struct sent_frame *health = &f->sent[f->sent_count - n + 1];
     assert_int_equal(health->data[6] | health->data[7] << 8, 2 * n - 3);
+    assert_int_equal(can_mirror_errors(&fx->mirror.stats), 2);
+    can_mirror_clear_stats(&fx->mirror);
+    assert_int_equal(fx->mirror.stats.frames_dropped, 0);
+    assert_int_equal(can_mirror_errors(&fx->mirror.stats), 0);
 }
 
 static void interface_down_is_tried_every_period(void **state)
