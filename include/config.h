@@ -17,6 +17,7 @@
 #include "regmap.h"
 
 #define CONFIG_DEFAULT_PATH "/etc/jakagw/jakagw.conf"
+#define CONFIG_MAX_WRITE_ALLOW 8
 
 struct gw_config {
     /* [robot] */
@@ -36,6 +37,12 @@ struct gw_config {
     uint32_t frame_timeout_ms;
     int32_t unit_id; /* -1: any */
     uint32_t word_order; /* enum regmap_word_order */
+    bool read_only;        /* no Modbus write at all */
+    char write_allow[400]; /* client addresses that may write, comma-separated; "" any */
+    /* [commands] */
+    bool motion;             /* motion commands allowed */
+    bool allow_shutdown;     /* the shutdown command allowed */
+    uint32_t reply_timeout_ms;
     /* [log] */
     uint32_t log_level; /* enum log_level */
     /* [can] */

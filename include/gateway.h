@@ -13,9 +13,11 @@
 #include <uv.h>
 
 #include "can_mirror.h"
+#include "command_port.h"
 #include "config.h"
 #include "log.h"
 #include "mb_server.h"
+#include "plc_commands.h"
 #include "regmap.h"
 #include "robot_link.h"
 #include "status.h"
@@ -47,7 +49,9 @@ struct gateway {
     struct jaka_status *scratch; /* where the next one is parsed */
     struct jaka_status status_buffers[2];
     struct robot_link status_link;
-    struct robot_link command_link;
+    struct command_port command;
+    struct plc_commands commands;
+    uint16_t saved_values[MODBUS_MAX_WRITE_BITS]; /* a write's range, before it */
     struct mb_server modbus;
     struct can_mirror can; /* running when [can] enabled */
     struct gateway_counters counters;

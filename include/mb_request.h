@@ -58,4 +58,15 @@ int mb_request_write_range(const uint8_t *pdu, size_t size,
                            enum regmap_table *table, unsigned *address,
                            unsigned *count);
 
+/*
+ * The values a checked write request sets, as the image will hold them:
+ * one per bit (0 or 1) for coils, one per register otherwise, in address
+ * order; for mask write (22) the masked result from 'img'. 'values' has
+ * room for MODBUS_MAX_WRITE_BITS. Returns the count, or -1 for a request
+ * that does not write.
+ */
+int mb_request_written_values(const struct regmap_image *img, const uint8_t *pdu,
+                              size_t size, enum regmap_table *table,
+                              unsigned *address, uint16_t *values);
+
 #endif

@@ -58,9 +58,25 @@ struct mb_server_config {
     int unit_id;               /* -1: answer any */
 };
 
+/* A write request, checked, before anything is applied. */
+struct mb_write {
+    enum regmap_table table;
+    unsigned address;
+    unsigned count;
+    const uint16_t *values; /* one per bit (0 or 1) or register */
+    const char *client;     /* the client's IP address, as text */
+    uint64_t client_id;     /* unique for each connection */
+};
+
 struct mb_server_hooks {
     /* Before a request is answered: refresh the live gateway values. */
     void (*before_request)(void *user);
+    /*
+     * Before a write is applied and answered: act on it, and return 0 to
+     * let it be applied, or a Modbus exception code to refuse it (nothing
+     * of it is applied then).
+     */
+    int (*on_write)(void *user, const struct mb_write *w);
     /* After a write was applied to the image. */
     void (*after_write)(void *user, enum regmap_table table, unsigned address,
                         unsigned count);

@@ -13,7 +13,7 @@
  * - f32, u32 and i32 take two registers; by default the high word comes
  *   first ("ABCD"), configurable to low word first ("CDAB"). Within a
  *   register the high byte comes first, as Modbus defines.
- * - str: two ASCII bytes per register, the first character in the high
+ * - str: two bytes of UTF-8 text per register, the first byte in the high
  *   byte, padded with NUL.
  * - An integer is round(source * scale), clamped to its type's range.
  * - A value the last document did not carry reads 0 (bits and integers) or
@@ -114,6 +114,8 @@ enum regmap_source {
     REGMAP_SRC_GW,      /* a gateway value */
     REGMAP_SRC_PRESENT, /* did the last document carry this field */
     REGMAP_SRC_COUNT,   /* how many elements of this field it carried */
+    REGMAP_SRC_CMD,     /* a command's trigger or parameter: "cmd:<path>" */
+    REGMAP_SRC_PATH,    /* a value the gateway owns, by name: "gw:<path>" */
 };
 
 struct regmap_row {
@@ -132,7 +134,18 @@ struct regmap_row {
     const char *description;
     enum regmap_source source;
     int id;          /* enum status_field or enum gw_value */
-    uint16_t index;  /* first element of the status field this row shows */
+    uint16_t index;  /* first element of the status field this row shows;
+                        REGMAP_SRC_CMD/PATH: the source index of element 0 */
+    /*
+     * REGMAP_SRC_CMD and REGMAP_SRC_PATH: what the row is, as a template
+     * ('*' the source index): "power_on" (a command's trigger),
+     * "joint_move.jointPosition[*]" (a parameter: the JSON path in the
+     * command sent), "result.power_on.state" (a gateway value).
+     */
+    const char *path;
+    /* REGMAP_SRC_CMD rows that send when written: JSON members sent along
+     * with the value, as a template ("\"type\": 0, \"index\": *"). */
+    const char *fixed;
 };
 
 /* The built-in table, in src/regmap_table.c. */
@@ -191,6 +204,63 @@ void regmap_encode_value(uint16_t *regs, enum regmap_type type, double value,
                          bool present, double scale,
                          enum regmap_word_order word_order);
 void regmap_encode_string(uint16_t *regs, unsigned reg_count, const char *text);
+
+/* The first row whose source is 'source' and whose path is 'path', or NULL. */
+const struct regmap_row *regmap_find_path(const struct regmap *map,
+                                          enum regmap_source source,
+                                          const char *path);
+
+/* Expands a row's template ('*' source index, '#' element number from 1). */
+void regmap_expand(char *out, size_t size, const char *tmpl,
+                   unsigned source_index, unsigned element);
+
+/* Sets element 'i' of a gateway-owned row (REGMAP_SRC_PATH or _CMD). */
+void regmap_set_number(struct regmap_image *img, const struct regmap_row *row,
+                       unsigned i, double value, bool present);
+void regmap_set_text(struct regmap_image *img, const struct regmap_row *row,
+                     unsigned i, const char *text);
+/* Reads element 'i' of a row back from the image: a number, unscaled. */
+double regmap_get_number(const struct regmap_image *img,
+                         const struct regmap_row *row, unsigned i);
+/* Reads a text element (UTF-8, up to the first NUL) into 'out'. */
+void regmap_get_text(const struct regmap_image *img, const struct regmap_row *row,
+                     unsigned i, char *out, size_t size);
+
+/* One row element a write sets, decoded (regmap_decode_write). */
+struct regmap_written {
+    const struct regmap_row *row;
+    unsigned element;      /* within the row, from 0 */
+    unsigned source_index; /* row->index + element */
+    double value;          /* numbers and bits: the value the row means */
+    double previous;       /* what the image held before this write */
+    char text[256];        /* REGMAP_STR: the text, NUL-terminated */
+};
+
+typedef int (*regmap_written_cb)(void *user, const struct regmap_written *w);
+
+/*
+ * Decodes a write of 'count' bits (0 or 1) or registers at 'address' of
+ * 'table', as the image would hold them, into the row elements it sets,
+ * and calls 'cb' for each in address order. 'previous' comes from
+ * 'old_values' (the same range before the write), or from the image when
+ * 'old_values' is NULL.
+ * A multi-register value (u32, i32, f32, a text) is one unit: the write
+ * must cover all of it. Returns 0, or a Modbus exception code: 02 when the
+ * write splits a value or touches an address no writable row owns; 03 for
+ * a number outside the row's range, a float that is not finite, or a text
+ * that is not valid UTF-8 or holds control characters; or the first
+ * non-zero code 'cb' returned, after which no more elements are reported.
+ */
+int regmap_decode_write(const struct regmap_image *img, enum regmap_table table,
+                        unsigned address, unsigned count, const uint16_t *values,
+                        const uint16_t *old_values, regmap_written_cb cb, void *user);
+
+/* Copies 'count' bits (0 or 1) or registers of a writable table out of the
+ * image, or into it. */
+void regmap_save(const struct regmap_image *img, enum regmap_table table,
+                 unsigned address, unsigned count, uint16_t *out);
+void regmap_load(struct regmap_image *img, enum regmap_table table,
+                 unsigned address, unsigned count, const uint16_t *values);
 
 /*
  * Checks that 'value' may be written at 'address' of a writable table.

@@ -71,6 +71,11 @@ static const struct key_info keys[] = {
     KEY("modbus", "frame_timeout_ms", KEY_UINT, frame_timeout_ms, 50, 60000, "1000"),
     KEY("modbus", "unit_id", KEY_UNIT_ID, unit_id, 0, 255, "any"),
     KEY("modbus", "word_order", KEY_WORD_ORDER, word_order, 0, 1, "high_first"),
+    KEY("modbus", "read_only", KEY_BOOL, read_only, 0, 1, "false"),
+    KEY("modbus", "write_allow", KEY_STRING, write_allow, 0, 0, ""),
+    KEY("commands", "motion", KEY_BOOL, motion, 0, 1, "false"),
+    KEY("commands", "allow_shutdown", KEY_BOOL, allow_shutdown, 0, 1, "false"),
+    KEY("commands", "reply_timeout_ms", KEY_UINT, reply_timeout_ms, 100, 60000, "2000"),
     KEY("log", "level", KEY_LOG_LEVEL, log_level, 0, 0, "info"),
     KEY("can", "enabled", KEY_BOOL, can_enabled, 0, 1, "false"),
     KEY("can", "interface", KEY_INTERFACE, can_interface, 0, 0, ""),
@@ -216,8 +221,9 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
     case KEY_STRING:
     case KEY_HOST:
     case KEY_IP_ADDRESS:
-        if (value[0] == '\0' || strlen(value) >= k->size) {
-            snprintf(why, why_size, "must be 1..%zu characters", k->size - 1);
+        if ((value[0] == '\0' && k->min > 0) || strlen(value) >= k->size) {
+            snprintf(why, why_size, "must be %u..%zu characters", k->min ? 1 : 0,
+                     k->size - 1);
             return -EINVAL;
         }
         if (k->type == KEY_IP_ADDRESS && !is_ip_address(value)) {
@@ -587,6 +593,25 @@ int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
                  "[robot] reconnect_min_ms: %u exceeds reconnect_max_ms %u",
                  cfg->reconnect_min_ms, cfg->reconnect_max_ms);
         return -EINVAL;
+    }
+    if (cfg->write_allow[0]) {
+        char list[sizeof(cfg->write_allow)];
+        unsigned n = 0;
+        snprintf(list, sizeof(list), "%s", cfg->write_allow);
+        for (char *save = NULL, *a = strtok_r(list, ", ", &save); a;
+             a = strtok_r(NULL, ", ", &save)) {
+            struct sockaddr_in6 a6;
+            struct sockaddr_in a4;
+            if (uv_ip4_addr(a, 0, &a4) != 0 && uv_ip6_addr(a, 0, &a6) != 0) {
+                snprintf(why, why_size, "[modbus] write_allow: '%.60s' is not an IP address", a);
+                return -EINVAL;
+            }
+            if (++n > CONFIG_MAX_WRITE_ALLOW) {
+                snprintf(why, why_size, "[modbus] write_allow: more than %d addresses",
+                         CONFIG_MAX_WRITE_ALLOW);
+                return -EINVAL;
+            }
+        }
     }
     if (cfg->can_enabled) {
         uint32_t max_id = cfg->can_extended_ids ? CAN_MAX_EXT_ID : CAN_MAX_STD_ID;

@@ -92,26 +92,21 @@ static void on_link_state(struct robot_link *link, enum robot_link_state state)
 {
     struct gateway *gw = gateway_of_link(link);
 
-    if (state == ROBOT_LINK_CONNECTED && link->connections > 1) {
-        if (link == &gw->status_link)
-            gw->counters.status_reconnects++;
-        else
-            gw->counters.command_reconnects++;
-    }
+    if (state == ROBOT_LINK_CONNECTED && link->connections > 1)
+        gw->counters.status_reconnects++;
     notify_change(gw);
 }
 
-static void on_command_reply(struct robot_link *link, const char *json, size_t size)
+static void on_command_state(struct command_port *cp, enum robot_link_state state)
 {
-    struct gateway *gw = gateway_of_link(link);
-    uint64_t suppressed;
+    struct gateway *gw = cp->user;
 
-    /* No command is sent yet: anything arriving is unsolicited. */
-    if (log_ratelimit_pass(&gw->command_log_limit, uv_now(gw->loop), &suppressed))
-        log_warn("command link: unsolicited %zu-byte message from the robot "
-                 "(%llu more since the last line): %.*s",
-                 size, (unsigned long long)suppressed, (int)(size > 200 ? 200 : size),
-                 json);
+    if (state == ROBOT_LINK_CONNECTED) {
+        if (cp->link.connections > 1)
+            gw->counters.command_reconnects++;
+        plc_commands_link_up(&gw->commands);
+    }
+    notify_change(gw);
 }
 
 bool gateway_status_fresh(const struct gateway *gw)
@@ -138,12 +133,12 @@ void gateway_refresh_values(struct gateway *gw)
 
     /* The constant values are set once, in set_constant_values(). */
     v[GW_status_link_up] = gw->status_link.state == ROBOT_LINK_CONNECTED;
-    v[GW_command_link_up] = gw->command_link.state == ROBOT_LINK_CONNECTED;
+    v[GW_command_link_up] = gw->command.link.state == ROBOT_LINK_CONNECTED;
     v[GW_status_fresh] = fresh;
     v[GW_status_link_state] =
         gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh ? 3
                                                                 : gw->status_link.state;
-    v[GW_command_link_state] = gw->command_link.state;
+    v[GW_command_link_state] = gw->command.link.state;
     v[GW_status_age_ms] = age_ms(gw, gw->last_document_ms);
     v[GW_documents_parsed] = (double)c->documents_parsed;
     v[GW_parse_errors] = (double)c->parse_errors;
@@ -165,6 +160,7 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
     v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
     regmap_encode_gw(&gw->image, v);
+    plc_commands_refresh(&gw->commands);
 }
 
 static void clear_counters(struct gateway *gw)
@@ -205,6 +201,48 @@ static void after_write(void *user, enum regmap_table table, unsigned address,
     }
 }
 
+static int check_written(void *user, const struct regmap_written *w)
+{
+    struct gateway *gw = user;
+    if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH)
+        return plc_commands_check(&gw->commands, w);
+    return 0;
+}
+
+static int apply_written(void *user, const struct regmap_written *w)
+{
+    struct gateway *gw = user;
+    if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH)
+        plc_commands_apply(&gw->commands, w);
+    return 0;
+}
+
+/*
+ * A write, before it is answered. Its handlers judge it with the new
+ * values in place (a command sees the parameters written with it); one
+ * refusal refuses the whole write and restores what it changed.
+ */
+static int on_write(void *user, const struct mb_write *w)
+{
+    struct gateway *gw = user;
+    struct regmap_image *img = &gw->image;
+    int ex = plc_commands_may_write(&gw->commands, w->client);
+
+    if (ex)
+        return ex;
+    regmap_save(img, w->table, w->address, w->count, gw->saved_values);
+    regmap_load(img, w->table, w->address, w->count, w->values);
+    plc_commands_begin(&gw->commands);
+    ex = regmap_decode_write(img, w->table, w->address, w->count, w->values,
+                             gw->saved_values, check_written, gw);
+    if (ex) {
+        regmap_load(img, w->table, w->address, w->count, gw->saved_values);
+        return ex;
+    }
+    return regmap_decode_write(img, w->table, w->address, w->count, w->values,
+                               gw->saved_values, apply_written, gw);
+}
+
 static bool is_running(void *user)
 {
     return gateway_status_fresh(user);
@@ -219,7 +257,7 @@ void gateway_describe(const struct gateway *gw, char *buf, size_t size)
                      !gateway_status_fresh(gw)
                  ? " (silent)"
                  : "",
-             names[gw->command_link.state], gw->modbus.stats.clients);
+             names[gw->command.link.state], gw->modbus.stats.clients);
 }
 
 static int start_links(struct gateway *gw)
@@ -240,10 +278,6 @@ static int start_links(struct gateway *gw)
         .on_framing_error = on_status_framing,
         .on_state = on_link_state,
     };
-    struct robot_link_callbacks command_cb = {
-        .on_object = on_command_reply,
-        .on_state = on_link_state,
-    };
     int rc = robot_link_init(gw->loop, &gw->status_link, &lc, &status_cb, gw);
     if (rc)
         return rc;
@@ -252,12 +286,13 @@ static int start_links(struct gateway *gw)
     lc.port = (uint16_t)cfg->command_port;
     /* Replies come only when asked; silence is normal there. */
     lc.silence_timeout_ms = 0;
-    rc = robot_link_init(gw->loop, &gw->command_link, &lc, &command_cb, gw);
+    rc = command_port_init(gw->loop, &gw->command, &lc, cfg->reply_timeout_ms,
+                           on_command_state, gw);
     if (rc)
         return rc;
     gw->parts |= GATEWAY_PART_COMMAND_LINK;
     robot_link_start(&gw->status_link);
-    robot_link_start(&gw->command_link);
+    command_port_start(&gw->command);
     return 0;
 }
 
@@ -294,6 +329,28 @@ static int start_can(struct gateway *gw)
     if (rc == 0)
         gw->parts |= GATEWAY_PART_CAN;
     return rc;
+}
+
+static uint64_t loop_now_ms(void *clock)
+{
+    return uv_now(clock);
+}
+
+/* Binds the command rows to the command port's queue. */
+static int start_commands(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct plc_commands_config pcc = {.motion = cfg->motion,
+                                      .allow_shutdown = cfg->allow_shutdown,
+                                      .read_only = cfg->read_only};
+    char list[sizeof(cfg->write_allow)];
+
+    snprintf(list, sizeof(list), "%s", cfg->write_allow);
+    for (char *save = NULL, *a = strtok_r(list, ", ", &save);
+         a && pcc.allowed_count < PLC_MAX_ALLOWED; a = strtok_r(NULL, ", ", &save))
+        snprintf(pcc.allowed[pcc.allowed_count++], sizeof(pcc.allowed[0]), "%s", a);
+    return plc_commands_init(&gw->commands, &gw->image, &gw->command.queue, &pcc,
+                             loop_now_ms, gw->loop);
 }
 
 /* The self-description values, which never change while running. */
@@ -336,6 +393,9 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     /* Nothing received yet: every value reads as absent. */
     regmap_encode_status(&gw->image, gw->status);
     set_constant_values(gw);
+    rc = start_commands(gw);
+    if (rc)
+        return rc;
     gateway_refresh_values(gw);
 
     struct mb_server_config mc = {
@@ -348,6 +408,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     };
     struct mb_server_hooks hooks = {
         .before_request = before_request,
+        .on_write = on_write,
         .after_write = after_write,
         .is_running = is_running,
         .user = gw,
@@ -377,6 +438,11 @@ static void on_link_closed(struct robot_link *link)
     part_closed(link->user);
 }
 
+static void on_command_port_closed(struct command_port *cp)
+{
+    part_closed(cp->user);
+}
+
 static void on_server_closed(struct mb_server *srv)
 {
     part_closed(srv->hooks.user);
@@ -402,7 +468,7 @@ void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
     }
     if (gw->parts & GATEWAY_PART_COMMAND_LINK) {
         gw->closing_parts++;
-        robot_link_close(&gw->command_link, on_link_closed);
+        command_port_close(&gw->command, on_command_port_closed);
     }
     if (gw->parts & GATEWAY_PART_CAN) {
         gw->closing_parts++;

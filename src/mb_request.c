@@ -224,3 +224,41 @@ int mb_request_write_range(const uint8_t *pdu, size_t size,
     }
     return 0;
 }
+
+int mb_request_written_values(const struct regmap_image *img, const uint8_t *pdu,
+                              size_t size, enum regmap_table *table,
+                              unsigned *address, uint16_t *values)
+{
+    unsigned count;
+
+    if (mb_request_write_range(pdu, size, table, address, &count) != 0)
+        return -1;
+    switch (pdu[0]) {
+    case MODBUS_FC_WRITE_SINGLE_COIL:
+        values[0] = get16(pdu + 3) ? 1 : 0;
+        break;
+    case MODBUS_FC_WRITE_MULTIPLE_COILS:
+        for (unsigned i = 0; i < count; i++)
+            values[i] = (pdu[6 + i / 8] >> (i % 8)) & 1;
+        break;
+    case MODBUS_FC_WRITE_SINGLE_REGISTER:
+        values[0] = (uint16_t)get16(pdu + 3);
+        break;
+    case MODBUS_FC_WRITE_MULTIPLE_REGISTERS:
+        for (unsigned i = 0; i < count; i++)
+            values[i] = (uint16_t)get16(pdu + 6 + 2 * i);
+        break;
+    case MODBUS_FC_MASK_WRITE_REGISTER: {
+        /* The specification's result: (current AND and) OR (or AND NOT and). */
+        unsigned current = img->mb->tab_registers[*address];
+        unsigned and_mask = get16(pdu + 3), or_mask = get16(pdu + 5);
+        values[0] = (uint16_t)((current & and_mask) | (or_mask & ~and_mask));
+        break;
+    }
+    case MODBUS_FC_WRITE_AND_READ_REGISTERS:
+        for (unsigned i = 0; i < count; i++)
+            values[i] = (uint16_t)get16(pdu + 10 + 2 * i);
+        break;
+    }
+    return (int)count;
+}

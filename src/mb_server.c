@@ -42,6 +42,7 @@ struct mb_client {
     uint64_t accept_seq;
     uint64_t request_seq;      /* 0: no request completed yet */
     char peer[64];
+    char host[48]; /* the peer's address alone */
     enum client_state state;
     int open_handles;          /* tcp and timer */
 };
@@ -221,6 +222,8 @@ static const char *exception_name(int code)
     case MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE: return "illegal data value";
     case MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE: return "server failure";
     case MB_EXCEPTION_GATEWAY_PATH: return "no such unit id";
+    case MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY: return "busy: the previous command is pending";
+    case MODBUS_EXCEPTION_GATEWAY_TARGET: return "the robot's command link is down";
     default: return "exception";
     }
 }
@@ -378,6 +381,21 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
     if (pdu[0] == MB_FC_READ_DEVICE_ID) {
         reply_device_id(c, req);
         return;
+    }
+    if (mb_request_is_write(pdu[0]) && srv->hooks.on_write) {
+        /* Act before answering, so that a write can be refused. */
+        static uint16_t values[MODBUS_MAX_WRITE_BITS];
+        struct mb_write w = {.client = c->host, .client_id = c->accept_seq,
+                             .values = values};
+        int n = mb_request_written_values(srv->img, pdu, pdu_size, &w.table,
+                                          &w.address, values);
+        w.count = n > 0 ? (unsigned)n : 0;
+        ex = n > 0 ? srv->hooks.on_write(srv->hooks.user, &w) : 0;
+        if (ex) {
+            log_refused(c, req, size, ex);
+            reply_exception(c, req, ex);
+            return;
+        }
     }
     if (modbus_reply(srv->ctx, req, (int)size, srv->img->mb) < 0) {
         log_err("modbus: libmodbus could not answer function %u: %s", pdu[0],
@@ -623,6 +641,7 @@ static void describe_peer(struct mb_client *c)
         }
     }
     snprintf(c->peer, sizeof(c->peer), "%s:%u", host, port);
+    snprintf(c->host, sizeof(c->host), "%s", host);
 }
 
 static void on_connection(uv_stream_t *listener, int status)

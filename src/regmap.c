@@ -220,7 +220,7 @@ const struct regmap_row *regmap_find(const struct regmap *map,
 /* ---- listings ---- */
 
 /* Expands a template: '*' is the source index, '#' the element from 1. */
-static void expand(char *out, size_t size, const char *tmpl, unsigned source_index,
+void regmap_expand(char *out, size_t size, const char *tmpl, unsigned source_index,
                    unsigned element)
 {
     size_t n = 0;
@@ -255,6 +255,17 @@ static void describe_element(const struct regmap_row *row, unsigned i,
     const char *fpath = "";
     unsigned source_index = i;
 
+    if (row->source == REGMAP_SRC_CMD || row->source == REGMAP_SRC_PATH) {
+        char path[88];
+        source_index = row->index + i;
+        regmap_expand(t->name, sizeof(t->name), row->name, source_index, i);
+        regmap_expand(path, sizeof(path), row->path, source_index, i);
+        snprintf(t->source, sizeof(t->source), "%s:%.88s",
+                 row->source == REGMAP_SRC_CMD ? "cmd" : "gw", path);
+        regmap_expand(t->description, sizeof(t->description), row->description,
+                      source_index, i);
+        return;
+    }
     if (row->source != REGMAP_SRC_GW) {
         fname = status_fields[row->id].name;
         fpath = status_fields[row->id].path;
@@ -262,10 +273,10 @@ static void describe_element(const struct regmap_row *row, unsigned i,
     }
     switch (row->source) {
     case REGMAP_SRC_STATUS:
-        expand(t->name, sizeof(t->name), row->name, source_index, i);
+        regmap_expand(t->name, sizeof(t->name), row->name, source_index, i);
         status_element_path((enum status_field)row->id, row->index + i, t->source,
                             sizeof(t->source));
-        expand(t->description, sizeof(t->description), row->description,
+        regmap_expand(t->description, sizeof(t->description), row->description,
                source_index, i);
         break;
     case REGMAP_SRC_GW:
@@ -273,6 +284,9 @@ static void describe_element(const struct regmap_row *row, unsigned i,
         snprintf(t->source, sizeof(t->source), "gw:%s", gw_value_names[row->id]);
         snprintf(t->description, sizeof(t->description), "%s", row->description);
         break;
+    case REGMAP_SRC_CMD:
+    case REGMAP_SRC_PATH:
+        break; /* handled above */
     case REGMAP_SRC_PRESENT:
     case REGMAP_SRC_COUNT: {
         bool present = row->source == REGMAP_SRC_PRESENT;
@@ -331,7 +345,7 @@ static void print_md_intro(const struct regmap *map, FILE *out)
             "low_first` (\"CDAB\") the low word comes first. Input register 4 "
             "says which is in force; registers 6 and 8 hold fixed probe values "
             "to check it.\n"
-            "- `str` holds two ASCII bytes per register, the first character "
+            "- `str` holds two bytes of UTF-8 text per register, the first byte "
             "in the high byte, NUL-padded.\n"
             "- Integers hold round(source x **Scale**), clamped to the type's "
             "range.\n"
@@ -568,7 +582,8 @@ void regmap_encode_status(struct regmap_image *img, const struct jaka_status *s)
 {
     for (unsigned r = 0; r < img->map->row_count; r++) {
         const struct regmap_row *row = &img->map->rows[r];
-        if (row->source != REGMAP_SRC_GW)
+        if (row->source == REGMAP_SRC_STATUS || row->source == REGMAP_SRC_PRESENT ||
+            row->source == REGMAP_SRC_COUNT)
             encode_status_row(img, row, s);
     }
 }
@@ -591,6 +606,8 @@ int regmap_check_write(const struct regmap *map, enum regmap_table table,
 
     if (!row || !row->writable)
         return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+    if (regmap_element_width(row) > 1)
+        return 0; /* judged whole, by regmap_decode_write() */
     v = row->type == REGMAP_I16 ? (double)(int16_t)value : (double)value;
     if (v < row->min || v > row->max)
         return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
@@ -604,4 +621,212 @@ double regmap_read_written(const struct regmap_image *img,
         return img->mb->tab_bits[row->address];
     uint16_t v = img->mb->tab_registers[row->address];
     return row->type == REGMAP_I16 ? (double)(int16_t)v : (double)v;
+}
+
+const struct regmap_row *regmap_find_path(const struct regmap *map,
+                                          enum regmap_source source,
+                                          const char *path)
+{
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const struct regmap_row *row = &map->rows[r];
+        if (row->source == source && row->path && strcmp(row->path, path) == 0)
+            return row;
+    }
+    return NULL;
+}
+
+void regmap_set_number(struct regmap_image *img, const struct regmap_row *row,
+                       unsigned i, double value, bool present)
+{
+    encode_number(img, row, regmap_element_address(row, i), value, present);
+}
+
+void regmap_set_text(struct regmap_image *img, const struct regmap_row *row,
+                     unsigned i, const char *text)
+{
+    regmap_encode_string(row_registers(img, row, regmap_element_address(row, i)),
+                         row->str_regs, text);
+}
+
+static uint32_t get_u32(const uint16_t *regs, enum regmap_word_order wo)
+{
+    uint16_t hi = wo == REGMAP_HIGH_WORD_FIRST ? regs[0] : regs[1];
+    uint16_t lo = wo == REGMAP_HIGH_WORD_FIRST ? regs[1] : regs[0];
+    return (uint32_t)hi << 16 | lo;
+}
+
+/* The value raw registers (or a bit) mean for 'row', unscaled. */
+static double decode_number(const struct regmap_row *row, const uint16_t *regs,
+                            enum regmap_word_order wo)
+{
+    double scale = row->scale != 0 ? row->scale : 1;
+    double v = 0;
+
+    switch (row->type) {
+    case REGMAP_BOOL:
+        return regs[0] != 0;
+    case REGMAP_U16:
+        v = regs[0];
+        break;
+    case REGMAP_I16:
+        v = (int16_t)regs[0];
+        break;
+    case REGMAP_U32:
+        v = get_u32(regs, wo);
+        break;
+    case REGMAP_I32:
+        v = (int32_t)get_u32(regs, wo);
+        break;
+    case REGMAP_F32: {
+        uint32_t bits = get_u32(regs, wo);
+        float f;
+        memcpy(&f, &bits, sizeof(f));
+        v = f;
+        break;
+    }
+    case REGMAP_STR:
+        return 0;
+    }
+    return v / scale;
+}
+
+/* The raw value as the row's range sees it (before scaling). */
+static double raw_number(const struct regmap_row *row, const uint16_t *regs,
+                         enum regmap_word_order wo)
+{
+    double scale = row->scale != 0 ? row->scale : 1;
+    return row->type == REGMAP_F32 ? decode_number(row, regs, wo)
+                                   : decode_number(row, regs, wo) * scale;
+}
+
+static void decode_text(const uint16_t *regs, unsigned count, char *out, size_t size)
+{
+    size_t n = 0;
+    for (unsigned r = 0; r < count && n + 2 < size; r++) {
+        out[n++] = (char)(regs[r] >> 8);
+        out[n++] = (char)(regs[r] & 0xFF);
+    }
+    out[n] = '\0';
+}
+
+/* Valid UTF-8 with no control characters (NUL ends the text). */
+static bool is_clean_utf8(const char *text)
+{
+    const unsigned char *p = (const unsigned char *)text;
+
+    while (*p) {
+        unsigned extra;
+        uint32_t cp;
+        if (*p < 0x80) {
+            if (*p < 0x20 || *p == 0x7F)
+                return false;
+            p++;
+            continue;
+        }
+        if ((*p & 0xE0) == 0xC0) {
+            extra = 1;
+            cp = *p & 0x1F;
+        } else if ((*p & 0xF0) == 0xE0) {
+            extra = 2;
+            cp = *p & 0x0F;
+        } else if ((*p & 0xF8) == 0xF0) {
+            extra = 3;
+            cp = *p & 0x07;
+        } else {
+            return false;
+        }
+        p++;
+        for (unsigned k = 0; k < extra; k++, p++) {
+            if ((*p & 0xC0) != 0x80)
+                return false;
+            cp = cp << 6 | (*p & 0x3F);
+        }
+        /* Overlong forms, surrogates and values past Unicode's end. */
+        if ((extra == 1 && cp < 0x80) || (extra == 2 && cp < 0x800) ||
+            (extra == 3 && cp < 0x10000) || cp > 0x10FFFF ||
+            (cp >= 0xD800 && cp <= 0xDFFF))
+            return false;
+    }
+    return true;
+}
+
+double regmap_get_number(const struct regmap_image *img,
+                         const struct regmap_row *row, unsigned i)
+{
+    unsigned a = regmap_element_address(row, i);
+    if (is_bit_table(row->table)) {
+        const uint8_t *bits = row->table == REGMAP_COIL ? img->mb->tab_bits
+                                                        : img->mb->tab_input_bits;
+        return bits[a];
+    }
+    return decode_number(row, row_registers((struct regmap_image *)img, row, a),
+                         img->word_order);
+}
+
+void regmap_get_text(const struct regmap_image *img, const struct regmap_row *row,
+                     unsigned i, char *out, size_t size)
+{
+    decode_text(row_registers((struct regmap_image *)img, row,
+                              regmap_element_address(row, i)),
+                row->str_regs, out, size);
+}
+
+void regmap_save(const struct regmap_image *img, enum regmap_table table,
+                 unsigned address, unsigned count, uint16_t *out)
+{
+    for (unsigned i = 0; i < count; i++)
+        out[i] = table == REGMAP_COIL ? img->mb->tab_bits[address + i]
+                                      : img->mb->tab_registers[address + i];
+}
+
+void regmap_load(struct regmap_image *img, enum regmap_table table,
+                 unsigned address, unsigned count, const uint16_t *values)
+{
+    for (unsigned i = 0; i < count; i++) {
+        if (table == REGMAP_COIL)
+            img->mb->tab_bits[address + i] = values[i] ? 1 : 0;
+        else
+            img->mb->tab_registers[address + i] = values[i];
+    }
+}
+
+int regmap_decode_write(const struct regmap_image *img, enum regmap_table table,
+                        unsigned address, unsigned count, const uint16_t *values,
+                        const uint16_t *old_values, regmap_written_cb cb, void *user)
+{
+    const struct regmap *map = img->map;
+    unsigned a = address;
+
+    while (a < address + count) {
+        const struct regmap_row *row = regmap_find(map, table, a);
+        if (!row || !row->writable)
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
+        unsigned width = regmap_element_width(row);
+        unsigned stride = row->stride ? row->stride : width;
+        unsigned i = (a - row->address) / stride;
+        unsigned start = regmap_element_address(row, i);
+        if (start != a || a + width > address + count)
+            return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS; /* splits a value */
+        const uint16_t *regs = values + (a - address);
+        struct regmap_written w = {.row = row, .element = i,
+                                   .source_index = row->index + i};
+        if (row->type == REGMAP_STR) {
+            decode_text(regs, width, w.text, sizeof(w.text));
+            if (!is_clean_utf8(w.text))
+                return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+        } else {
+            double raw = raw_number(row, regs, img->word_order);
+            if (!isfinite(raw) || raw < row->min || raw > row->max)
+                return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+            w.value = decode_number(row, regs, img->word_order);
+            w.previous = old_values ? decode_number(row, old_values + (a - address),
+                                                    img->word_order)
+                                    : regmap_get_number(img, row, i);
+        }
+        int rc = cb(user, &w);
+        if (rc)
+            return rc;
+        a += width;
+    }
+    return 0;
 }

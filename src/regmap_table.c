@@ -40,6 +40,52 @@
     ROW(REGMAP_INPUT_REGISTER, addr, 1, 0, type, 0, 1, unit, #gw, desc,        \
         REGMAP_SRC_GW, GW_##gw, 0)
 
+
+/* Command rows ("cmd:<path>"): a trigger coil sends on 0 -> 1. */
+#define C_TRIGGER(addr, cmd, desc)                                             \
+    {.table = REGMAP_COIL, .address = (addr), .elements = 1,                   \
+     .type = REGMAP_BOOL, .scale = 1, .unit = "", .writable = true, .min = 0,  \
+     .max = 1, .name = "cmd_" cmd, .description = (desc),                      \
+     .source = REGMAP_SRC_CMD, .path = cmd}
+/* A parameter: held until its command's trigger. */
+#define C_PARAM(addr, n, type_, regs, min_, max_, unit_, name_, path_, desc)  \
+    {.table = REGMAP_HOLDING_REGISTER, .address = (addr), .elements = (n),     \
+     .type = (type_), .str_regs = (regs), .scale = 1, .unit = (unit_),         \
+     .writable = true, .min = (min_), .max = (max_), .name = (name_),          \
+     .description = (desc), .source = REGMAP_SRC_CMD, .path = (path_)}
+/* A setpoint: each write sends its command, with the 'fixed' members. */
+#define C_SET(tbl, addr, n, first, type_, scale_, min_, max_, unit_, name_,    \
+              path_, fixed_, desc)                                             \
+    {.table = (tbl), .address = (addr), .elements = (n), .index = (first),     \
+     .type = (type_), .scale = (scale_), .unit = (unit_), .writable = true,    \
+     .min = (min_), .max = (max_), .name = (name_), .description = (desc),     \
+     .source = REGMAP_SRC_CMD, .path = (path_), .fixed = (fixed_)}
+/* A gateway value by name ("gw:<path>"), read-only or written by the PLC. */
+#define P_ROW(tbl, addr, n, type_, regs, unit_, name_, path_, desc)           \
+    {.table = (tbl), .address = (addr), .elements = (n), .type = (type_),     \
+     .str_regs = (regs), .scale = 1, .unit = (unit_), .name = (name_),        \
+     .description = (desc), .source = REGMAP_SRC_PATH, .path = (path_)}
+#define P_HOLD(addr, n, type_, min_, max_, regs, name_, path_, desc)          \
+    {.table = REGMAP_HOLDING_REGISTER, .address = (addr), .elements = (n),    \
+     .type = (type_), .str_regs = (regs), .scale = 1, .unit = "",             \
+     .writable = true, .min = (min_), .max = (max_), .name = (name_),         \
+     .description = (desc), .source = REGMAP_SRC_PATH, .path = (path_)}
+/* Where one command's result shows: 24 input registers from 'base'. */
+#define RESULT(base, cmd)                                                      \
+    P_ROW(REGMAP_INPUT_REGISTER, (base), 1, REGMAP_U16, 0, "",                \
+          "result_" cmd "_state", "result." cmd ".state",                     \
+          cmd ": 0 idle, 1 pending, 2 done (accepted by the robot), 3 robot "  \
+          "error, 4 reply timeout, 5 link down, 6 invalid, 7 refused"),        \
+    P_ROW(REGMAP_INPUT_REGISTER, (base) + 1, 1, REGMAP_I32, 0, "",            \
+          "result_" cmd "_error_code", "result." cmd ".error_code",           \
+          cmd ": the robot's errorCode of the last reply"),                    \
+    P_ROW(REGMAP_INPUT_REGISTER, (base) + 3, 1, REGMAP_STR, 20, "",           \
+          "result_" cmd "_error_msg", "result." cmd ".error_msg",             \
+          cmd ": the robot's errorMsg, or the gateway's reason")
+
+/* Bounds for float parameters: any finite value a controller could take. */
+#define FMAX 1e9
+
 const struct regmap_row regmap_table_rows[] = {
     /* ---- coils ---- */
     {.table = REGMAP_COIL, .address = 0, .elements = 1, .type = REGMAP_BOOL,
@@ -48,6 +94,41 @@ const struct regmap_row regmap_table_rows[] = {
      .description = "Write 1 to reset the gateway's counters to 0; reads 0",
      .source = REGMAP_SRC_GW, .id = GW_clear_counters},
 
+    /* ---- coils: command triggers (0 -> 1 sends; write 0 to re-arm) ---- */
+    C_TRIGGER(100, "power_on", "Power on (4.1)"),
+    C_TRIGGER(101, "power_off", "Power off (4.2)"),
+    C_TRIGGER(102, "enable_robot", "Enable the robot (4.3)"),
+    C_TRIGGER(103, "disable_robot", "Disable the robot (4.4)"),
+    C_TRIGGER(104, "clear_error", "Recover from collision protection (4.48)"),
+    C_TRIGGER(105, "shutdown",
+              "Shut down robot and controller (4.5); only with allow_shutdown"),
+    C_TRIGGER(106, "load_program", "Load the program named in load_program_name (4.18)"),
+    C_TRIGGER(107, "play_program", "Play the loaded program (4.20)"),
+    C_TRIGGER(108, "pause_program", "Pause the program (4.21)"),
+    C_TRIGGER(109, "resume_program", "Resume the program (4.22)"),
+    C_TRIGGER(110, "stop_program", "Stop the program and any motion (4.23)"),
+    C_TRIGGER(111, "set_payload", "Set the payload in set_payload_* (4.42)"),
+    C_TRIGGER(112, "joint_move",
+              "Joint move to joint_move_* (4.7); only with [commands] motion"),
+    C_TRIGGER(113, "end_move",
+              "TCP move to end_move_* (4.8); only with [commands] motion"),
+    C_TRIGGER(114, "moveL",
+              "Linear move to movel_* (4.9); only with [commands] motion"),
+    {.table = REGMAP_COIL, .address = 120, .elements = 1, .type = REGMAP_BOOL,
+     .scale = 1, .unit = "", .writable = true, .min = 0, .max = 1,
+     .name = "json_trigger", .source = REGMAP_SRC_PATH, .path = "json.trigger",
+     .description = "JSON mailbox: 0 -> 1 sends the text in json_request"},
+    /* ---- coils: outputs; each write sends set_digital_output (4.25) ---- */
+    C_SET(REGMAP_COIL, 200, 16, 1, REGMAP_BOOL, 1, 0, 1, "", "cabinet_do_*",
+          "set_digital_output.value", "\"type\": 0, \"index\": *",
+          "Cabinet digital output * (type 0, index *)"),
+    C_SET(REGMAP_COIL, 216, 2, 0, REGMAP_BOOL, 1, 0, 1, "", "tool_do_*",
+          "set_digital_output.value", "\"type\": 1, \"index\": *",
+          "Tool digital output * (type 1, index *)"),
+    C_SET(REGMAP_COIL, 224, 16, 0, REGMAP_BOOL, 1, 0, 1, "", "extio_do_*",
+          "set_digital_output.value", "\"type\": 2, \"index\": *",
+          "Extension IO digital output * (type 2, index *)"),
+
     /* ---- holding registers ---- */
     {.table = REGMAP_HOLDING_REGISTER, .address = 0, .elements = 1,
      .type = REGMAP_U16, .scale = 1, .unit = "", .writable = true, .min = 0,
@@ -55,6 +136,69 @@ const struct regmap_row regmap_table_rows[] = {
      .description = "PLC watchdog: write a changing value; its age is "
                     "plc_heartbeat_age_ms",
      .source = REGMAP_SRC_GW, .id = GW_plc_heartbeat},
+
+    /* ---- holding registers: setpoints; each write sends its command ---- */
+    C_SET(REGMAP_HOLDING_REGISTER, 100, 1, 0, REGMAP_U16, 1000, 0, 1000, "1/1000",
+          "rapid_rate", "rapid_rate.rate_value", "",
+          "Speed override in per mille, 0..1000 (4.17; sent as 0..1); read back "
+          "from rapid_rate in the status"),
+    C_SET(REGMAP_HOLDING_REGISTER, 101, 1, 0, REGMAP_U16, 1, 0, 10, "", "tool_id",
+          "set_tool_id.tool_id", "", "Select tool frame 0..10 (4.30)"),
+    C_SET(REGMAP_HOLDING_REGISTER, 102, 1, 0, REGMAP_U16, 1, 0, 10, "", "user_id",
+          "set_user_id.user_id", "", "Select user frame 0..10 (4.33)"),
+    C_SET(REGMAP_HOLDING_REGISTER, 103, 1, 0, REGMAP_U16, 1, 0, 5, "",
+          "collision_level", "set_clsn_sensitivity.sensitivityVal", "",
+          "Collision sensitivity level 0..5 (4.44)"),
+    C_SET(REGMAP_HOLDING_REGISTER, 110, 8, 0, REGMAP_F32, 1, -FMAX, FMAX, "",
+          "cabinet_ao_*", "set_analog_output.value", "\"type\": 0, \"index\": *",
+          "Cabinet analog output * (type 0, index *; 4.27)"),
+    C_SET(REGMAP_HOLDING_REGISTER, 126, 8, 0, REGMAP_F32, 1, -FMAX, FMAX, "",
+          "extio_ao_*", "set_analog_output.value", "\"type\": 2, \"index\": *",
+          "Extension IO analog output * (type 2, index *; 4.27)"),
+    /* ---- holding registers: parameters, sent by the command's trigger ---- */
+    C_PARAM(150, 1, REGMAP_F32, 0, 0, FMAX, "kg", "set_payload_mass",
+            "set_payload.mass", "Payload mass for set_payload"),
+    C_PARAM(152, 3, REGMAP_F32, 0, -FMAX, FMAX, "mm", "set_payload_centroid_#",
+            "set_payload.centroid[*]", "Payload centroid, coordinate # (x, y, z)"),
+    C_PARAM(200, 1, REGMAP_STR, 32, 0, 0, "", "load_program_name",
+            "load_program.programName",
+            "Program to load, UTF-8 text, NUL-padded (e.g. track/test.jks)"),
+    C_PARAM(300, 6, REGMAP_F32, 0, -FMAX, FMAX, "deg", "joint_move_joint_#",
+            "joint_move.jointPosition[*]", "joint_move target, joint #"),
+    C_PARAM(312, 1, REGMAP_F32, 0, 0, FMAX, "deg/s", "joint_move_speed",
+            "joint_move.speed", "joint_move speed"),
+    C_PARAM(314, 1, REGMAP_F32, 0, 0, FMAX, "deg/s2", "joint_move_accel",
+            "joint_move.accel", "joint_move acceleration"),
+    C_PARAM(316, 1, REGMAP_U16, 0, 0, 1, "", "joint_move_relative",
+            "joint_move.relFlag", "joint_move: 0 absolute, 1 relative"),
+    C_PARAM(320, 6, REGMAP_F32, 0, -FMAX, FMAX, "mm, deg", "end_move_pose_#",
+            "end_move.endPosition[*]", "end_move target, x y z rx ry rz: element #"),
+    C_PARAM(332, 1, REGMAP_F32, 0, 0, FMAX, "deg/s", "end_move_speed",
+            "end_move.speed", "end_move joint speed"),
+    C_PARAM(334, 1, REGMAP_F32, 0, 0, FMAX, "deg/s2", "end_move_accel",
+            "end_move.accel", "end_move joint acceleration"),
+    C_PARAM(340, 6, REGMAP_F32, 0, -FMAX, FMAX, "mm, deg", "movel_pose_#",
+            "moveL.cartPosition[*]", "moveL target, x y z rx ry rz: element #"),
+    C_PARAM(352, 1, REGMAP_F32, 0, 0, FMAX, "mm/s", "movel_speed", "moveL.speed",
+            "moveL linear speed"),
+    C_PARAM(354, 1, REGMAP_F32, 0, 0, FMAX, "mm/s2", "movel_accel", "moveL.accel",
+            "moveL linear acceleration"),
+    C_PARAM(356, 1, REGMAP_U16, 0, 0, 1, "", "movel_relative", "moveL.relFlag",
+            "moveL: 0 absolute, 1 relative"),
+    C_PARAM(358, 1, REGMAP_F32, 0, 0, FMAX, "mm", "movel_tol", "moveL.tol",
+            "moveL: maximum permissible error, 0 if not needed"),
+    /* ---- holding registers: the exactly-once mailbox ---- */
+    P_HOLD(400, 1, REGMAP_U16, 0, 65535, 0, "mailbox_code", "mailbox.code",
+           "Exactly-once mailbox: command code (see the PLC guide)"),
+    P_HOLD(401, 12, REGMAP_F32, -FMAX, FMAX, 0, "mailbox_arg_#", "mailbox.arg[*]",
+           "Exactly-once mailbox: argument #"),
+    P_HOLD(425, 1, REGMAP_U16, 0, 65535, 0, "mailbox_seq", "mailbox.seq",
+           "Exactly-once mailbox: write a new number last (in the same write) "
+           "to run the command once"),
+    /* ---- holding registers: the JSON mailbox ---- */
+    P_HOLD(500, 1, REGMAP_STR, 0, 0, 120, "json_request", "json.request",
+           "JSON mailbox: a whole command as UTF-8 text, NUL-padded, written in "
+           "one write (up to 240 bytes)"),
 
     /* ---- discrete inputs: gateway ---- */
     G_DI(0, status_link_up, "Status port (10000) connected"),
@@ -71,9 +215,9 @@ const struct regmap_row regmap_table_rows[] = {
     S_DI(21, emergency_stop, 1, "emergency_stop", "Emergency stop is triggered"),
     S_DI(22, powered_on, 1, "powered_on", "Robot is powered on"),
     S_DI(23, protective_stop, 1, "protective_stop", "Robot is in protective stop"),
-    S_DI(32, homed, 16, "homed_*", "Joint * homed (obsolete)"),
-    S_DI(48, drag_near_limit, 8, "drag_near_limit_*",
-         "Joint * dragged near its limit"),
+    S_DI(32, homed, 16, "homed_#", "Joint # homed (obsolete)"),
+    S_DI(48, drag_near_limit, 8, "drag_near_limit_#",
+         "Joint # dragged near its limit"),
     S_DI(64, tio_din, 8, "tio_din_*", "Tool digital input *"),
     S_DI(72, tio_dout, 8, "tio_dout_*", "Tool digital output *"),
     S_DI(80, tio_key, 4, "tio_key_*", "Tool button * (not in the manual)"),
@@ -324,6 +468,67 @@ const struct regmap_row regmap_table_rows[] = {
     S_IR(2928, tio_rs_value, 8, REGMAP_F32, "", "tio_rs_*_value",
          "Tool RS485 signal * value"),
     /* 3000..: one element count per status field, generated (regmap.c). */
+
+    /* ---- input registers: command results, 24 registers each ---- */
+    RESULT(4000, "power_on"),
+    RESULT(4024, "power_off"),
+    RESULT(4048, "enable_robot"),
+    RESULT(4072, "disable_robot"),
+    RESULT(4096, "clear_error"),
+    RESULT(4120, "shutdown"),
+    RESULT(4144, "load_program"),
+    RESULT(4168, "play_program"),
+    RESULT(4192, "pause_program"),
+    RESULT(4216, "resume_program"),
+    RESULT(4240, "stop_program"),
+    RESULT(4264, "rapid_rate"),
+    RESULT(4288, "set_digital_output"),
+    RESULT(4312, "set_analog_output"),
+    RESULT(4336, "set_tool_id"),
+    RESULT(4360, "set_user_id"),
+    RESULT(4384, "set_payload"),
+    RESULT(4408, "set_clsn_sensitivity"),
+    RESULT(4432, "joint_move"),
+    RESULT(4456, "end_move"),
+    RESULT(4480, "moveL"),
+    /* ---- input registers: mailboxes ---- */
+    P_ROW(REGMAP_INPUT_REGISTER, 4600, 1, REGMAP_U16, 0, "", "mailbox_ack_seq",
+          "mailbox.ack_seq", "Exactly-once mailbox: the sequence number accepted"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4601, 1, REGMAP_U16, 0, "", "mailbox_done_seq",
+          "mailbox.done_seq", "Exactly-once mailbox: the sequence number finished"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4602, 1, REGMAP_U16, 0, "", "mailbox_state",
+          "mailbox.state", "Exactly-once mailbox: state, as result_*_state"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4603, 1, REGMAP_I32, 0, "", "mailbox_error_code",
+          "mailbox.error_code", "Exactly-once mailbox: the robot's errorCode"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4605, 1, REGMAP_STR, 20, "", "mailbox_error_msg",
+          "mailbox.error_msg", "Exactly-once mailbox: errorMsg or the gateway's reason"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4650, 1, REGMAP_U16, 0, "", "json_state",
+          "json.state", "JSON mailbox: state, as result_*_state"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4651, 1, REGMAP_I32, 0, "", "json_error_code",
+          "json.error_code", "JSON mailbox: the robot's errorCode"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4653, 1, REGMAP_STR, 20, "", "json_error_msg",
+          "json.error_msg", "JSON mailbox: errorMsg or the gateway's reason"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4673, 1, REGMAP_U16, 0, "", "json_reply_truncated",
+          "json.reply_truncated", "JSON mailbox: 1 when the reply is longer than json_reply"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4674, 1, REGMAP_U32, 0, "bytes", "json_reply_length",
+          "json.reply_length", "JSON mailbox: the whole reply's length"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4700, 1, REGMAP_STR, 256, "", "json_reply",
+          "json.reply", "JSON mailbox: the reply, UTF-8 text (its first 512 bytes)"),
+    /* ---- input registers: robot information from the command port ---- */
+    P_ROW(REGMAP_INPUT_REGISTER, 5000, 1, REGMAP_U32, 0, "ms", "info_age_ms",
+          "info.age_ms", "Time since the robot information below was last fetched"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5002, 1, REGMAP_STR, 32, "", "loaded_program",
+          "info.loaded_program", "Loaded program name (get_loaded_program, 4.19)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5034, 1, REGMAP_U16, 0, "", "program_state",
+          "info.program_state", "Program state: 0 idle, 1 running, 2 paused (4.24)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5035, 1, REGMAP_STR, 16, "", "controller_version",
+          "info.controller_version", "Controller version (get_version, 4.51)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5052, 1, REGMAP_F32, 0, "kg", "payload_mass",
+          "info.payload_mass", "Payload mass (get_payload, 4.43)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5054, 3, REGMAP_F32, 0, "mm", "payload_centroid_#",
+          "info.payload_centroid[*]", "Payload centroid, coordinate # (x, y, z)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5060, 1, REGMAP_U16, 0, "", "collision_level",
+          "info.collision_level", "Collision sensitivity level (4.45)"),
 };
 
 const unsigned regmap_table_row_count =

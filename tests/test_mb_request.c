@@ -54,9 +54,11 @@ static void reads(void **state)
     assert_int_equal(CHECK(0x02, 0, 0, 0x07, 0xD1), 3);
     assert_int_equal(CHECK(0x02, 0, 0, 0x04, 0x00), 0); /* 1024 bits */
     assert_int_equal(CHECK(0x01, 0, 0, 0, 1), 0);
-    assert_int_equal(CHECK(0x01, 0, 1, 0, 1), 2);     /* one coil only */
+    unsigned coils = map.size[REGMAP_COIL], hrs = map.size[REGMAP_HOLDING_REGISTER];
+    assert_int_equal(CHECK(0x01, 0, 0, coils >> 8, coils & 0xFF), 0);
+    assert_int_equal(CHECK(0x01, 0, 0, (coils + 1) >> 8, (coils + 1) & 0xFF), 2);
     assert_int_equal(CHECK(0x03, 0, 0, 0, 1), 0);
-    assert_int_equal(CHECK(0x03, 0, 0, 0, 2), 2);
+    assert_int_equal(CHECK(0x03, hrs >> 8, hrs & 0xFF, 0, 1), 2); /* past the end */
 }
 
 static void writes(void **state)
@@ -78,7 +80,9 @@ static void writes(void **state)
     assert_int_equal(CHECK(0x16, 0, 0, 0xFF, 0x00, 0x00, 0x12), 0);
     assert_int_equal(CHECK(0x16, 0, 3, 0xFF, 0x00, 0x00, 0x12), 2);
     assert_int_equal(CHECK(0x17, 0, 0, 0, 1, 0, 0, 0, 1, 2, 0, 9), 0);
-    assert_int_equal(CHECK(0x17, 0, 0, 0, 2, 0, 0, 0, 1, 2, 0, 9), 2);
+    unsigned hrs = map.size[REGMAP_HOLDING_REGISTER];
+    assert_int_equal(CHECK(0x17, hrs >> 8, hrs & 0xFF, 0, 1, 0, 0, 0, 1, 2, 0, 9), 2);
+    assert_int_equal(CHECK(0x17, 0, 0, 0, 1, 0, 1, 0, 1, 2, 0, 9), 2); /* a hole */
     assert_int_equal(CHECK(0x17, 0, 0, 0, 1, 0, 0, 0, 1, 3, 0, 9), 3);
 }
 

@@ -94,7 +94,7 @@ def test_pipelined_requests_answered_in_order():
 def test_exceptions_for_bad_requests():
     with start() as (sim, gw):
         s = raw_client(gw.modbus_port)
-        expect_exception(s, 1, struct.pack(">BHH", 3, 1, 1), 3, 2)         # past HR table
+        expect_exception(s, 1, struct.pack(">BHH", 3, 9000, 1), 3, 2)      # past HR table
         expect_exception(s, 2, struct.pack(">BHH", 6, 5, 1), 6, 2)         # not writable
         expect_exception(s, 3, struct.pack(">BHH", 5, 0, 0x1234), 5, 3)    # coil value
         expect_exception(s, 4, struct.pack(">BHHB", 16, 0, 1, 4) + b"\0\0\0\0", 16, 3)
@@ -106,7 +106,7 @@ def test_exceptions_for_bad_requests():
         # The first refusal is logged with what was asked and why; a burst
         # of them is rate-limited, not one line each.
         out = gw.output()
-        check("request refused: unit 1 function 3 address 1 quantity/value 1: exception 02 "
+        check("request refused: unit 1 function 3 address 9000 quantity/value 1: exception 02 "
               "(illegal data address)" in out, "no log line for the refusal:\n" + out)
         check(out.count("request refused") < 4, "refusals are not rate-limited:\n" + out)
 

@@ -171,8 +171,13 @@ def verify(sim_args, config="", low_first=False):
         finally:
             client.close()
         checked = 0
+
+        def is_status(r):
+            return (not r["source"].startswith(("gw:", "cmd:"))
+                    or r["source"].startswith(("gw:present(", "gw:count(")))
+
         for row in rows:
-            if row["source"].startswith("gw:") and not row["source"].startswith(("gw:present(", "gw:count(")):
+            if not is_status(row):
                 continue
             if row["table"] not in ("discrete_input", "input_register"):
                 continue
@@ -183,8 +188,7 @@ def verify(sim_args, config="", low_first=False):
         check(regs[4] == (1 if low_first else 0), "word order register %d" % regs[4])
         check(struct.unpack(">f", words32(regs[6:8], low_first))[0] == -1234.5, "f32 probe")
         check(struct.unpack(">I", words32(regs[8:10], low_first))[0] == 0x01020304, "u32 probe")
-        status_rows = sum(1 for r in rows if not r["source"].startswith("gw:")
-                          or r["source"].startswith(("gw:present(", "gw:count(")))
+        status_rows = sum(1 for r in rows if is_status(r))
         check(checked == status_rows, "checked %d of %d status rows" % (checked, status_rows))
         print("  checked %d map entries" % checked)
     finally:

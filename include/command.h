@@ -1,0 +1,157 @@
+/*
+ * command.h - commands to the robot's command port (10001).
+ *
+ * The command table names every command the gateway sends on a PLC's
+ * behalf, with what it needs (motion permission, the shutdown switch) and
+ * its code in the exactly-once mailbox.
+ *
+ * The queue sends commands one at a time, in the order accepted, and
+ * matches each reply to the command in flight by order, never by name:
+ * real controllers answer some commands without a cmdName, and the manual
+ * answers stop_program as "pause_program". A reply means "accepted", not
+ * "finished". Rules that keep a command from running twice or being
+ * answered by the wrong reply:
+ * - nothing is ever resent: a command whose reply does not come within
+ *   the timeout fails, and the connection is restarted (through
+ *   ops.restart_link), so its late reply can never be taken for the next
+ *   command's;
+ * - when the link goes down, the command in flight fails (its outcome is
+ *   unknown) and so does every queued one: nothing is sent after a
+ *   reconnect that was accepted before it;
+ * - while the link is down, nothing is accepted (-ENOTCONN).
+ *
+ * Time and I/O reach the queue through 'struct cmd_ops', so its rules are
+ * unit-tested with a fake clock and a fake link.
+ */
+#ifndef JAKAGW_COMMAND_H
+#define JAKAGW_COMMAND_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+enum cmd_flags {
+    CMD_MOTION = 1,   /* moves the robot: only with [commands] motion = true */
+    CMD_SHUTDOWN = 2, /* only with [commands] allow_shutdown = true */
+};
+
+struct cmd_def {
+    const char *name; /* cmdName */
+    unsigned flags;
+    uint16_t code; /* in the exactly-once mailbox; 0: not offered there */
+    /* Information to fetch again once it has been accepted ("" none). */
+    const char *refresh;
+    /*
+     * The exactly-once mailbox's arguments, in order: JSON member names;
+     * "name[N]" takes N arguments into an array; a '#' suffix marks a
+     * whole number; a '$' suffix a text taken from the command's own text
+     * registers ("cmd:<cmdName>.<name>") instead of an argument.
+     */
+    const char *mailbox_args;
+};
+
+extern const struct cmd_def cmd_table[];
+extern const unsigned cmd_table_count;
+
+/* The command named 'name', or NULL. */
+const struct cmd_def *cmd_find(const char *name);
+/* The command with mailbox code 'code', or NULL. */
+const struct cmd_def *cmd_find_code(unsigned code);
+
+/* What became of a command; the values PLCs read in the state registers. */
+enum cmd_outcome {
+    CMD_IDLE = 0,        /* never sent */
+    CMD_PENDING = 1,     /* sent or queued, no reply yet */
+    CMD_DONE = 2,        /* the robot accepted it (errorCode 0) */
+    CMD_ROBOT_ERROR = 3, /* the robot refused it: see error_code, error_msg */
+    CMD_TIMEOUT = 4,     /* no reply within the timeout; outcome unknown */
+    CMD_LINK_DOWN = 5,   /* the command link went down; outcome unknown */
+    CMD_INVALID = 6,     /* refused by validation, nothing sent */
+    CMD_REFUSED = 7,     /* not allowed now (configuration, state), nothing sent */
+};
+
+const char *cmd_outcome_name(enum cmd_outcome outcome);
+
+/* A command's result, as the done callback sees it. */
+struct cmd_result {
+    enum cmd_outcome outcome;
+    long error_code;     /* the robot's errorCode (CMD_DONE, CMD_ROBOT_ERROR) */
+    char error_msg[128]; /* the robot's errorMsg, or the gateway's reason */
+    const char *reply;   /* the whole reply (valid during the callback), or NULL */
+    size_t reply_size;
+};
+
+typedef void (*cmd_done_cb)(void *user, const struct cmd_result *result);
+
+/* Parses a reply: errorCode as text ("0", "-1") or number, errorMsg. */
+void cmd_parse_reply(const char *json, size_t size, struct cmd_result *result);
+
+struct cmd_ops {
+    /* Queues bytes to the robot; 0 or a negative errno. */
+    int (*send)(void *io, const char *data, size_t size);
+    /* Milliseconds from any fixed point. */
+    uint64_t (*now_ms)(void *io);
+    /* Drops the connection (it reconnects by itself). */
+    void (*restart_link)(void *io, const char *why);
+    void *io;
+};
+
+#define CMD_QUEUE_CAPACITY 64
+
+struct cmd_entry {
+    char *json;
+    size_t size;
+    cmd_done_cb done;
+    void *user;
+};
+
+struct cmd_queue_stats {
+    uint64_t sent;
+    uint64_t replies;
+    uint64_t robot_errors;
+    uint64_t timeouts;
+    uint64_t failed_link_down;
+    uint64_t unsolicited;
+};
+
+struct cmd_queue {
+    struct cmd_ops ops;
+    uint32_t timeout_ms;
+    bool connected;
+    struct cmd_entry entries[CMD_QUEUE_CAPACITY]; /* [head] is in flight */
+    unsigned head, count;
+    bool in_flight;
+    uint64_t sent_at_ms;
+    struct cmd_queue_stats stats;
+};
+
+void cmd_queue_init(struct cmd_queue *q, const struct cmd_ops *ops,
+                    uint32_t timeout_ms);
+
+/* Fails whatever is queued (CMD_LINK_DOWN) and frees it. */
+void cmd_queue_free(struct cmd_queue *q);
+
+/*
+ * Accepts a complete JSON command. 'done' runs exactly once, with the
+ * result, and never from inside this call. Returns 0, -ENOTCONN while the
+ * link is down, -EBUSY when the queue is full, -ENOMEM.
+ */
+int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
+                     cmd_done_cb done, void *user);
+
+/* The command link came up or went down. */
+void cmd_queue_set_connected(struct cmd_queue *q, bool connected);
+
+/* One complete JSON object from the command port. */
+void cmd_queue_on_reply(struct cmd_queue *q, const char *json, size_t size);
+
+/* Fails the command in flight if its reply is late. Call on a timer. */
+void cmd_queue_check_timeout(struct cmd_queue *q);
+
+/* Milliseconds until the command in flight times out; UINT64_MAX if none. */
+uint64_t cmd_queue_next_deadline_ms(const struct cmd_queue *q);
+
+/* Commands accepted and not finished (in flight and queued). */
+unsigned cmd_queue_pending(const struct cmd_queue *q);
+
+#endif

@@ -1,0 +1,110 @@
+/*
+ * plc_commands.h - what PLC writes do to the robot: the command rows of the
+ * register map, bound to the command queue (command.h).
+ *
+ * Three ways for a PLC to command the robot, all rows of the register map:
+ * - a trigger coil per command ("cmd:<cmdName>"): a 0 -> 1 write sends the
+ *   command with the parameters in its holding registers
+ *   ("cmd:<cmdName>.<param>"); writing 1 again while it reads 1 does
+ *   nothing, so a retransmitted write never sends twice. Setpoint rows
+ *   (rapid rate, digital and analog outputs, tool and user frame,
+ *   collision level) send their command each time they are written. Each
+ *   command's result is readable: "gw:result.<cmdName>.state",
+ *   ".error_code", ".error_msg";
+ * - the exactly-once mailbox ("gw:mailbox.*"): the PLC writes code,
+ *   arguments and sequence number last in one write; a new sequence number
+ *   runs the command once, its echo in ack_seq at once and in done_seq
+ *   with the result; the same number again does nothing;
+ * - the JSON mailbox ("gw:json.*"): any Chapter-4 command as text.
+ * Writes are checked before anything is sent, and refused with a Modbus
+ * exception: 01 not permitted by the configuration (motion, shutdown,
+ * read-only, client not allowed to write), 03 an invalid value or command,
+ * 06 the same command (or mailbox) is still pending, 0B the command link
+ * is down. Nothing refused is ever sent or queued.
+ *
+ * The module also keeps the robot information the status stream lacks
+ * ("gw:info.*"): fetched on every connect and after commands that change it.
+ */
+#ifndef JAKAGW_PLC_COMMANDS_H
+#define JAKAGW_PLC_COMMANDS_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+#include "command.h"
+#include "regmap.h"
+
+#define PLC_MAX_COMMANDS 48
+#define PLC_MAX_ALLOWED 8
+
+struct plc_commands_config {
+    bool motion;         /* motion commands allowed */
+    bool allow_shutdown; /* the shutdown command allowed */
+    bool read_only;      /* no write at all */
+    unsigned allowed_count;         /* 0: any client may write */
+    char allowed[PLC_MAX_ALLOWED][48]; /* client addresses that may write */
+};
+
+enum plc_slot_kind { PLC_SLOT_COMMAND, PLC_SLOT_MAILBOX, PLC_SLOT_JSON, PLC_SLOT_INFO };
+
+/* Where the results of one command (or mailbox) show. */
+struct plc_slot {
+    struct plc_commands *pc;
+    enum plc_slot_kind kind;
+    const struct cmd_def *def; /* PLC_SLOT_COMMAND, PLC_SLOT_INFO */
+    const struct regmap_row *state, *error_code, *error_msg;
+    unsigned pending;
+};
+
+#define PLC_INFO_COMMANDS 5
+
+struct plc_commands {
+    struct regmap_image *img;
+    struct cmd_queue *queue;
+    struct plc_commands_config cfg;
+    struct plc_slot slots[PLC_MAX_COMMANDS]; /* by cmd_table index */
+    struct plc_slot mailbox;
+    struct plc_slot json;
+    struct plc_slot info[PLC_INFO_COMMANDS];
+    unsigned staged; /* commands the write being checked would queue */
+    const struct regmap_row *mailbox_ack, *mailbox_done, *mailbox_code,
+        *mailbox_arg;
+    const struct regmap_row *json_request, *json_reply, *json_truncated,
+        *json_length;
+    const struct regmap_row *json_trigger;
+    const struct regmap_row *info_age;
+    uint64_t info_updated_ms; /* 0: never */
+    uint64_t (*now_ms)(void *clock);
+    void *clock;
+};
+
+/*
+ * Finds the rows and prepares the slots. Returns 0, or -EINVAL when the
+ * register map lacks a row this module needs (a programming error).
+ */
+int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
+                      struct cmd_queue *queue, const struct plc_commands_config *cfg,
+                      uint64_t (*now_ms)(void *clock), void *clock);
+void plc_commands_free(struct plc_commands *pc);
+
+/* May 'client' write at all? 0, or exception 01 (read-only, not allowed). */
+int plc_commands_may_write(const struct plc_commands *pc, const char *client);
+
+/* Starts checking a new write (phase 1 below). */
+void plc_commands_begin(struct plc_commands *pc);
+
+/*
+ * Phase 1 of a write, for each element it sets, with the new values already
+ * in the image: returns 0 or the exception code that refuses the write.
+ */
+int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w);
+/* Phase 2, once every element passed: sends what the write asks for. */
+void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w);
+
+/* The command link came up: fetch the robot information. */
+void plc_commands_link_up(struct plc_commands *pc);
+
+/* Refreshes the values that change with time (the information's age). */
+void plc_commands_refresh(struct plc_commands *pc);
+
+#endif

@@ -1,0 +1,258 @@
+/* command.c - the command table and the command queue (command.h). */
+#include "command.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/*
+ * Mailbox codes are part of the PLC interface: never renumber one; add new
+ * commands with new codes. 'refresh' names the information the gateway
+ * fetches again after the command was accepted.
+ */
+const struct cmd_def cmd_table[] = {
+    {"power_on", 0, 1, "", ""},
+    {"power_off", 0, 2, "", ""},
+    {"enable_robot", 0, 3, "", ""},
+    {"disable_robot", 0, 4, "", ""},
+    {"clear_error", 0, 5, "", ""},
+    {"shutdown", CMD_SHUTDOWN, 6, "", ""},
+    {"load_program", 0, 10, "get_loaded_program", "programName$"},
+    {"play_program", 0, 11, "get_program_state", ""},
+    {"pause_program", 0, 12, "get_program_state", ""},
+    {"resume_program", 0, 13, "get_program_state", ""},
+    {"stop_program", 0, 14, "get_program_state", ""},
+    {"rapid_rate", 0, 20, "", "rate_value"},
+    {"set_digital_output", 0, 21, "", "type#,index#,value#"},
+    {"set_analog_output", 0, 22, "", "type#,index#,value"},
+    {"set_tool_id", 0, 23, "", "tool_id#"},
+    {"set_user_id", 0, 24, "", "user_id#"},
+    {"set_payload", 0, 25, "get_payload", "mass,centroid[3]"},
+    {"set_clsn_sensitivity", 0, 26, "get_clsn_sensitivity", "sensitivityVal#"},
+    {"joint_move", CMD_MOTION, 30, "", "jointPosition[6],speed,accel,relFlag#"},
+    {"end_move", CMD_MOTION, 31, "", "endPosition[6],speed,accel"},
+    {"moveL", CMD_MOTION, 32, "", "cartPosition[6],speed,accel,relFlag#,tol"},
+    /* Sent by the gateway itself, or through the JSON mailbox only. */
+    {"get_loaded_program", 0, 0, "", ""},
+    {"get_program_state", 0, 0, "", ""},
+    {"get_version", 0, 0, "", ""},
+    {"get_payload", 0, 0, "", ""},
+    {"get_clsn_sensitivity", 0, 0, "", ""},
+    /* Motion of any kind, recognised in the JSON mailbox. */
+    {"jog", CMD_MOTION, 0, "", ""},
+    {"movc", CMD_MOTION, 0, "", ""},
+    {"servo_move", CMD_MOTION, 0, "", ""},
+    {"servo_j", CMD_MOTION, 0, "", ""},
+    {"servo_p", CMD_MOTION, 0, "", ""},
+    {"torque_control_enable", CMD_MOTION, 0, "", ""},
+};
+const unsigned cmd_table_count = sizeof(cmd_table) / sizeof(cmd_table[0]);
+
+const struct cmd_def *cmd_find(const char *name)
+{
+    for (unsigned i = 0; i < cmd_table_count; i++)
+        if (strcmp(cmd_table[i].name, name) == 0)
+            return &cmd_table[i];
+    return NULL;
+}
+
+const struct cmd_def *cmd_find_code(unsigned code)
+{
+    for (unsigned i = 0; code && i < cmd_table_count; i++)
+        if (cmd_table[i].code == code)
+            return &cmd_table[i];
+    return NULL;
+}
+
+const char *cmd_outcome_name(enum cmd_outcome outcome)
+{
+    static const char *const names[] = {
+        [CMD_IDLE] = "idle",         [CMD_PENDING] = "pending",
+        [CMD_DONE] = "done",         [CMD_ROBOT_ERROR] = "robot error",
+        [CMD_TIMEOUT] = "timeout",   [CMD_LINK_DOWN] = "link down",
+        [CMD_INVALID] = "invalid",   [CMD_REFUSED] = "refused",
+    };
+    return (unsigned)outcome < sizeof(names) / sizeof(names[0]) ? names[outcome] : "?";
+}
+
+void cmd_parse_reply(const char *json, size_t size, struct cmd_result *r)
+{
+    cJSON *doc = cJSON_ParseWithLength(json, size);
+    const cJSON *code = cJSON_GetObjectItemCaseSensitive(doc, "errorCode");
+    const cJSON *msg = cJSON_GetObjectItemCaseSensitive(doc, "errorMsg");
+
+    memset(r, 0, sizeof(*r));
+    r->reply = json;
+    r->reply_size = size;
+    if (!cJSON_IsObject(doc)) {
+        r->outcome = CMD_ROBOT_ERROR;
+        r->error_code = -1;
+        snprintf(r->error_msg, sizeof(r->error_msg), "reply is not a JSON object");
+    } else if (cJSON_IsNumber(code) || (cJSON_IsString(code) && code->valuestring[0])) {
+        char *end = NULL;
+        /* Real controllers send "0", "1", "2", "-1", "3"; some a number. */
+        r->error_code = cJSON_IsNumber(code) ? (long)code->valuedouble
+                                             : strtol(code->valuestring, &end, 10);
+        if (cJSON_IsString(code) && *end != '\0') {
+            r->outcome = CMD_ROBOT_ERROR;
+            r->error_code = -1;
+            snprintf(r->error_msg, sizeof(r->error_msg), "errorCode '%.60s' is not a number",
+                     code->valuestring);
+        } else {
+            r->outcome = r->error_code == 0 ? CMD_DONE : CMD_ROBOT_ERROR;
+        }
+    } else {
+        r->outcome = CMD_ROBOT_ERROR;
+        r->error_code = -1;
+        snprintf(r->error_msg, sizeof(r->error_msg), "reply has no errorCode");
+    }
+    if (cJSON_IsString(msg) && r->error_msg[0] == '\0')
+        snprintf(r->error_msg, sizeof(r->error_msg), "%s", msg->valuestring);
+    cJSON_Delete(doc);
+}
+
+void cmd_queue_init(struct cmd_queue *q, const struct cmd_ops *ops,
+                    uint32_t timeout_ms)
+{
+    memset(q, 0, sizeof(*q));
+    q->ops = *ops;
+    q->timeout_ms = timeout_ms;
+}
+
+static struct cmd_entry *entry_at(struct cmd_queue *q, unsigned i)
+{
+    return &q->entries[(q->head + i) % CMD_QUEUE_CAPACITY];
+}
+
+/* Removes the head entry and reports 'r' to its owner. */
+static void finish_head(struct cmd_queue *q, const struct cmd_result *r)
+{
+    struct cmd_entry e = *entry_at(q, 0);
+
+    q->head = (q->head + 1) % CMD_QUEUE_CAPACITY;
+    q->count--;
+    q->in_flight = false;
+    free(e.json);
+    e.done(e.user, r);
+}
+
+static void fail_head(struct cmd_queue *q, enum cmd_outcome outcome, const char *why)
+{
+    struct cmd_result r = {.outcome = outcome};
+    snprintf(r.error_msg, sizeof(r.error_msg), "%s", why);
+    finish_head(q, &r);
+}
+
+/* Sends the head entry if nothing is in flight. */
+static void send_next(struct cmd_queue *q)
+{
+    while (q->count > 0 && !q->in_flight && q->connected) {
+        struct cmd_entry *e = entry_at(q, 0);
+        int rc = q->ops.send(q->ops.io, e->json, e->size);
+        if (rc < 0) {
+            char why[96];
+            snprintf(why, sizeof(why), "could not send: %s", strerror(-rc));
+            fail_head(q, CMD_LINK_DOWN, why);
+            continue;
+        }
+        q->in_flight = true;
+        q->sent_at_ms = q->ops.now_ms(q->ops.io);
+        q->stats.sent++;
+    }
+}
+
+int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
+                     cmd_done_cb done, void *user)
+{
+    if (!q->connected)
+        return -ENOTCONN;
+    if (q->count == CMD_QUEUE_CAPACITY)
+        return -EBUSY;
+    char *copy = malloc(size);
+    if (!copy)
+        return -ENOMEM;
+    memcpy(copy, json, size);
+    *entry_at(q, q->count) = (struct cmd_entry){copy, size, done, user};
+    q->count++;
+    if (!q->in_flight) {
+        /* Sent now: a failure here is the caller's to report. */
+        int rc = q->ops.send(q->ops.io, copy, size);
+        if (rc < 0) {
+            q->count--;
+            free(copy);
+            return rc;
+        }
+        q->in_flight = true;
+        q->sent_at_ms = q->ops.now_ms(q->ops.io);
+        q->stats.sent++;
+    }
+    return 0;
+}
+
+static void fail_all(struct cmd_queue *q, const char *why)
+{
+    while (q->count > 0) {
+        q->stats.failed_link_down++;
+        fail_head(q, CMD_LINK_DOWN, why);
+    }
+}
+
+void cmd_queue_set_connected(struct cmd_queue *q, bool connected)
+{
+    if (q->connected == connected)
+        return;
+    q->connected = connected;
+    if (!connected)
+        fail_all(q, "the command link went down; the outcome is unknown");
+}
+
+void cmd_queue_on_reply(struct cmd_queue *q, const char *json, size_t size)
+{
+    struct cmd_result r;
+
+    if (!q->in_flight) {
+        q->stats.unsolicited++;
+        return;
+    }
+    cmd_parse_reply(json, size, &r);
+    q->stats.replies++;
+    if (r.outcome == CMD_ROBOT_ERROR)
+        q->stats.robot_errors++;
+    finish_head(q, &r);
+    send_next(q);
+}
+
+void cmd_queue_check_timeout(struct cmd_queue *q)
+{
+    if (!q->in_flight || q->ops.now_ms(q->ops.io) - q->sent_at_ms < q->timeout_ms)
+        return;
+    char why[96];
+    snprintf(why, sizeof(why), "no reply within %u ms; the outcome is unknown",
+             (unsigned)q->timeout_ms);
+    q->stats.timeouts++;
+    fail_head(q, CMD_TIMEOUT, why);
+    /* The late reply must never answer the next command: drop the
+     * connection it would come on, and what was queued behind it. */
+    fail_all(q, "dropped with the connection after a reply timeout");
+    q->ops.restart_link(q->ops.io, why);
+}
+
+uint64_t cmd_queue_next_deadline_ms(const struct cmd_queue *q)
+{
+    if (!q->in_flight)
+        return UINT64_MAX;
+    uint64_t elapsed = q->ops.now_ms(q->ops.io) - q->sent_at_ms;
+    return elapsed >= q->timeout_ms ? 0 : q->timeout_ms - elapsed;
+}
+
+unsigned cmd_queue_pending(const struct cmd_queue *q)
+{
+    return q->count;
+}
+
+void cmd_queue_free(struct cmd_queue *q)
+{
+    fail_all(q, "the gateway is stopping");
+}

@@ -1,0 +1,585 @@
+/* plc_commands.c - PLC writes that command the robot (plc_commands.h). */
+#include "plc_commands.h"
+
+#include "log.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define EX_NOT_PERMITTED MODBUS_EXCEPTION_ILLEGAL_FUNCTION
+#define EX_INVALID MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
+#define EX_BUSY MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY
+#define EX_LINK_DOWN MODBUS_EXCEPTION_GATEWAY_TARGET
+
+/* Robot information the status stream lacks: command, reply member, row. */
+static const struct info_item {
+    const char *cmd;
+    const char *key;
+    const char *row;
+} info_items[] = {
+    {"get_version", "version", "info.controller_version"},
+    {"get_loaded_program", "programName", "info.loaded_program"},
+    {"get_program_state", "programState", "info.program_state"},
+    {"get_payload", "mass", "info.payload_mass"},
+    {"get_payload", "centroid", "info.payload_centroid[*]"},
+    {"get_clsn_sensitivity", "sensitivityLevel", "info.collision_level"},
+};
+static const char *const info_commands[PLC_INFO_COMMANDS] = {
+    "get_version", "get_loaded_program", "get_program_state", "get_payload",
+    "get_clsn_sensitivity"};
+
+/* The gateway row "<prefix>.<member>". */
+static const struct regmap_row *path_row(const struct plc_commands *pc,
+                                         const char *prefix, const char *member)
+{
+    char path[96];
+    snprintf(path, sizeof(path), "%s.%s", prefix, member);
+    return regmap_find_path(pc->img->map, REGMAP_SRC_PATH, path);
+}
+
+static int bind_slot(struct plc_commands *pc, struct plc_slot *slot,
+                     enum plc_slot_kind kind, const char *prefix)
+{
+    slot->pc = pc;
+    slot->kind = kind;
+    slot->state = path_row(pc, prefix, "state");
+    slot->error_code = path_row(pc, prefix, "error_code");
+    slot->error_msg = path_row(pc, prefix, "error_msg");
+    if (!slot->state || !slot->error_code || !slot->error_msg) {
+        log_err("register map: no result rows for %s", prefix);
+        return -EINVAL;
+    }
+    return 0;
+}
+
+int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
+                      struct cmd_queue *queue, const struct plc_commands_config *cfg,
+                      uint64_t (*now_ms)(void *clock), void *clock)
+{
+    char prefix[64];
+
+    memset(pc, 0, sizeof(*pc));
+    pc->img = img;
+    pc->queue = queue;
+    pc->cfg = *cfg;
+    pc->now_ms = now_ms;
+    pc->clock = clock;
+    if (cmd_table_count > PLC_MAX_COMMANDS)
+        return -EINVAL;
+    for (unsigned i = 0; i < cmd_table_count; i++) {
+        struct plc_slot *slot = &pc->slots[i];
+        slot->pc = pc;
+        slot->def = &cmd_table[i];
+        if (!cmd_table[i].code)
+            continue; /* not offered to PLCs on its own */
+        snprintf(prefix, sizeof(prefix), "result.%s", cmd_table[i].name);
+        if (bind_slot(pc, slot, PLC_SLOT_COMMAND, prefix))
+            return -EINVAL;
+    }
+    if (bind_slot(pc, &pc->mailbox, PLC_SLOT_MAILBOX, "mailbox") ||
+        bind_slot(pc, &pc->json, PLC_SLOT_JSON, "json"))
+        return -EINVAL;
+    for (unsigned i = 0; i < PLC_INFO_COMMANDS; i++) {
+        pc->info[i] = (struct plc_slot){.pc = pc, .kind = PLC_SLOT_INFO,
+                                        .def = cmd_find(info_commands[i])};
+        if (!pc->info[i].def)
+            return -EINVAL;
+    }
+    pc->mailbox_ack = path_row(pc, "mailbox", "ack_seq");
+    pc->mailbox_done = path_row(pc, "mailbox", "done_seq");
+    pc->mailbox_code = path_row(pc, "mailbox", "code");
+    pc->mailbox_arg = path_row(pc, "mailbox", "arg[*]");
+    pc->json_request = path_row(pc, "json", "request");
+    pc->json_trigger = path_row(pc, "json", "trigger");
+    pc->json_reply = path_row(pc, "json", "reply");
+    pc->json_truncated = path_row(pc, "json", "reply_truncated");
+    pc->json_length = path_row(pc, "json", "reply_length");
+    pc->info_age = path_row(pc, "info", "age_ms");
+    if (!pc->mailbox_ack || !pc->mailbox_done || !pc->mailbox_code ||
+        !pc->mailbox_arg || !pc->json_request || !pc->json_trigger ||
+        !pc->json_reply || !pc->json_truncated || !pc->json_length || !pc->info_age) {
+        log_err("register map: mailbox rows missing");
+        return -EINVAL;
+    }
+    return 0;
+}
+
+void plc_commands_free(struct plc_commands *pc)
+{
+    (void)pc; /* nothing allocated: queued commands belong to the queue */
+}
+
+static void set_result(struct plc_slot *slot, enum cmd_outcome outcome, long code,
+                       const char *msg)
+{
+    struct regmap_image *img = slot->pc->img;
+    if (!slot->state)
+        return;
+    regmap_set_number(img, slot->state, 0, outcome, true);
+    regmap_set_number(img, slot->error_code, 0, (double)code, true);
+    regmap_set_text(img, slot->error_msg, 0, msg);
+}
+
+/* A number as JSON shows it: floats from f32 registers at their precision. */
+static cJSON *number_item(double v, bool from_float)
+{
+    if (from_float) {
+        char text[32];
+        snprintf(text, sizeof(text), "%.7g", v);
+        v = strtod(text, NULL);
+    }
+    return cJSON_CreateNumber(v);
+}
+
+/* Sets obj.key, where key may be "name[i]" (the array grows with nulls). */
+static void set_member(cJSON *obj, const char *key, cJSON *item)
+{
+    char name[64];
+    const char *bracket = strchr(key, '[');
+
+    if (!bracket) {
+        cJSON_DeleteItemFromObjectCaseSensitive(obj, key);
+        cJSON_AddItemToObject(obj, key, item);
+        return;
+    }
+    snprintf(name, sizeof(name), "%.*s", (int)(bracket - key), key);
+    int index = atoi(bracket + 1);
+    cJSON *array = cJSON_GetObjectItemCaseSensitive(obj, name);
+    if (!cJSON_IsArray(array)) {
+        array = cJSON_CreateArray();
+        cJSON_AddItemToObject(obj, name, array);
+    }
+    while (cJSON_GetArraySize(array) <= index)
+        cJSON_AddItemToArray(array, cJSON_CreateNull());
+    cJSON_ReplaceItemInArray(array, index, item);
+}
+
+/* Adds the value of element 'i' of a parameter row under its JSON path. */
+static bool add_param(const struct plc_commands *pc, cJSON *obj,
+                      const struct regmap_row *row, unsigned i)
+{
+    char path[96];
+    regmap_expand(path, sizeof(path), row->path, row->index + i, i);
+    const char *key = strchr(path, '.') + 1;
+
+    if (row->type == REGMAP_STR) {
+        char text[256];
+        regmap_get_text(pc->img, row, i, text, sizeof(text));
+        if (!text[0])
+            return false; /* a text parameter must be given */
+        set_member(obj, key, cJSON_CreateString(text));
+    } else {
+        set_member(obj, key, number_item(regmap_get_number(pc->img, row, i),
+                                         row->type == REGMAP_F32));
+    }
+    return true;
+}
+
+static bool is_param_of(const struct regmap_row *row, const char *name)
+{
+    size_t n = strlen(name);
+    return row->source == REGMAP_SRC_CMD && !row->fixed &&
+           strncmp(row->path, name, n) == 0 && row->path[n] == '.';
+}
+
+/* The command 'def' with the parameters in its holding registers. */
+static cJSON *build_triggered(const struct plc_commands *pc, const struct cmd_def *def)
+{
+    cJSON *obj = cJSON_CreateObject();
+    cJSON_AddStringToObject(obj, "cmdName", def->name);
+    for (unsigned r = 0; r < pc->img->map->row_count; r++) {
+        const struct regmap_row *row = &pc->img->map->rows[r];
+        if (!is_param_of(row, def->name))
+            continue;
+        for (unsigned i = 0; i < row->elements; i++)
+            if (!add_param(pc, obj, row, i)) {
+                cJSON_Delete(obj);
+                return NULL;
+            }
+    }
+    return obj;
+}
+
+/* A setpoint row's command: its fixed members and the value written. */
+static cJSON *build_setpoint(const struct regmap_written *w, const struct cmd_def *def)
+{
+    const struct regmap_row *row = w->row;
+    char fixed[160], text[176], path[96];
+
+    regmap_expand(fixed, sizeof(fixed), row->fixed, w->source_index, w->element);
+    snprintf(text, sizeof(text), "{%s}", fixed);
+    cJSON *members = cJSON_Parse(text);
+    if (!cJSON_IsObject(members)) {
+        cJSON_Delete(members);
+        return NULL;
+    }
+    /* cmdName first, as the manual writes commands. */
+    cJSON *obj = cJSON_CreateObject();
+    cJSON_AddStringToObject(obj, "cmdName", def->name);
+    while (members->child) {
+        cJSON *m = members->child;
+        cJSON_AddItemToObject(obj, m->string, cJSON_DetachItemViaPointer(members, m));
+    }
+    cJSON_Delete(members);
+    regmap_expand(path, sizeof(path), row->path, w->source_index, w->element);
+    set_member(obj, strchr(path, '.') + 1,
+               number_item(w->value, row->type == REGMAP_F32));
+    return obj;
+}
+
+/* The mailbox's command, from its code and arguments (cmd_def.mailbox_args). */
+static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def *def)
+{
+    char args[128], name[64];
+    unsigned next = 0;
+    cJSON *obj = cJSON_CreateObject();
+
+    cJSON_AddStringToObject(obj, "cmdName", def->name);
+    snprintf(args, sizeof(args), "%s", def->mailbox_args);
+    for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        size_t n = strlen(tok);
+        char mark = n && (tok[n - 1] == '#' || tok[n - 1] == '$') ? tok[--n] : 0;
+        tok[n] = '\0';
+        if (mark == '$') {
+            char path[96];
+            snprintf(path, sizeof(path), "%s.%s", def->name, tok);
+            const struct regmap_row *row =
+                regmap_find_path(pc->img->map, REGMAP_SRC_CMD, path);
+            if (!row || !add_param(pc, obj, row, 0))
+                goto invalid;
+            continue;
+        }
+        unsigned count = 1;
+        char *bracket = strchr(tok, '[');
+        if (bracket) {
+            count = (unsigned)atoi(bracket + 1);
+            *bracket = '\0';
+        }
+        for (unsigned k = 0; k < count; k++) {
+            if (next >= pc->mailbox_arg->elements)
+                goto invalid;
+            double v = regmap_get_number(pc->img, pc->mailbox_arg, next++);
+            if (mark == '#' && v != nearbyint(v))
+                goto invalid; /* a whole number was expected */
+            if (bracket)
+                snprintf(name, sizeof(name), "%s[%u]", tok, k);
+            else
+                snprintf(name, sizeof(name), "%s", tok);
+            set_member(obj, name, number_item(v, mark != '#'));
+        }
+    }
+    return obj;
+invalid:
+    cJSON_Delete(obj);
+    return NULL;
+}
+
+/* The JSON mailbox's command: the PLC's text, if it is a command. */
+static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd_def **def)
+{
+    char text[512];
+    regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
+    cJSON *obj = cJSON_Parse(text);
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(obj, "cmdName");
+    if (!cJSON_IsObject(obj) || !cJSON_IsString(name) || !name->valuestring[0]) {
+        cJSON_Delete(obj);
+        return NULL;
+    }
+    *def = cmd_find(name->valuestring);
+    return obj;
+}
+
+enum action { ACT_NONE, ACT_TRIGGER, ACT_SETPOINT, ACT_MAILBOX, ACT_JSON };
+
+static const struct cmd_def *command_of(const char *path)
+{
+    char name[64];
+    snprintf(name, sizeof(name), "%.*s", (int)strcspn(path, "."), path);
+    return cmd_find(name);
+}
+
+/* What writing 'w' asks for; sets *def and *slot. */
+static enum action action_of(struct plc_commands *pc, const struct regmap_written *w,
+                             const struct cmd_def **def, struct plc_slot **slot)
+{
+    const struct regmap_row *row = w->row;
+
+    *def = NULL;
+    *slot = NULL;
+    if (row->source == REGMAP_SRC_CMD) {
+        *def = command_of(row->path);
+        if (!*def)
+            return ACT_NONE;
+        *slot = &pc->slots[*def - cmd_table];
+        if (row->fixed)
+            return ACT_SETPOINT;
+        /* A trigger sends on 0 -> 1 only: a repeated write is no command. */
+        if (!strchr(row->path, '.'))
+            return w->value != 0 && w->previous == 0 ? ACT_TRIGGER : ACT_NONE;
+        return ACT_NONE;
+    }
+    if (row == pc->json_trigger) {
+        *slot = &pc->json;
+        return w->value != 0 && w->previous == 0 ? ACT_JSON : ACT_NONE;
+    }
+    if (row->source == REGMAP_SRC_PATH && strcmp(row->path, "mailbox.seq") == 0) {
+        *slot = &pc->mailbox;
+        /* The same sequence number again is the same command: done already. */
+        if (w->value == w->previous)
+            return ACT_NONE;
+        *def = cmd_find_code((unsigned)regmap_get_number(pc->img, pc->mailbox_code, 0));
+        return ACT_MAILBOX;
+    }
+    return ACT_NONE;
+}
+
+static cJSON *build(struct plc_commands *pc, enum action act, const struct regmap_written *w,
+                    const struct cmd_def **def)
+{
+    switch (act) {
+    case ACT_TRIGGER:
+        return build_triggered(pc, *def);
+    case ACT_SETPOINT:
+        return build_setpoint(w, *def);
+    case ACT_MAILBOX:
+        return *def ? build_mailbox(pc, *def) : NULL;
+    case ACT_JSON:
+        return parse_json_request(pc, def);
+    case ACT_NONE:
+        break;
+    }
+    return NULL;
+}
+
+int plc_commands_may_write(const struct plc_commands *pc, const char *client)
+{
+    if (pc->cfg.read_only)
+        return EX_NOT_PERMITTED;
+    if (pc->cfg.allowed_count == 0)
+        return 0;
+    for (unsigned i = 0; i < pc->cfg.allowed_count; i++)
+        if (strcmp(pc->cfg.allowed[i], client) == 0)
+            return 0;
+    return EX_NOT_PERMITTED;
+}
+
+void plc_commands_begin(struct plc_commands *pc)
+{
+    pc->staged = 0;
+}
+
+/* Refuses with 'ex', showing why in the slot's result registers. */
+static int refuse(struct plc_slot *slot, int ex, enum cmd_outcome outcome, const char *why)
+{
+    if (slot && slot->state && !slot->pending)
+        set_result(slot, outcome, 0, why);
+    return ex;
+}
+
+int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
+{
+    const struct cmd_def *def;
+    struct plc_slot *slot;
+    enum action act = action_of(pc, w, &def, &slot);
+
+    if (act == ACT_NONE)
+        return 0;
+    cJSON *cmd = build(pc, act, w, &def);
+    cJSON_Delete(cmd);
+    if (!cmd)
+        return refuse(slot, EX_INVALID, CMD_INVALID,
+                      act == ACT_MAILBOX && !def ? "unknown command code"
+                      : act == ACT_JSON          ? "not a JSON command with a cmdName"
+                                                 : "invalid parameters");
+    if (def && (def->flags & CMD_MOTION) && !pc->cfg.motion)
+        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+                      "motion is off: [commands] motion = true enables it");
+    if (def && (def->flags & CMD_SHUTDOWN) && !pc->cfg.allow_shutdown)
+        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+                      "shutdown is off: [commands] allow_shutdown = true enables it");
+    if (!pc->queue->connected)
+        return refuse(slot, EX_LINK_DOWN, CMD_LINK_DOWN, "the command link is down");
+    /* A setpoint may queue behind itself; a command or mailbox may not. */
+    if (act != ACT_SETPOINT && slot->pending)
+        return EX_BUSY;
+    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY)
+        return EX_BUSY;
+    pc->staged++;
+    return 0;
+}
+
+static void on_done(void *user, const struct cmd_result *r);
+
+static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *json)
+{
+    int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+    if (rc < 0) {
+        char why[96];
+        snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
+        set_result(slot, rc == -ENOTCONN ? CMD_LINK_DOWN : CMD_REFUSED, 0, why);
+        return;
+    }
+    slot->pending++;
+    if (slot->state)
+        set_result(slot, CMD_PENDING, 0, "");
+}
+
+void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
+{
+    const struct cmd_def *def;
+    struct plc_slot *slot;
+    enum action act = action_of(pc, w, &def, &slot);
+
+    if (act == ACT_NONE)
+        return;
+    cJSON *cmd = build(pc, act, w, &def);
+    if (!cmd)
+        return; /* the check refused it; not reached */
+    if (act == ACT_JSON) {
+        /* Exactly the PLC's text goes to the robot. */
+        char text[512];
+        regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
+        submit(pc, slot, text);
+    } else {
+        char *text = cJSON_PrintUnformatted(cmd);
+        if (text)
+            submit(pc, slot, text);
+        free(text);
+    }
+    cJSON_Delete(cmd);
+    if (act == ACT_MAILBOX)
+        regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
+}
+
+/* Maps a reply member onto an info row. */
+static void store_info(struct plc_commands *pc, const struct info_item *item,
+                       const cJSON *value)
+{
+    const struct regmap_row *row =
+        regmap_find_path(pc->img->map, REGMAP_SRC_PATH, item->row);
+    if (!row || !value)
+        return;
+    if (row->type == REGMAP_STR) {
+        if (cJSON_IsString(value))
+            regmap_set_text(pc->img, row, 0, value->valuestring);
+        return;
+    }
+    if (cJSON_IsArray(value)) {
+        for (unsigned i = 0; i < row->elements; i++) {
+            const cJSON *e = cJSON_GetArrayItem(value, (int)i);
+            regmap_set_number(pc->img, row, i, cJSON_IsNumber(e) ? e->valuedouble : 0,
+                              cJSON_IsNumber(e));
+        }
+        return;
+    }
+    double v = 0;
+    bool ok = true;
+    if (cJSON_IsNumber(value)) {
+        v = value->valuedouble;
+    } else if (cJSON_IsString(value)) {
+        static const char *const states[] = {"idle", "running", "paused"};
+        char *end;
+        v = strtod(value->valuestring, &end);
+        ok = end != value->valuestring && *end == '\0';
+        for (unsigned i = 0; !ok && i < 3; i++)
+            if (strcmp(value->valuestring, states[i]) == 0) {
+                v = i;
+                ok = true;
+            }
+    } else {
+        ok = false;
+    }
+    regmap_set_number(pc->img, row, 0, v, ok);
+}
+
+static void fetch_info(struct plc_commands *pc, const char *name)
+{
+    for (unsigned i = 0; i < PLC_INFO_COMMANDS; i++) {
+        struct plc_slot *slot = &pc->info[i];
+        if (strcmp(slot->def->name, name) != 0 || slot->pending)
+            continue;
+        char json[96];
+        snprintf(json, sizeof(json), "{\"cmdName\":\"%s\"}", name);
+        if (cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot) == 0)
+            slot->pending++;
+    }
+}
+
+static void record_info(struct plc_commands *pc, const struct plc_slot *slot,
+                        const struct cmd_result *r)
+{
+    if (r->outcome != CMD_DONE)
+        return;
+    cJSON *doc = cJSON_ParseWithLength(r->reply, r->reply_size);
+    for (unsigned i = 0; i < sizeof(info_items) / sizeof(info_items[0]); i++)
+        if (strcmp(info_items[i].cmd, slot->def->name) == 0)
+            store_info(pc, &info_items[i],
+                       cJSON_GetObjectItemCaseSensitive(doc, info_items[i].key));
+    cJSON_Delete(doc);
+    pc->info_updated_ms = pc->now_ms(pc->clock);
+}
+
+/* The JSON mailbox shows the reply itself, cut to its block if longer. */
+static void record_json_reply(struct plc_commands *pc, const struct cmd_result *r)
+{
+    char text[1024];
+    size_t cap = (size_t)pc->json_reply->str_regs * 2;
+    size_t n = r->reply ? r->reply_size : 0;
+
+    if (cap > sizeof(text) - 1)
+        cap = sizeof(text) - 1;
+    if (n > cap) {
+        n = cap;
+        /* Never cut a UTF-8 sequence in two. */
+        while (n > 0 && ((unsigned char)r->reply[n] & 0xC0) == 0x80)
+            n--;
+    }
+    if (n)
+        memcpy(text, r->reply, n);
+    text[n] = '\0';
+    regmap_set_text(pc->img, pc->json_reply, 0, text);
+    regmap_set_number(pc->img, pc->json_truncated, 0, r->reply && r->reply_size > n, true);
+    regmap_set_number(pc->img, pc->json_length, 0, r->reply ? (double)r->reply_size : 0, true);
+}
+
+static void on_done(void *user, const struct cmd_result *r)
+{
+    struct plc_slot *slot = user;
+    struct plc_commands *pc = slot->pc;
+
+    slot->pending--;
+    if (slot->kind == PLC_SLOT_INFO) {
+        record_info(pc, slot, r);
+        return;
+    }
+    set_result(slot, r->outcome, r->error_code, r->error_msg);
+    if (slot->kind == PLC_SLOT_MAILBOX)
+        regmap_set_number(pc->img, pc->mailbox_done, 0,
+                          regmap_get_number(pc->img, pc->mailbox_ack, 0), true);
+    if (slot->kind == PLC_SLOT_JSON)
+        record_json_reply(pc, r);
+    if (r->outcome != CMD_DONE)
+        log_notice("command %s: %s (%ld) %s",
+                   slot->def ? slot->def->name : slot->kind == PLC_SLOT_JSON ? "from the JSON mailbox" : "from the mailbox",
+                   cmd_outcome_name(r->outcome), r->error_code, r->error_msg);
+    if (r->outcome == CMD_DONE && slot->def && slot->def->refresh[0])
+        fetch_info(pc, slot->def->refresh);
+}
+
+void plc_commands_link_up(struct plc_commands *pc)
+{
+    for (unsigned i = 0; i < PLC_INFO_COMMANDS; i++)
+        fetch_info(pc, info_commands[i]);
+}
+
+void plc_commands_refresh(struct plc_commands *pc)
+{
+    double age = pc->info_updated_ms ? (double)(pc->now_ms(pc->clock) - pc->info_updated_ms)
+                                     : 4294967295.0;
+    regmap_set_number(pc->img, pc->info_age, 0, age, true);
+}
