@@ -44,7 +44,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o)
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: all deps demo test unit-tests check-docs docs install uninstall clean san valgrind bench fuzz
+.PHONY: all deps demo test unit-tests check-docs docs install uninstall clean san valgrind bench fuzz test-can
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -101,6 +101,13 @@ test: deps
 docs: $(BUILD)/jakagw
 	$(BUILD)/jakagw --print-map md > docs/register-map.md
 	$(BUILD)/jakagw --print-map csv > docs/register-map.csv
+	$(BUILD)/jakagw -c config/jakagw.conf --print-dbc > docs/jakagw.dbc
+
+# The CAN mirror on a real kernel CAN stack: boots Debian's kernel in qemu
+# (no KVM needed) with vcan, decodes the frames with docs/jakagw.dbc.
+# tests/run.sh (make test) runs it too.
+test-can: all
+	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/can/test_can_vm.py
 
 # Unit tests, then jakagw and jakasim themselves under valgrind in the
 # integration suites that do not depend on timing (valgrind runs 20-50x slower).

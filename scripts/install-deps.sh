@@ -30,8 +30,10 @@ group tests "to run the tests: cmocka; python3 with pymodbus and serial_asyncio 
     libcmocka-dev \
     python3 python3-pymodbus python3-serial-asyncio \
     mbpoll systemd valgrind
+group can "to test the CAN mirror on a real kernel CAN stack in a VM: qemu, Debian's kernel and its can/vcan modules, busybox, candump, a venv for cantools" \
+    qemu-system-x86 linux-image-amd64 busybox-static can-utils python3-venv
 
-DEFAULT_GROUPS="build tests"
+DEFAULT_GROUPS="build tests can"
 
 say() { echo "install-deps: $*"; }
 fail() { echo "install-deps: $*" >&2; exit 1; }

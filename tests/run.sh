@@ -61,6 +61,19 @@ for build in $BUILDS; do
     done
 done
 
+# The CAN mirror on a real kernel CAN stack, in a VM: once, with the first build.
+if [ "$what" = all ]; then
+    build=${BUILDS%% *}
+    echo "== tests/can/test_can_vm.py ($build)"
+    JAKAGW_BIN_DIR="$build" "$PYTHON" tests/can/test_can_vm.py 2>&1 | tee "$log"
+    status=${PIPESTATUS[0]}
+    line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
+    ok=${line%% passed*}
+    bad=${line#*, }
+    bad=${bad%% failed}
+    record "tests/can/test_can_vm.py($build)" "$status" "${ok:-0}" "${bad:-0}"
+fi
+
 echo
 [ -n "$failures" ] && echo "failed suites:$failures"
 echo "$passed passed, $failed failed"
