@@ -142,7 +142,7 @@ install: all
 	sed 's|@BINDIR@|$(PREFIX)/bin|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g' \
 	    systemd/jakagw.service.in > $(DESTDIR)$(UNITDIR)/jakagw.service
 	chmod 0644 $(DESTDIR)$(UNITDIR)/jakagw.service
-	install -m 0644 README.md docs/register-map.md docs/register-map.csv \
+	install -m 0644 README.md docs/register-map.md docs/register-map.csv docs/jakagw.dbc \
 	    $(DESTDIR)$(PREFIX)/share/doc/jakagw/
 
 uninstall:
