@@ -33,6 +33,7 @@
 enum cmd_flags {
     CMD_MOTION = 1,   /* moves the robot: only with [commands] motion = true */
     CMD_SHUTDOWN = 2, /* only with [commands] allow_shutdown = true */
+    CMD_STARTS_MOTION = 4, /* starts a program: the robot may move */
 };
 
 struct cmd_def {

@@ -43,6 +43,15 @@ struct gw_config {
     bool motion;             /* motion commands allowed */
     bool allow_shutdown;     /* the shutdown command allowed */
     uint32_t reply_timeout_ms;
+    /* [network_exception] */
+    uint32_t ne_time_limit_ms;
+    uint32_t ne_action;      /* enum policy_action */
+    uint32_t ne_watch;       /* enum policy_watch - 1 */
+    bool ne_motion_enable;
+    bool ne_single_owner;
+    uint32_t ne_robot_time_limit_ms;
+    uint32_t ne_robot_action; /* motType: 0 keep, 1 pause, 2 stop */
+    bool ne_require_robot_handle;
     /* [log] */
     uint32_t log_level; /* enum log_level */
     /* [can] */

@@ -18,6 +18,7 @@
 #include "log.h"
 #include "mb_server.h"
 #include "plc_commands.h"
+#include "policy.h"
 #include "regmap.h"
 #include "robot_link.h"
 #include "status.h"
@@ -38,6 +39,7 @@ enum {
     GATEWAY_PART_STATUS_LINK = 2,
     GATEWAY_PART_COMMAND_LINK = 4,
     GATEWAY_PART_CAN = 8,
+    GATEWAY_PART_POLICY = 16,
 };
 
 struct gateway {
@@ -60,6 +62,10 @@ struct gateway {
     uint64_t started_ms;
     uint64_t last_document_ms; /* 0: none yet */
     size_t last_document_bytes;
+    struct policy policy;
+    uv_timer_t policy_timer; /* re-evaluates the policy every check period */
+    const struct regmap_row *fault_rows[6]; /* fault, age, count, motion, owner, reset */
+    const struct mb_write *writing; /* the write being judged, for its client */
     uint64_t heartbeat_changed_ms; /* 0: never */
     double heartbeat_value;
     struct log_ratelimit parse_log_limit;

@@ -80,6 +80,8 @@ struct mb_server_hooks {
     /* After a write was applied to the image. */
     void (*after_write)(void *user, enum regmap_table table, unsigned address,
                         unsigned count);
+    /* A client connected (open) or stopped counting; 'clients' now open. */
+    void (*on_client)(void *user, uint64_t client_id, bool open, unsigned clients);
     /* Run indicator for function 17: is the robot data live? */
     bool (*is_running)(void *user);
     void *user;

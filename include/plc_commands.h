@@ -43,9 +43,34 @@ struct plc_commands_config {
     bool read_only;      /* no write at all */
     unsigned allowed_count;         /* 0: any client may write */
     char allowed[PLC_MAX_ALLOWED][48]; /* client addresses that may write */
+    /* The robot's own network-exception handler, set on every connect. */
+    bool robot_handle;          /* send set_network_exception_handle */
+    uint32_t robot_time_limit_ms;
+    unsigned robot_mot_type;    /* 0 keep, 1 pause, 2 stop */
+    bool require_robot_handle;  /* commands refused until it is accepted */
+    /*
+     * Another say on every command (the network-exception policy): 0, or
+     * the exception that refuses it, with the reason in 'why'.
+     */
+    int (*gate)(void *user, const struct cmd_def *def, char *why, size_t size);
+    void *gate_user;
 };
 
-enum plc_slot_kind { PLC_SLOT_COMMAND, PLC_SLOT_MAILBOX, PLC_SLOT_JSON, PLC_SLOT_INFO };
+/* The robot's network-exception handler, as the PLC reads it. */
+enum plc_handle_state {
+    PLC_HANDLE_NOT_SENT = 0, /* no command link yet, or not configured */
+    PLC_HANDLE_PENDING = 1,
+    PLC_HANDLE_ACCEPTED = 2,
+    PLC_HANDLE_FAILED = 3, /* refused or unanswered: a fault */
+};
+
+enum plc_slot_kind {
+    PLC_SLOT_COMMAND,
+    PLC_SLOT_MAILBOX,
+    PLC_SLOT_JSON,
+    PLC_SLOT_INFO,
+    PLC_SLOT_HANDLE,
+};
 
 /* Where the results of one command (or mailbox) show. */
 struct plc_slot {
@@ -66,6 +91,9 @@ struct plc_commands {
     struct plc_slot mailbox;
     struct plc_slot json;
     struct plc_slot info[PLC_INFO_COMMANDS];
+    struct plc_slot handle;
+    enum plc_handle_state handle_state;
+    const struct regmap_row *handle_row;
     unsigned staged; /* commands the write being checked would queue */
     const struct regmap_row *mailbox_ack, *mailbox_done, *mailbox_code,
         *mailbox_arg;
@@ -101,8 +129,19 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w);
 /* Phase 2, once every element passed: sends what the write asks for. */
 void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w);
 
-/* The command link came up: fetch the robot information. */
+/*
+ * The command link came up: set the robot's network-exception handler
+ * first, then fetch the robot information. Or it went down.
+ */
 void plc_commands_link_up(struct plc_commands *pc);
+void plc_commands_link_down(struct plc_commands *pc);
+
+/*
+ * Sends 'name' (pause_program or stop_program) for the gateway itself,
+ * past every gate; its result shows as the command's. Returns 0 or a
+ * negative errno (-ENOTCONN: the command link is down).
+ */
+int plc_commands_send_now(struct plc_commands *pc, const char *name);
 
 /* Refreshes the values that change with time (the information's age). */
 void plc_commands_refresh(struct plc_commands *pc);

@@ -28,6 +28,7 @@ enum key_type {
     KEY_UINT,
     KEY_UNIT_ID,
     KEY_WORD_ORDER,
+    KEY_CHOICE, /* one of key_info.choices, stored as its index (uint32_t) */
     KEY_LOG_LEVEL,
     KEY_BOOL,
     KEY_INTERFACE, /* a network interface name, or "" for none */
@@ -43,11 +44,20 @@ struct key_info {
     size_t size;    /* KEY_STRING: buffer size */
     uint32_t min, max;
     const char *default_value;
+    const char *const *choices; /* KEY_CHOICE: NULL-terminated */
 };
 
 #define KEY(sec, name, type, member, min, max, def)                            \
     {sec, name, type, offsetof(struct gw_config, member),                      \
-     sizeof(((struct gw_config *)0)->member), min, max, def}
+     sizeof(((struct gw_config *)0)->member), min, max, def, NULL}
+#define KEY_C(sec, name, member, choices, def)                                 \
+    {sec, name, KEY_CHOICE, offsetof(struct gw_config, member),                \
+     sizeof(((struct gw_config *)0)->member), 0, 0, def, choices}
+
+/* [network_exception] action and the robot's motType: the same three. */
+static const char *const action_names[] = {"keep", "pause", "stop", NULL};
+/* [network_exception] watch: index + 1 is enum policy_watch. */
+static const char *const watch_names[] = {"heartbeat", "connection", "both", NULL};
 
 static const struct key_info keys[] = {
     KEY("robot", "host", KEY_HOST, robot_host, 1, 0, "127.0.0.1"),
@@ -76,6 +86,14 @@ static const struct key_info keys[] = {
     KEY("commands", "motion", KEY_BOOL, motion, 0, 1, "false"),
     KEY("commands", "allow_shutdown", KEY_BOOL, allow_shutdown, 0, 1, "false"),
     KEY("commands", "reply_timeout_ms", KEY_UINT, reply_timeout_ms, 100, 60000, "2000"),
+    KEY("network_exception", "time_limit_ms", KEY_UINT, ne_time_limit_ms, 100, 600000, "1000"),
+    KEY_C("network_exception", "action", ne_action, action_names, "pause"),
+    KEY_C("network_exception", "watch", ne_watch, watch_names, "heartbeat"),
+    KEY("network_exception", "motion_enable", KEY_BOOL, ne_motion_enable, 0, 1, "false"),
+    KEY("network_exception", "single_owner", KEY_BOOL, ne_single_owner, 0, 1, "true"),
+    KEY("network_exception", "robot_time_limit_ms", KEY_UINT, ne_robot_time_limit_ms, 0, 600000, "1000"),
+    KEY_C("network_exception", "robot_action", ne_robot_action, action_names, "pause"),
+    KEY("network_exception", "require_robot_handle", KEY_BOOL, ne_require_robot_handle, 0, 1, "true"),
     KEY("log", "level", KEY_LOG_LEVEL, log_level, 0, 0, "info"),
     KEY("can", "enabled", KEY_BOOL, can_enabled, 0, 1, "false"),
     KEY("can", "interface", KEY_INTERFACE, can_interface, 0, 0, ""),
@@ -252,6 +270,20 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
         }
         *(int32_t *)member = (int32_t)v;
         return 0;
+    case KEY_CHOICE:
+        for (uint32_t i = 0; k->choices[i]; i++)
+            if (strcasecmp(value, k->choices[i]) == 0) {
+                *(uint32_t *)member = i;
+                return 0;
+            }
+        {
+            char list[96] = "";
+            for (uint32_t i = 0; k->choices[i]; i++)
+                snprintf(list + strlen(list), sizeof(list) - strlen(list), "%s%s",
+                         i ? (k->choices[i + 1] ? ", " : " or ") : "", k->choices[i]);
+            snprintf(why, why_size, "'%s' must be %s", value, list);
+        }
+        return -EINVAL;
     case KEY_WORD_ORDER:
         if (strcasecmp(value, "high_first") == 0 || strcasecmp(value, "ABCD") == 0)
             *(uint32_t *)member = REGMAP_HIGH_WORD_FIRST;
@@ -657,6 +689,9 @@ void config_print(const struct gw_config *cfg, FILE *out)
                 fprintf(out, "any\n");
             else
                 fprintf(out, "%d\n", *(const int32_t *)m);
+            break;
+        case KEY_CHOICE:
+            fprintf(out, "%s\n", keys[i].choices[*(const uint32_t *)m]);
             break;
         case KEY_WORD_ORDER:
             fprintf(out, "%s\n", *(const uint32_t *)m ? "low_first" : "high_first");

@@ -105,6 +105,8 @@ static void on_command_state(struct command_port *cp, enum robot_link_state stat
         if (cp->link.connections > 1)
             gw->counters.command_reconnects++;
         plc_commands_link_up(&gw->commands);
+    } else {
+        plc_commands_link_down(&gw->commands);
     }
     notify_change(gw);
 }
@@ -122,6 +124,23 @@ static double age_ms(const struct gateway *gw, uint64_t since)
         return NEVER_MS;
     uint64_t age = uv_now(gw->loop) - since;
     return age > NEVER_MS - 1 ? NEVER_MS - 1 : (double)age;
+}
+
+/* The policy's state, as PLCs read it. */
+static void show_policy(struct gateway *gw)
+{
+    struct regmap_image *img = &gw->image;
+    const struct policy *p = &gw->policy;
+    const struct regmap_row *motion =
+        regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion_enabled");
+
+    regmap_set_number(img, gw->fault_rows[0], 0, p->fault, true);
+    regmap_set_number(img, gw->fault_rows[1], 0,
+                      (double)policy_fault_age_ms(p, uv_now(gw->loop)), true);
+    regmap_set_number(img, gw->fault_rows[2], 0, (double)(p->faults & 0xFFFF), true);
+    if (motion)
+        regmap_set_number(img, motion, 0, p->motion_enabled, true);
+    regmap_set_text(img, gw->fault_rows[4], 0, p->owner_address);
 }
 
 void gateway_refresh_values(struct gateway *gw)
@@ -161,6 +180,8 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
     regmap_encode_gw(&gw->image, v);
     plc_commands_refresh(&gw->commands);
+    if (gw->parts & GATEWAY_PART_POLICY)
+        show_policy(gw);
 }
 
 static void clear_counters(struct gateway *gw)
@@ -186,19 +207,78 @@ static void after_write(void *user, enum regmap_table table, unsigned address,
 
     for (unsigned a = address; a < address + count; a++) {
         const struct regmap_row *row = regmap_find(&gw->map, table, a);
+        if (row && row == gw->fault_rows[5])
+            gw->image.mb->tab_bits[row->address] = 0; /* a command coil: reads 0 */
         if (!row || row->source != REGMAP_SRC_GW)
             continue;
         double value = regmap_read_written(&gw->image, row);
-        if (row->id == GW_plc_heartbeat) {
-            if (gw->heartbeat_changed_ms == 0 || value != gw->heartbeat_value)
-                gw->heartbeat_changed_ms = uv_now(gw->loop);
-            gw->heartbeat_value = value;
-        } else if (row->id == GW_clear_counters && value != 0) {
+        if (row->id == GW_clear_counters && value != 0) {
             clear_counters(gw);
             /* A command coil: it reads 0 once done. */
             gw->image.mb->tab_bits[row->address] = 0;
         }
     }
+}
+
+/* Does the robot move or run a program, as far as the gateway can tell? */
+static bool robot_may_move(const struct gateway *gw)
+{
+    if (!gateway_status_fresh(gw))
+        return true; /* blind: assume the worst */
+    const struct status_num *inpos = status_num_at(gw->status, STATUS_F_inpos, 0);
+    const struct status_num *interp = status_num_at(gw->status, STATUS_F_interp_state, 0);
+    bool running = interp->present && (interp->value == 1 || interp->value == 3);
+    return running || (inpos->present && inpos->value == 0);
+}
+
+static void check_policy(struct gateway *gw)
+{
+    policy_check(&gw->policy, uv_now(gw->loop), robot_may_move(gw));
+}
+
+static void on_policy_timer(uv_timer_t *t)
+{
+    check_policy(t->data);
+}
+
+/* The policy's action goes out as pause_program or stop_program. */
+static void send_policy_action(void *user, enum policy_action action,
+                               enum policy_fault reason)
+{
+    struct gateway *gw = user;
+    static const char *const reasons[] = {"", "PLC heartbeat lost", "no Modbus client",
+                                          "motion enable dropped"};
+    const char *name = action == POLICY_STOP ? "stop_program" : "pause_program";
+    int rc = plc_commands_send_now(&gw->commands, name);
+    if (rc == 0)
+        log_warn("network exception: %s while the robot may move: sent %s; "
+                 "commands are refused until the PLC resets the fault",
+                 reasons[reason], name);
+    else
+        log_err("network exception: %s while the robot may move: could not send %s "
+                "(%s); the robot's own network-exception handler applies",
+                reasons[reason], name, strerror(-rc));
+}
+
+/* The policy's say on a command: stop always passes. */
+static int gate_command(void *user, const struct cmd_def *def, char *why, size_t size)
+{
+    struct gateway *gw = user;
+    bool stop = def && strcmp(def->name, "stop_program") == 0;
+
+    if (stop)
+        return 0;
+    if (gw->policy.fault != POLICY_FAULT_NONE) {
+        snprintf(why, size, "network-exception fault %d latched: reset it first",
+                 gw->policy.fault);
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    if (gw->policy.cfg.motion_enable && !gw->policy.motion_enabled && def &&
+        (def->flags & (CMD_MOTION | CMD_STARTS_MOTION))) {
+        snprintf(why, size, "motion enable is 0");
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    return 0;
 }
 
 static int check_written(void *user, const struct regmap_written *w)
@@ -212,8 +292,24 @@ static int check_written(void *user, const struct regmap_written *w)
 static int apply_written(void *user, const struct regmap_written *w)
 {
     struct gateway *gw = user;
-    if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH)
+    uint64_t now = uv_now(gw->loop);
+
+    if (w->row->source == REGMAP_SRC_GW && w->row->id == GW_plc_heartbeat) {
+        if (gw->heartbeat_changed_ms == 0 || w->value != gw->heartbeat_value)
+            gw->heartbeat_changed_ms = now;
+        gw->heartbeat_value = w->value;
+        policy_heartbeat(&gw->policy, now, gw->writing->client_id, gw->writing->client,
+                         w->value);
+    } else if (w->row == gw->fault_rows[5] && w->value != 0) {
+        if (gw->policy.fault != POLICY_FAULT_NONE)
+            log_notice("network-exception fault %d reset by %s", gw->policy.fault,
+                       gw->writing->client);
+        policy_reset(&gw->policy);
+    } else if (w->row == gw->fault_rows[3]) {
+        policy_motion_enable(&gw->policy, now, w->value != 0, robot_may_move(gw));
+    } else if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH) {
         plc_commands_apply(&gw->commands, w);
+    }
     return 0;
 }
 
@@ -226,10 +322,13 @@ static int on_write(void *user, const struct mb_write *w)
 {
     struct gateway *gw = user;
     struct regmap_image *img = &gw->image;
-    int ex = plc_commands_may_write(&gw->commands, w->client);
+    int ex = policy_may_write(&gw->policy, w->client_id);
 
+    if (!ex)
+        ex = plc_commands_may_write(&gw->commands, w->client);
     if (ex)
         return ex;
+    gw->writing = w;
     regmap_save(img, w->table, w->address, w->count, gw->saved_values);
     regmap_load(img, w->table, w->address, w->count, w->values);
     plc_commands_begin(&gw->commands);
@@ -239,8 +338,19 @@ static int on_write(void *user, const struct mb_write *w)
         regmap_load(img, w->table, w->address, w->count, gw->saved_values);
         return ex;
     }
-    return regmap_decode_write(img, w->table, w->address, w->count, w->values,
-                               gw->saved_values, apply_written, gw);
+    ex = regmap_decode_write(img, w->table, w->address, w->count, w->values,
+                             gw->saved_values, apply_written, gw);
+    check_policy(gw);
+    return ex;
+}
+
+static void on_client(void *user, uint64_t client, bool open, unsigned clients)
+{
+    struct gateway *gw = user;
+    if (open)
+        policy_client_opened(&gw->policy, uv_now(gw->loop), clients);
+    else
+        policy_client_closed(&gw->policy, uv_now(gw->loop), client, clients);
 }
 
 static bool is_running(void *user)
@@ -340,9 +450,17 @@ static uint64_t loop_now_ms(void *clock)
 static int start_commands(struct gateway *gw)
 {
     const struct gw_config *cfg = &gw->cfg;
-    struct plc_commands_config pcc = {.motion = cfg->motion,
-                                      .allow_shutdown = cfg->allow_shutdown,
-                                      .read_only = cfg->read_only};
+    struct plc_commands_config pcc = {
+        .motion = cfg->motion,
+        .allow_shutdown = cfg->allow_shutdown,
+        .read_only = cfg->read_only,
+        .robot_handle = cfg->ne_robot_time_limit_ms > 0,
+        .robot_time_limit_ms = cfg->ne_robot_time_limit_ms,
+        .robot_mot_type = cfg->ne_robot_action,
+        .require_robot_handle = cfg->ne_require_robot_handle,
+        .gate = gate_command,
+        .gate_user = gw,
+    };
     char list[sizeof(cfg->write_allow)];
 
     snprintf(list, sizeof(list), "%s", cfg->write_allow);
@@ -352,6 +470,39 @@ static int start_commands(struct gateway *gw)
     return plc_commands_init(&gw->commands, &gw->image, &gw->command.queue, &pcc,
                              loop_now_ms, gw->loop);
 }
+
+/* The network-exception policy: its rows, its state machine, its timer. */
+static int start_policy(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    static const char *const paths[] = {"fault", "fault_age_ms", "faults", "motion_enable",
+                                        "write_owner", "fault_reset"};
+    struct policy_config pc = {
+        .time_limit_ms = cfg->ne_time_limit_ms,
+        .action = (enum policy_action)cfg->ne_action,
+        .watch = (enum policy_watch)(cfg->ne_watch + 1),
+        .motion_enable = cfg->ne_motion_enable,
+        .single_owner = cfg->ne_single_owner,
+    };
+    struct policy_sink sink = {.send_action = send_policy_action, .user = gw};
+
+    for (unsigned i = 0; i < 6; i++) {
+        gw->fault_rows[i] = regmap_find_path(&gw->map, REGMAP_SRC_PATH, paths[i]);
+        if (!gw->fault_rows[i])
+            return -EINVAL;
+    }
+    /* The coil's row is "motion_enable"; its read-back, "motion_enabled". */
+    policy_init(&gw->policy, &pc, &sink);
+    uv_timer_init(gw->loop, &gw->policy_timer);
+    gw->policy_timer.data = gw;
+    gw->parts |= GATEWAY_PART_POLICY;
+    /* A tenth of the limit, 10..100 ms: reactions within limit + period. */
+    uint64_t period = cfg->ne_time_limit_ms / 10;
+    period = period < 10 ? 10 : period > 100 ? 100 : period;
+    uv_timer_start(&gw->policy_timer, on_policy_timer, period, period);
+    return 0;
+}
+
 
 /* The self-description values, which never change while running. */
 static void set_constant_values(struct gateway *gw)
@@ -396,6 +547,9 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = start_commands(gw);
     if (rc)
         return rc;
+    rc = start_policy(gw);
+    if (rc)
+        return rc;
     gateway_refresh_values(gw);
 
     struct mb_server_config mc = {
@@ -409,6 +563,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     struct mb_server_hooks hooks = {
         .before_request = before_request,
         .on_write = on_write,
+        .on_client = on_client,
         .after_write = after_write,
         .is_running = is_running,
         .user = gw,
@@ -436,6 +591,11 @@ static void part_closed(struct gateway *gw)
 static void on_link_closed(struct robot_link *link)
 {
     part_closed(link->user);
+}
+
+static void on_policy_timer_closed(uv_handle_t *h)
+{
+    part_closed(h->data);
 }
 
 static void on_command_port_closed(struct command_port *cp)
@@ -469,6 +629,10 @@ void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
     if (gw->parts & GATEWAY_PART_COMMAND_LINK) {
         gw->closing_parts++;
         command_port_close(&gw->command, on_command_port_closed);
+    }
+    if (gw->parts & GATEWAY_PART_POLICY) {
+        gw->closing_parts++;
+        uv_close((uv_handle_t *)&gw->policy_timer, on_policy_timer_closed);
     }
     if (gw->parts & GATEWAY_PART_CAN) {
         gw->closing_parts++;

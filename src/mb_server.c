@@ -86,6 +86,8 @@ static void on_client_handle_closed(uv_handle_t *h)
 }
 
 /* Closes at once; replies not yet written are dropped. */
+static void client_gone(struct mb_client *c);
+
 static void close_client(struct mb_client *c, const char *why)
 {
     struct mb_server *srv = c->srv;
@@ -101,10 +103,19 @@ static void close_client(struct mb_client *c, const char *why)
     if (c->next)
         c->next->prev = c->prev;
     if (c->state == CLIENT_OPEN)
-        srv->stats.clients--;
+        client_gone(c);
     c->state = CLIENT_CLOSING;
     uv_close((uv_handle_t *)&c->tcp, on_client_handle_closed);
     uv_close((uv_handle_t *)&c->timer, on_client_handle_closed);
+}
+
+/* A client stops counting: it no longer reads requests. */
+static void client_gone(struct mb_client *c)
+{
+    struct mb_server *srv = c->srv;
+    srv->stats.clients--;
+    if (srv->hooks.on_client)
+        srv->hooks.on_client(srv->hooks.user, c->accept_seq, false, srv->stats.clients);
 }
 
 static void on_client_shutdown(uv_shutdown_t *req, int status)
@@ -130,7 +141,7 @@ static void release_client(struct mb_client *c, const char *why)
         return;
     if (why)
         client_log(srv, &srv->close_log_limit, c->peer, "closing connection", why);
-    srv->stats.clients--;
+    client_gone(c);
     c->state = CLIENT_FLUSHING;
     c->used = 0;
     uv_read_stop((uv_stream_t *)&c->tcp);
@@ -692,6 +703,8 @@ static void on_connection(uv_stream_t *listener, int status)
         srv->clients->prev = c;
     srv->clients = c;
     srv->stats.clients++;
+    if (srv->hooks.on_client)
+        srv->hooks.on_client(srv->hooks.user, c->accept_seq, true, srv->stats.clients);
     uv_tcp_nodelay(&c->tcp, 1);
     uv_tcp_keepalive(&c->tcp, 1, 10);
     log_debug("modbus: client %s connected (%u now)", c->peer, srv->stats.clients);

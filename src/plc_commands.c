@@ -99,9 +99,13 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
     pc->json_truncated = path_row(pc, "json", "reply_truncated");
     pc->json_length = path_row(pc, "json", "reply_length");
     pc->info_age = path_row(pc, "info", "age_ms");
+    pc->handle_row = path_row(pc, "network_exception", "robot_handle");
+    pc->handle = (struct plc_slot){.pc = pc, .kind = PLC_SLOT_HANDLE,
+                                   .def = cmd_find("set_network_exception_handle")};
     if (!pc->mailbox_ack || !pc->mailbox_done || !pc->mailbox_code ||
         !pc->mailbox_arg || !pc->json_request || !pc->json_trigger ||
-        !pc->json_reply || !pc->json_truncated || !pc->json_length || !pc->info_age) {
+        !pc->json_reply || !pc->json_truncated || !pc->json_length || !pc->info_age ||
+        !pc->handle_row || !pc->handle.def) {
         log_err("register map: mailbox rows missing");
         return -EINVAL;
     }
@@ -404,6 +408,16 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
                       "shutdown is off: [commands] allow_shutdown = true enables it");
     if (!pc->queue->connected)
         return refuse(slot, EX_LINK_DOWN, CMD_LINK_DOWN, "the command link is down");
+    if (pc->cfg.require_robot_handle && pc->cfg.robot_handle &&
+        pc->handle_state != PLC_HANDLE_ACCEPTED)
+        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+                      "the robot has not accepted its network-exception handler");
+    if (pc->cfg.gate) {
+        char why[96] = "";
+        int ex = pc->cfg.gate(pc->cfg.gate_user, def, why, sizeof(why));
+        if (ex)
+            return refuse(slot, ex, CMD_REFUSED, why);
+    }
     /* A setpoint may queue behind itself; a command or mailbox may not. */
     if (act != ACT_SETPOINT && slot->pending)
         return EX_BUSY;
@@ -414,6 +428,7 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
 }
 
 static void on_done(void *user, const struct cmd_result *r);
+static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state);
 
 static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *json)
 {
@@ -557,6 +572,16 @@ static void on_done(void *user, const struct cmd_result *r)
         record_info(pc, slot, r);
         return;
     }
+    if (slot->kind == PLC_SLOT_HANDLE) {
+        set_handle_state(pc, r->outcome == CMD_DONE ? PLC_HANDLE_ACCEPTED : PLC_HANDLE_FAILED);
+        if (r->outcome == CMD_DONE)
+            log_notice("robot accepted its network-exception handler");
+        else
+            log_err("robot did not accept set_network_exception_handle: %s (%ld) %s; "
+                    "commands are refused until it does",
+                    cmd_outcome_name(r->outcome), r->error_code, r->error_msg);
+        return;
+    }
     set_result(slot, r->outcome, r->error_code, r->error_msg);
     if (slot->kind == PLC_SLOT_MAILBOX)
         regmap_set_number(pc->img, pc->mailbox_done, 0,
@@ -571,10 +596,54 @@ static void on_done(void *user, const struct cmd_result *r)
         fetch_info(pc, slot->def->refresh);
 }
 
+static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state)
+{
+    pc->handle_state = state;
+    regmap_set_number(pc->img, pc->handle_row, 0, state, true);
+}
+
 void plc_commands_link_up(struct plc_commands *pc)
 {
+    if (pc->cfg.robot_handle) {
+        char json[128];
+        /* First on every connection: queued before any PLC command. */
+        snprintf(json, sizeof(json),
+                 "{\"cmdName\":\"set_network_exception_handle\",\"timeLimit\":%u,"
+                 "\"motType\":%u}",
+                 (unsigned)pc->cfg.robot_time_limit_ms, pc->cfg.robot_mot_type);
+        int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, &pc->handle);
+        if (rc == 0) {
+            pc->handle.pending++;
+            set_handle_state(pc, PLC_HANDLE_PENDING);
+        } else {
+            set_handle_state(pc, PLC_HANDLE_FAILED);
+        }
+    }
     for (unsigned i = 0; i < PLC_INFO_COMMANDS; i++)
         fetch_info(pc, info_commands[i]);
+}
+
+void plc_commands_link_down(struct plc_commands *pc)
+{
+    /* A new connection must set it again. */
+    set_handle_state(pc, PLC_HANDLE_NOT_SENT);
+}
+
+int plc_commands_send_now(struct plc_commands *pc, const char *name)
+{
+    const struct cmd_def *def = cmd_find(name);
+    if (!def)
+        return -EINVAL;
+    struct plc_slot *slot = &pc->slots[def - cmd_table];
+    char json[96];
+    snprintf(json, sizeof(json), "{\"cmdName\":\"%s\"}", name);
+    int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+    if (rc == 0) {
+        slot->pending++;
+        if (slot->state)
+            set_result(slot, CMD_PENDING, 0, "");
+    }
+    return rc;
 }
 
 void plc_commands_refresh(struct plc_commands *pc)

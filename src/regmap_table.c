@@ -118,6 +118,16 @@ const struct regmap_row regmap_table_rows[] = {
      .scale = 1, .unit = "", .writable = true, .min = 0, .max = 1,
      .name = "json_trigger", .source = REGMAP_SRC_PATH, .path = "json.trigger",
      .description = "JSON mailbox: 0 -> 1 sends the text in json_request"},
+    /* ---- coils: the network-exception policy ---- */
+    {.table = REGMAP_COIL, .address = 130, .elements = 1, .type = REGMAP_BOOL,
+     .scale = 1, .unit = "", .writable = true, .min = 0, .max = 1,
+     .name = "fault_reset", .source = REGMAP_SRC_PATH, .path = "fault_reset",
+     .description = "Write 1 to clear the latched network-exception fault; reads 0"},
+    {.table = REGMAP_COIL, .address = 131, .elements = 1, .type = REGMAP_BOOL,
+     .scale = 1, .unit = "", .writable = true, .min = 0, .max = 1,
+     .name = "motion_enable", .source = REGMAP_SRC_PATH, .path = "motion_enable",
+     .description = "Hold at 1 for the robot to run (with [network_exception] "
+                    "motion_enable); dropping it pauses the program at once"},
     /* ---- coils: outputs; each write sends set_digital_output (4.25) ---- */
     C_SET(REGMAP_COIL, 200, 16, 1, REGMAP_BOOL, 1, 0, 1, "", "cabinet_do_*",
           "set_digital_output.value", "\"type\": 0, \"index\": *",
@@ -299,6 +309,22 @@ const struct regmap_row regmap_table_rows[] = {
          "CAN frames due but not sent (queue full, interface down or absent)"),
     G_IR(56, can_errors, REGMAP_U32, "",
          "CAN send, open and poll failures and bus-off reports"),
+    /* ---- input registers: the network-exception policy ---- */
+    P_ROW(REGMAP_INPUT_REGISTER, 60, 1, REGMAP_U16, 0, "", "fault", "fault",
+          "Latched network-exception fault: 0 none, 1 PLC heartbeat lost, 2 no "
+          "Modbus client, 3 motion enable dropped; commands but stop are refused"),
+    P_ROW(REGMAP_INPUT_REGISTER, 61, 1, REGMAP_U32, 0, "ms", "fault_age_ms",
+          "fault_age_ms", "Time since the fault latched; 0 when none"),
+    P_ROW(REGMAP_INPUT_REGISTER, 63, 1, REGMAP_U16, 0, "", "faults", "faults",
+          "Network-exception faults latched since start (wraps at 65535)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 64, 1, REGMAP_U16, 0, "", "robot_handle",
+          "network_exception.robot_handle",
+          "The robot's own network-exception handler: 0 not set (no command "
+          "link), 1 pending, 2 accepted, 3 refused or unanswered (a fault)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 65, 1, REGMAP_U16, 0, "", "motion_enabled",
+          "motion_enabled", "The motion-enable coil as the policy sees it"),
+    P_ROW(REGMAP_INPUT_REGISTER, 66, 1, REGMAP_STR, 24, "", "write_owner",
+          "write_owner", "Address of the client that owns the write side; empty: none"),
 
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",

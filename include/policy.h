@@ -1,0 +1,129 @@
+/*
+ * policy.h - the network-exception policy for the PLC side, enforced by the
+ * gateway: when the PLC goes silent, the robot is paused or stopped as
+ * configured, never left moving blind.
+ *
+ * The robot protects itself against losing the gateway
+ * (set_network_exception_handle, sent by plc_commands.h on every connect);
+ * it cannot see the PLC, whose loss leaves the robot's own link healthy.
+ * This state machine watches the PLC:
+ * - the heartbeat: the PLC changes holding register plc_heartbeat at least
+ *   every time_limit_ms. The watch arms on the first change;
+ * - the connection: at least one Modbus client connected (armed once one
+ *   has connected);
+ * - the motion-enable coil, when required: the PLC holds it at 1 for the
+ *   robot to run; dropping it pauses the program at once.
+ * When a watched signal is lost while the robot moves or a program runs
+ * (or while the gateway cannot tell, its status being stale), the action
+ * (keep: flag only; pause: pause_program; stop: stop_program) is sent once
+ * and a fault is latched, visible on Modbus with its reason and age. While
+ * it is latched, commands are refused, except stop and the reset; the
+ * action is never repeated. Only an explicit reset by the PLC clears it.
+ * A loss while the robot is idle sends nothing and latches nothing.
+ *
+ * Write ownership, when configured: the client that feeds the heartbeat
+ * owns the write side; other clients' writes are refused (exception 01).
+ * Ownership passes only when the owner disconnects or its heartbeat
+ * expires.
+ *
+ * Pure logic: time comes in as arguments and the action goes out through
+ * 'struct policy_sink', so every transition is unit-tested without a loop.
+ */
+#ifndef JAKAGW_POLICY_H
+#define JAKAGW_POLICY_H
+
+#include <stdbool.h>
+#include <stdint.h>
+
+enum policy_action { POLICY_KEEP = 0, POLICY_PAUSE = 1, POLICY_STOP = 2 };
+
+enum policy_watch {
+    POLICY_WATCH_HEARTBEAT = 1,
+    POLICY_WATCH_CONNECTION = 2,
+    POLICY_WATCH_BOTH = 3,
+};
+
+/* The latched fault's reason, as the PLC reads it. */
+enum policy_fault {
+    POLICY_FAULT_NONE = 0,
+    POLICY_FAULT_HEARTBEAT = 1,     /* the heartbeat stopped */
+    POLICY_FAULT_NO_CLIENT = 2,     /* no Modbus client connected */
+    POLICY_FAULT_MOTION_ENABLE = 3, /* the motion-enable coil dropped */
+};
+
+struct policy_config {
+    uint32_t time_limit_ms;
+    enum policy_action action;
+    enum policy_watch watch;
+    bool motion_enable;  /* the motion-enable coil is required */
+    bool single_owner;   /* one write owner at a time */
+};
+
+struct policy_sink {
+    /* Sends pause_program or stop_program; never called for KEEP. */
+    void (*send_action)(void *user, enum policy_action action,
+                        enum policy_fault reason);
+    void *user;
+};
+
+struct policy {
+    struct policy_config cfg;
+    struct policy_sink sink;
+    /* The heartbeat. */
+    bool heartbeat_armed;
+    uint64_t heartbeat_ms; /* when it last changed */
+    double heartbeat_value;
+    /* The connection. */
+    unsigned clients;
+    bool connection_armed;
+    uint64_t no_client_since_ms;
+    /* The motion-enable coil. */
+    bool motion_enabled;
+    /* The latched fault. */
+    enum policy_fault fault;
+    uint64_t fault_since_ms;
+    uint64_t faults; /* latched, ever */
+    /* The write owner: 0 none. */
+    uint64_t owner;
+    char owner_address[48];
+};
+
+void policy_init(struct policy *p, const struct policy_config *cfg,
+                 const struct policy_sink *sink);
+
+/*
+ * May client 'client' write? 0, or exception 01 when another client owns
+ * the write side. Call before every write.
+ */
+int policy_may_write(const struct policy *p, uint64_t client);
+
+/* A write to plc_heartbeat by 'client' (at 'address'). */
+void policy_heartbeat(struct policy *p, uint64_t now_ms, uint64_t client,
+                      const char *address, double value);
+
+/* Modbus clients: one connected, or one gone ('clients' counts the rest). */
+void policy_client_opened(struct policy *p, uint64_t now_ms, unsigned clients);
+void policy_client_closed(struct policy *p, uint64_t now_ms, uint64_t client,
+                          unsigned clients);
+
+/* A write to the motion-enable coil. Dropping it pauses at once. */
+void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
+                          bool robot_moving);
+
+/* The PLC's reset: clears the latched fault. */
+void policy_reset(struct policy *p);
+
+/*
+ * Re-evaluates: call every check period and after any input. 'robot_moving'
+ * is true while the robot moves or a program runs, or while the status is
+ * stale and the gateway cannot tell.
+ */
+void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving);
+
+/* Are commands refused now (a latched fault, or motion not enabled)? */
+bool policy_blocks_commands(const struct policy *p);
+
+/* Milliseconds since the fault latched; 0 when none. */
+uint64_t policy_fault_age_ms(const struct policy *p, uint64_t now_ms);
+
+#endif
