@@ -37,6 +37,8 @@ struct gw_config {
     uint32_t frame_timeout_ms;
     int32_t unit_id; /* -1: any */
     uint32_t word_order; /* enum regmap_word_order */
+    /* Not a key: a listening socket passed by systemd, 0: bind and port. */
+    int modbus_listen_fd;
     bool read_only;        /* no Modbus write at all */
     char write_allow[400]; /* client addresses that may write, comma-separated; "" any */
     /* [commands] */

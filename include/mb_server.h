@@ -56,6 +56,11 @@ struct mb_server_config {
     uint32_t idle_timeout_ms;  /* 0: never */
     uint32_t frame_timeout_ms;
     int unit_id;               /* -1: answer any */
+    /*
+     * A listening TCP socket to serve instead of binding bind:port, such as
+     * the one systemd passes (fd 3 and up); 0: bind and listen here.
+     */
+    int listen_fd;
 };
 
 /* A write request, checked, before anything is applied. */
@@ -132,5 +137,14 @@ int mb_server_port(const struct mb_server *srv);
 
 /* Closes the listener and every client; 'cb' runs when all are closed. */
 void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv));
+
+/*
+ * Stops serving gracefully, for a clean stop: the listener closes (no new
+ * connection is accepted), every complete request that has arrived is
+ * answered, and each client is closed once its replies are written (at
+ * most MB_SERVER_FLUSH_MS later). A request that has not arrived whole is
+ * dropped. 'cb' runs when all are closed.
+ */
+void mb_server_shutdown(struct mb_server *srv, void (*cb)(struct mb_server *srv));
 
 #endif

@@ -559,6 +559,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
         .idle_timeout_ms = cfg->idle_timeout_ms,
         .frame_timeout_ms = cfg->frame_timeout_ms,
         .unit_id = cfg->unit_id,
+        .listen_fd = cfg->modbus_listen_fd,
     };
     struct mb_server_hooks hooks = {
         .before_request = before_request,
@@ -620,7 +621,8 @@ void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
     gw->closing_parts = 1;
     if (gw->parts & GATEWAY_PART_MODBUS) {
         gw->closing_parts++;
-        mb_server_close(&gw->modbus, on_server_closed);
+        /* Requests that have arrived are answered before the clients go. */
+        mb_server_shutdown(&gw->modbus, on_server_closed);
     }
     if (gw->parts & GATEWAY_PART_STATUS_LINK) {
         gw->closing_parts++;

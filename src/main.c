@@ -5,6 +5,7 @@
  */
 #include "can_map.h"
 #include "config.h"
+#include "config_reload.h"
 #include "gateway.h"
 #include "log.h"
 #include "regmap.h"
@@ -23,7 +24,7 @@
 struct service {
     uv_loop_t *loop;
     struct gateway gw;
-    uv_signal_t sigint, sigterm;
+    uv_signal_t sigint, sigterm, sighup;
     uv_timer_t watchdog;
     bool watchdog_on;
     bool stopping;
@@ -44,9 +45,12 @@ static void usage(FILE *out)
             "      --log-level LEVEL    error, warning, notice, info or debug\n"
             "      --check-config       check the configuration, print it, exit\n"
             "      --print-map FORMAT   print the register map as csv or md, exit\n"
+            "      --print-config-keys  print every configuration key, its default and\n"
+            "                           whether a reload (SIGHUP) applies it, exit\n"
             "      --print-dbc          print the DBC of the CAN frames as configured, exit\n"
             "      --version            print the version, exit\n"
             "  -h, --help               print this help, exit\n\n"
+            "Signals: SIGHUP reads the configuration again; SIGTERM or SIGINT stops.\n"
             "Exit status: 0 stopped cleanly, 1 runtime failure, 2 bad flag or "
             "configuration.\n",
             CONFIG_DEFAULT_PATH);
@@ -97,6 +101,49 @@ static int print_dbc(const struct gw_config *cfg)
     return 0;
 }
 
+/* The flags that set keys, kept to read the configuration again on SIGHUP. */
+static struct {
+    const char *config_path; /* -c FILE; NULL: CONFIG_DEFAULT_PATH if it exists */
+    struct { const char *section, *key, *flag, *value; } overrides[8];
+    unsigned n_overrides;
+} flags;
+
+/*
+ * Reads the configuration file over the defaults and the flags over it, and
+ * checks the whole: at start, and again on every reload. Returns 0, or
+ * -EINVAL with the reason written to 'why'.
+ */
+static int load_config(struct gw_config *cfg, bool *file_read, char *why, size_t why_size)
+{
+    char reason[512];
+    int rc;
+
+    config_defaults(cfg);
+    rc = config_load(cfg, flags.config_path ? flags.config_path : CONFIG_DEFAULT_PATH,
+                     reason, sizeof(reason));
+    *file_read = rc == 0;
+    /* No file at the default place: defaults and flags only. A file that is
+     * there but cannot be read is an error, like one given with -c. */
+    if (rc == -ENOENT && !flags.config_path)
+        rc = 0;
+    if (rc) {
+        snprintf(why, why_size, "configuration error: %s", reason);
+        return -EINVAL;
+    }
+    for (unsigned i = 0; i < flags.n_overrides; i++) {
+        if (config_set(cfg, flags.overrides[i].section, flags.overrides[i].key,
+                       flags.overrides[i].value, reason, sizeof(reason))) {
+            snprintf(why, why_size, "--%s: %s", flags.overrides[i].flag, reason);
+            return -EINVAL;
+        }
+    }
+    if (config_validate(cfg, reason, sizeof(reason))) {
+        snprintf(why, why_size, "configuration error: %s", reason);
+        return -EINVAL;
+    }
+    return 0;
+}
+
 static void on_gateway_closed(struct gateway *gw)
 {
     (void)gw;
@@ -116,14 +163,23 @@ static void stop_service(struct service *svc, int exit_code)
     sd_notify(0, "STOPPING=1");
     uv_close((uv_handle_t *)&svc->sigint, on_handle_closed);
     uv_close((uv_handle_t *)&svc->sigterm, on_handle_closed);
+    uv_close((uv_handle_t *)&svc->sighup, on_handle_closed);
     uv_close((uv_handle_t *)&svc->watchdog, on_handle_closed);
     gateway_close(&svc->gw, on_gateway_closed);
 }
 
+/*
+ * SIGTERM, SIGINT: no new connection is accepted, the Modbus requests that
+ * have arrived are answered, and the robot connections are closed. Nothing
+ * is sent to the robot on the way out: it goes on as its own handling of a
+ * lost network connection says.
+ */
 static void on_signal(uv_signal_t *s, int signum)
 {
     struct service *svc = s->data;
-    log_notice("received %s: stopping", strsignal(signum));
+    log_notice("received %s: stopping: answering the requests that have arrived, "
+               "closing the robot connections (no command is sent)",
+               strsignal(signum));
     stop_service(svc, 0);
 }
 
@@ -132,6 +188,65 @@ static void on_gateway_change(struct gateway *gw)
     char status[160];
     gateway_describe(gw, status, sizeof(status));
     sd_notifyf(0, "STATUS=%s", status);
+}
+
+/*
+ * SIGHUP: the configuration file and the flags are read again and checked
+ * in full. A file with any error changes nothing; otherwise the keys that
+ * can change live do, and the others keep their value until a restart,
+ * each with a line saying so (config_reload.h).
+ */
+static void on_reload(uv_signal_t *s, int signum)
+{
+    struct service *svc = s->data;
+    const char *path = flags.config_path ? flags.config_path : CONFIG_DEFAULT_PATH;
+    struct config_reload_result result;
+    struct gw_config next;
+    bool file_read;
+    char why[600];
+
+    (void)signum;
+    sd_notify(0, "RELOADING=1");
+    log_notice("received SIGHUP: reading the configuration again");
+    if (load_config(&next, &file_read, why, sizeof(why)) != 0) {
+        log_err("reload refused, the running configuration stays in force: %s", why);
+    } else {
+        next.modbus_listen_fd = svc->gw.cfg.modbus_listen_fd;
+        if (config_reload_apply(&svc->gw, &next, &result) != 0)
+            log_err("reload: out of memory; the running configuration stays in force");
+        else
+            log_notice("reload: %s%s: %u changes applied, %u need a restart",
+                       file_read ? "" : "no file at ", path, result.applied,
+                       result.restart);
+    }
+    on_gateway_change(&svc->gw);
+    sd_notify(0, "READY=1");
+}
+
+/*
+ * Socket activation: a listening socket passed by systemd (jakagw.socket)
+ * is served instead of binding [modbus] bind and port. Returns 0 with
+ * cfg->modbus_listen_fd set when one was passed, 0 when none was, -EINVAL
+ * (logged) when what was passed is not one listening TCP socket.
+ */
+static int adopt_passed_socket(struct gw_config *cfg)
+{
+    int n = sd_listen_fds(1);
+
+    if (n == 0)
+        return 0;
+    if (n < 0) {
+        log_err("cannot read the sockets passed by systemd: %s", strerror(-n));
+        return -EINVAL;
+    }
+    if (n > 1 || sd_is_socket(SD_LISTEN_FDS_START, AF_UNSPEC, SOCK_STREAM, 1) <= 0) {
+        log_err("systemd passed %d file descriptors; jakagw serves exactly one listening "
+                "TCP socket (one ListenStream= in the socket unit)",
+                n);
+        return -EINVAL;
+    }
+    cfg->modbus_listen_fd = SD_LISTEN_FDS_START;
+    return 0;
 }
 
 /*
@@ -177,11 +292,11 @@ static void report_bad_flag(int opt, char **argv, const struct option *options)
 
 static int parse_flags(int argc, char **argv, struct gw_config *cfg,
                        bool *check_only, const char **print_format, bool *file_read,
-                       bool *print_dbc_only)
+                       bool *print_dbc_only, bool *print_keys)
 {
     enum { OPT_ROBOT_HOST = 256, OPT_STATUS_PORT, OPT_COMMAND_PORT,
            OPT_MODBUS_BIND, OPT_MODBUS_PORT, OPT_LOG_LEVEL, OPT_CHECK,
-           OPT_PRINT_MAP, OPT_VERSION, OPT_PRINT_DBC };
+           OPT_PRINT_MAP, OPT_VERSION, OPT_PRINT_DBC, OPT_PRINT_KEYS };
     static const struct option options[] = {
         {"config", required_argument, NULL, 'c'},
         {"robot-host", required_argument, NULL, OPT_ROBOT_HOST},
@@ -193,28 +308,27 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
         {"check-config", no_argument, NULL, OPT_CHECK},
         {"print-map", required_argument, NULL, OPT_PRINT_MAP},
         {"print-dbc", no_argument, NULL, OPT_PRINT_DBC},
+        {"print-config-keys", no_argument, NULL, OPT_PRINT_KEYS},
         {"version", no_argument, NULL, OPT_VERSION},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
     /* Flags override the file, so they are applied after it is read. */
-    struct { const char *section, *key, *flag, *value; } overrides[8];
-    const char *config_path = NULL;
-    unsigned n_overrides = 0;
-    char why[512];
+    char why[600];
     int opt;
 
     opterr = 0;
     while ((opt = getopt_long(argc, argv, ":c:h", options, NULL)) != -1) {
         const char *section = NULL, *key = NULL;
         switch (opt) {
-        case 'c': config_path = optarg; continue;
+        case 'c': flags.config_path = optarg; continue;
         case 'h': usage(stdout); exit(0);
         case OPT_VERSION: printf("jakagw %s (register map %d)\n", JAKAGW_VERSION,
                                  REGMAP_VERSION); exit(0);
         case OPT_CHECK: *check_only = true; continue;
         case OPT_PRINT_MAP: *print_format = optarg; continue;
         case OPT_PRINT_DBC: *print_dbc_only = true; continue;
+        case OPT_PRINT_KEYS: *print_keys = true; continue;
         case OPT_ROBOT_HOST: section = "robot"; key = "host"; break;
         case OPT_STATUS_PORT: section = "robot"; key = "status_port"; break;
         case OPT_COMMAND_PORT: section = "robot"; key = "command_port"; break;
@@ -225,14 +339,14 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
             report_bad_flag(opt, argv, options);
             return -EINVAL;
         }
-        overrides[n_overrides].section = section;
-        overrides[n_overrides].key = key;
-        overrides[n_overrides].flag = options[0].name;
+        flags.overrides[flags.n_overrides].section = section;
+        flags.overrides[flags.n_overrides].key = key;
+        flags.overrides[flags.n_overrides].flag = options[0].name;
         for (const struct option *o = options; o->name; o++)
             if (o->val == opt)
-                overrides[n_overrides].flag = o->name;
-        overrides[n_overrides++].value = optarg;
-        if (n_overrides == sizeof(overrides) / sizeof(overrides[0])) {
+                flags.overrides[flags.n_overrides].flag = o->name;
+        flags.overrides[flags.n_overrides++].value = optarg;
+        if (flags.n_overrides == sizeof(flags.overrides) / sizeof(flags.overrides[0])) {
             fprintf(stderr, "jakagw: too many flags\n");
             return -EINVAL;
         }
@@ -243,28 +357,10 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
         return -EINVAL;
     }
     config_defaults(cfg);
-    if (*print_format)
+    if (*print_format || *print_keys)
         return 0;
-    int rc = config_load(cfg, config_path ? config_path : CONFIG_DEFAULT_PATH, why,
-                         sizeof(why));
-    *file_read = rc == 0;
-    /* No file at the default place: defaults and flags only. A file that is
-     * there but cannot be read is an error, like one given with -c. */
-    if (rc == -ENOENT && !config_path)
-        rc = 0;
-    if (rc) {
-        fprintf(stderr, "jakagw: configuration error: %s\n", why);
-        return -EINVAL;
-    }
-    for (unsigned i = 0; i < n_overrides; i++) {
-        if (config_set(cfg, overrides[i].section, overrides[i].key,
-                       overrides[i].value, why, sizeof(why))) {
-            fprintf(stderr, "jakagw: --%s: %s\n", overrides[i].flag, why);
-            return -EINVAL;
-        }
-    }
-    if (config_validate(cfg, why, sizeof(why))) {
-        fprintf(stderr, "jakagw: configuration error: %s\n", why);
+    if (load_config(cfg, file_read, why, sizeof(why))) {
+        fprintf(stderr, "jakagw: %s\n", why);
         return -EINVAL;
     }
     return 0;
@@ -279,11 +375,14 @@ int main(int argc, char **argv)
     uint64_t watchdog_usec = 0;
     bool file_read = false;
     bool print_dbc_only = false;
+    bool print_keys = false;
     char status[160];
 
     if (parse_flags(argc, argv, &cfg, &check_only, &print_format, &file_read,
-                    &print_dbc_only))
+                    &print_dbc_only, &print_keys))
         return EXIT_CONFIG;
+    if (print_keys)
+        return config_reload_print_keys(stdout) == 0 && fflush(stdout) == 0 ? 0 : 1;
     if (print_dbc_only)
         return print_dbc(&cfg);
     if (print_format)
@@ -301,6 +400,8 @@ int main(int argc, char **argv)
         log_notice("no configuration file was read (%s does not exist): defaults and flags "
                    "in force",
                    CONFIG_DEFAULT_PATH);
+    if (adopt_passed_socket(&cfg) != 0)
+        return EXIT_CONFIG;
     /* A robot or PLC closing mid-write must not kill the gateway. */
     signal(SIGPIPE, SIG_IGN);
 
@@ -308,15 +409,22 @@ int main(int argc, char **argv)
     svc.loop = uv_default_loop();
     uv_signal_init(svc.loop, &svc.sigint);
     uv_signal_init(svc.loop, &svc.sigterm);
-    svc.sigint.data = svc.sigterm.data = &svc;
+    uv_signal_init(svc.loop, &svc.sighup);
+    svc.sigint.data = svc.sigterm.data = svc.sighup.data = &svc;
     uv_signal_start(&svc.sigint, on_signal, SIGINT);
     uv_signal_start(&svc.sigterm, on_signal, SIGTERM);
+    uv_signal_start(&svc.sighup, on_reload, SIGHUP);
     uv_timer_init(svc.loop, &svc.watchdog);
     svc.watchdog.data = &svc;
 
-    log_notice("jakagw %s starting: robot %s (status %u, command %u), Modbus %s:%u",
-               JAKAGW_VERSION, cfg.robot_host, cfg.status_port, cfg.command_port,
-               cfg.modbus_bind, cfg.modbus_port);
+    if (cfg.modbus_listen_fd > 0)
+        log_notice("jakagw %s starting: robot %s (status %u, command %u), Modbus on the "
+                   "socket passed by systemd",
+                   JAKAGW_VERSION, cfg.robot_host, cfg.status_port, cfg.command_port);
+    else
+        log_notice("jakagw %s starting: robot %s (status %u, command %u), Modbus %s:%u",
+                   JAKAGW_VERSION, cfg.robot_host, cfg.status_port, cfg.command_port,
+                   cfg.modbus_bind, cfg.modbus_port);
     svc.gw.on_change = NULL;
     if (gateway_start(svc.loop, &svc.gw, &cfg) != 0) {
         log_err("cannot start; see the lines above");

@@ -729,6 +729,38 @@ static int open_reply_pair(struct mb_server *srv)
     return 0;
 }
 
+/*
+ * Serves a socket that is already bound and listening (systemd's socket
+ * activation): the bind address and port of the configuration do not
+ * apply, and no privilege is needed for port 502.
+ */
+static int adopt_listener(struct mb_server *srv, int fd)
+{
+    struct sockaddr_storage sa;
+    int len = sizeof(sa);
+    char host[48] = "?";
+    int rc;
+
+    rc = uv_tcp_open(&srv->listener, fd);
+    if (rc == 0)
+        rc = uv_listen((uv_stream_t *)&srv->listener, 64, on_connection);
+    if (rc < 0) {
+        log_err("modbus: cannot listen on the socket passed as fd %d: %s", fd,
+                uv_strerror(rc));
+        return rc;
+    }
+    if (uv_tcp_getsockname(&srv->listener, (struct sockaddr *)&sa, &len) == 0) {
+        if (sa.ss_family == AF_INET6)
+            uv_ip6_name((struct sockaddr_in6 *)&sa, host, sizeof(host));
+        else
+            uv_ip4_name((struct sockaddr_in *)&sa, host, sizeof(host));
+    }
+    log_notice("modbus: listening on %s port %d, the socket passed by systemd "
+               "([modbus] bind and port do not apply; max %u clients)",
+               host, mb_server_port(srv), srv->cfg.max_clients);
+    return 0;
+}
+
 int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
                     const struct mb_server_config *cfg, struct regmap_image *img,
                     const struct mb_server_hooks *hooks)
@@ -765,6 +797,8 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
     uv_tcp_init(loop, &srv->listener);
     srv->listener.data = srv;
     srv->open_handles = 1;
+    if (cfg->listen_fd > 0)
+        return adopt_listener(srv, cfg->listen_fd);
     rc = uv_tcp_bind(&srv->listener, (const struct sockaddr *)&addr, 0);
     if (rc == 0)
         rc = uv_listen((uv_stream_t *)&srv->listener, 64, on_connection);
@@ -797,12 +831,24 @@ static void on_server_handle_closed(uv_handle_t *h)
     maybe_finish_close(srv);
 }
 
-void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv))
+static void close_server(struct mb_server *srv, void (*cb)(struct mb_server *srv),
+                         bool graceful)
 {
+    struct mb_client *c, *next;
+
     srv->closing = true;
     srv->close_cb = cb;
-    while (srv->clients)
-        close_client(srv->clients, NULL);
+    for (c = srv->clients; c; c = next) {
+        /* Neither call frees a client: 'next' stays valid. */
+        next = c->next;
+        if (graceful) {
+            /* Answered with the image as it is now, before anything closes. */
+            drain_client(c);
+            release_client(c, NULL);
+        } else {
+            close_client(c, NULL);
+        }
+    }
     if (srv->ctx) {
         /* libmodbus would close the socket it was given; we own it. */
         modbus_set_socket(srv->ctx, -1);
@@ -819,4 +865,14 @@ void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv))
         return;
     }
     uv_close((uv_handle_t *)&srv->listener, on_server_handle_closed);
+}
+
+void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv))
+{
+    close_server(srv, cb, false);
+}
+
+void mb_server_shutdown(struct mb_server *srv, void (*cb)(struct mb_server *srv))
+{
+    close_server(srv, cb, true);
 }

@@ -1,0 +1,234 @@
+/* config_reload.c - see config_reload.h. */
+#include "config_reload.h"
+
+#include "log.h"
+
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+/*
+ * The keys that take effect on reload, and how. Each is read where it is
+ * used, so a new value applies from its next use: the log level at once;
+ * max_clients at the next connection; unit_id at the next request; the
+ * frame and idle timeouts from each connection's next deadline (a shorter
+ * idle timeout at the latest when the longer one would have expired); the
+ * robot links' timeouts and backoff from the next connection attempt or
+ * status document.
+ */
+struct live_key {
+    const char *section;
+    const char *key;
+    void (*apply)(struct gateway *gw, const struct gw_config *next);
+};
+
+static void apply_log_level(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.log_level = next->log_level;
+    log_set_level((enum log_level)next->log_level);
+}
+
+static void apply_connect_timeout(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.connect_timeout_ms = next->connect_timeout_ms;
+    gw->status_link.cfg.connect_timeout_ms = next->connect_timeout_ms;
+    gw->command.link.cfg.connect_timeout_ms = next->connect_timeout_ms;
+}
+
+static void apply_reconnect_min(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.reconnect_min_ms = next->reconnect_min_ms;
+    gw->status_link.cfg.reconnect_min_ms = next->reconnect_min_ms;
+    gw->command.link.cfg.reconnect_min_ms = next->reconnect_min_ms;
+}
+
+static void apply_reconnect_max(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.reconnect_max_ms = next->reconnect_max_ms;
+    gw->status_link.cfg.reconnect_max_ms = next->reconnect_max_ms;
+    gw->command.link.cfg.reconnect_max_ms = next->reconnect_max_ms;
+}
+
+static void apply_status_timeout(struct gateway *gw, const struct gw_config *next)
+{
+    /* The freshness the PLC reads, and the status link's silence limit. */
+    gw->cfg.status_timeout_ms = next->status_timeout_ms;
+    gw->status_link.cfg.silence_timeout_ms = next->status_timeout_ms;
+}
+
+static void apply_max_clients(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.max_clients = next->max_clients;
+    gw->modbus.cfg.max_clients = next->max_clients;
+}
+
+static void apply_idle_timeout(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.idle_timeout_ms = next->idle_timeout_ms;
+    gw->modbus.cfg.idle_timeout_ms = next->idle_timeout_ms;
+}
+
+static void apply_frame_timeout(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.frame_timeout_ms = next->frame_timeout_ms;
+    gw->modbus.cfg.frame_timeout_ms = next->frame_timeout_ms;
+}
+
+static void apply_unit_id(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.unit_id = next->unit_id;
+    gw->modbus.cfg.unit_id = next->unit_id;
+}
+
+static const struct live_key live_keys[] = {
+    {"robot", "connect_timeout_ms", apply_connect_timeout},
+    {"robot", "reconnect_min_ms", apply_reconnect_min},
+    {"robot", "reconnect_max_ms", apply_reconnect_max},
+    {"robot", "status_timeout_ms", apply_status_timeout},
+    {"modbus", "max_clients", apply_max_clients},
+    {"modbus", "idle_timeout_ms", apply_idle_timeout},
+    {"modbus", "frame_timeout_ms", apply_frame_timeout},
+    {"modbus", "unit_id", apply_unit_id},
+    {"log", "level", apply_log_level},
+};
+
+static const struct live_key *find_live(const char *section, const char *key)
+{
+    for (size_t i = 0; i < sizeof(live_keys) / sizeof(live_keys[0]); i++) {
+        if (strcmp(live_keys[i].section, section) == 0 &&
+            strcmp(live_keys[i].key, key) == 0)
+            return &live_keys[i];
+    }
+    return NULL;
+}
+
+bool config_reload_is_live(const char *section, const char *key)
+{
+    return find_live(section, key) != NULL;
+}
+
+/*
+ * A configuration as config_print() writes it, cut into entries. The text
+ * is the one --check-config shows, so two values differ exactly when a
+ * user would see them differ.
+ */
+struct entry {
+    const char *section, *key, *value;
+};
+
+struct printed {
+    char *text;
+    size_t size;
+    struct entry *entries;
+    size_t count;
+};
+
+static void printed_free(struct printed *p)
+{
+    free(p->text);
+    free(p->entries);
+}
+
+static int print_config(const struct gw_config *cfg, struct printed *p)
+{
+    FILE *f;
+    size_t cap = 0;
+    const char *section = "";
+
+    memset(p, 0, sizeof(*p));
+    f = open_memstream(&p->text, &p->size);
+    if (!f)
+        return -ENOMEM;
+    config_print(cfg, f);
+    if (fclose(f) != 0) {
+        free(p->text);
+        p->text = NULL;
+        return -ENOMEM;
+    }
+    for (char *line = p->text, *end; line && *line; line = end) {
+        end = strchr(line, '\n');
+        if (end)
+            *end++ = '\0';
+        if (line[0] == '[') {
+            char *close = strchr(line, ']');
+            if (close)
+                *close = '\0';
+            section = line + 1;
+            continue;
+        }
+        char *eq = strstr(line, " = ");
+        if (!eq)
+            continue; /* a blank line between sections */
+        if (p->count == cap) {
+            struct entry *more = realloc(p->entries, (cap ? 2 * cap : 32) * sizeof(*more));
+            if (!more) {
+                printed_free(p);
+                return -ENOMEM;
+            }
+            p->entries = more;
+            cap = cap ? 2 * cap : 32;
+        }
+        *eq = '\0';
+        p->entries[p->count++] = (struct entry){section, line, eq + 3};
+    }
+    return 0;
+}
+
+int config_reload_print_keys(FILE *out)
+{
+    struct gw_config defaults;
+    struct printed p;
+    int rc;
+
+    config_defaults(&defaults);
+    rc = print_config(&defaults, &p);
+    if (rc)
+        return rc;
+    for (size_t i = 0; i < p.count; i++)
+        fprintf(out, "%s\t%s\t%s\t%s\n", p.entries[i].section, p.entries[i].key,
+                p.entries[i].value,
+                config_reload_is_live(p.entries[i].section, p.entries[i].key) ? "live"
+                                                                              : "restart");
+    printed_free(&p);
+    return 0;
+}
+
+int config_reload_apply(struct gateway *gw, const struct gw_config *next,
+                        struct config_reload_result *result)
+{
+    struct printed now, then;
+    int rc;
+
+    memset(result, 0, sizeof(*result));
+    rc = print_config(&gw->cfg, &now);
+    if (rc)
+        return rc;
+    rc = print_config(next, &then);
+    if (rc) {
+        printed_free(&now);
+        return rc;
+    }
+    /* One key table prints both, in the same order. */
+    for (size_t i = 0; i < now.count && i < then.count; i++) {
+        const struct entry *a = &now.entries[i], *b = &then.entries[i];
+        const struct live_key *live;
+
+        if (strcmp(a->value, b->value) == 0)
+            continue;
+        live = find_live(a->section, a->key);
+        if (live) {
+            /* Logged first: a new log level may hide the line. */
+            log_notice("reload: [%s] %s: %s -> %s", a->section, a->key, a->value,
+                       b->value);
+            live->apply(gw, next);
+            result->applied++;
+        } else {
+            log_warn("reload: [%s] %s: %s needs a restart; %s stays in force until then",
+                     a->section, a->key, b->value, a->value);
+            result->restart++;
+        }
+    }
+    printed_free(&now);
+    printed_free(&then);
+    return 0;
+}
