@@ -22,6 +22,9 @@
 
 #include "framer.h"
 
+/* Bytes queued to a robot that does not read, before sends fail. */
+#define ROBOT_LINK_MAX_QUEUED (64 * 1024)
+
 enum robot_link_state {
     ROBOT_LINK_DISCONNECTED = 0,
     ROBOT_LINK_CONNECTING = 1,
@@ -75,6 +78,14 @@ struct robot_link {
     int open_handles;
     void (*close_cb)(struct robot_link *link);
 
+    /*
+     * Connections that end before the robot sent anything on them make the
+     * link unstable: after the first such loss is logged, reconnects and
+     * losses are logged at debug level only, until an object arrives.
+     */
+    bool unstable;
+    uint64_t objects_on_connection;
+    uint64_t quiet_reconnects; /* while unstable */
     uint64_t connections; /* successful connects, ever */
     uint64_t last_object_ms;
 };
@@ -89,8 +100,9 @@ int robot_link_start(struct robot_link *link);
 
 /*
  * Queues 'size' bytes to the robot. Returns 0, -ENOTCONN when not
- * connected (nothing is queued: the caller decides what that means), or a
- * negative libuv error.
+ * connected (nothing is queued: the caller decides what that means),
+ * -ENOBUFS when more than ROBOT_LINK_MAX_QUEUED bytes wait because the
+ * robot does not read, or a negative libuv error.
  */
 int robot_link_send(struct robot_link *link, const char *data, size_t size);
 

@@ -28,6 +28,14 @@ static void on_framer_event(void *user, enum framer_event event,
         /* The robot speaks: a later failure starts the backoff afresh. */
         link->backoff_ms = 0;
         link->last_error = 0;
+        link->objects_on_connection++;
+        if (link->unstable) {
+            log_notice("%s link: the robot is sending again (%llu reconnects while "
+                       "it was not)", link->cfg.name,
+                       (unsigned long long)link->quiet_reconnects);
+            link->unstable = false;
+            link->quiet_reconnects = 0;
+        }
         link->cb.on_object(link, data, size);
         /* Handling the object may have taken long (a large document): the
          * silence watchdog must count from now, not from the loop time
@@ -126,11 +134,30 @@ static void drop_connection(struct robot_link *link)
         schedule_retry(link);
 }
 
+/*
+ * A connection ends. The first loss is a warning; while the link keeps
+ * losing connections on which nothing arrived, the rest are debug lines.
+ */
+static void log_loss(struct robot_link *link, const char *what, const char *why)
+{
+    if (link->state != ROBOT_LINK_CONNECTED)
+        return;
+    if (link->unstable)
+        log_debug("%s link: %s %s:%u: %s", link->cfg.name, what, link->host,
+                  link->cfg.port, why);
+    else
+        log_warn("%s link: %s %s:%u: %s%s", link->cfg.name, what, link->host,
+                 link->cfg.port, why,
+                 link->objects_on_connection ? ""
+                                             : " (nothing arrived on it; while this "
+                                               "goes on, reconnects are not logged)");
+    if (link->objects_on_connection == 0)
+        link->unstable = true;
+}
+
 void robot_link_restart(struct robot_link *link, const char *why)
 {
-    if (link->state == ROBOT_LINK_CONNECTED)
-        log_warn("%s link: closing connection to %s:%u: %s", link->cfg.name,
-                 link->host, link->cfg.port, why);
+    log_loss(link, "closing connection to", why);
     link->last_error = 0;
     drop_connection(link);
 }
@@ -168,10 +195,8 @@ static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
     }
     if (nread == 0)
         return;
-    if (link->state == ROBOT_LINK_CONNECTED)
-        log_warn("%s link: connection to %s:%u lost: %s; reconnecting",
-                 link->cfg.name, link->host, link->cfg.port,
-                 nread == UV_EOF ? "closed by the robot" : uv_strerror((int)nread));
+    log_loss(link, "lost the connection to",
+             nread == UV_EOF ? "closed by the robot" : uv_strerror((int)nread));
     link->last_error = (int)nread;
     drop_connection(link);
 }
@@ -200,8 +225,15 @@ static void on_connected(uv_connect_t *req, int status)
     link->connections++;
     link->last_error = 0;
     link->last_object_ms = uv_now(link->loop);
-    log_notice("%s link: connected to %s:%u", link->cfg.name, link->host,
-               link->cfg.port);
+    link->objects_on_connection = 0;
+    if (link->unstable) {
+        link->quiet_reconnects++;
+        log_debug("%s link: connected to %s:%u", link->cfg.name, link->host,
+                  link->cfg.port);
+    } else {
+        log_notice("%s link: connected to %s:%u", link->cfg.name, link->host,
+                   link->cfg.port);
+    }
     set_state(link, ROBOT_LINK_CONNECTED);
     if (link->cfg.silence_timeout_ms)
         uv_timer_start(&link->watchdog, on_watchdog, link->cfg.silence_timeout_ms,
@@ -304,6 +336,10 @@ int robot_link_send(struct robot_link *link, const char *data, size_t size)
 
     if (link->state != ROBOT_LINK_CONNECTED)
         return -ENOTCONN;
+    /* A robot that does not read must not make the gateway queue without
+     * bound: past the limit, sending fails and the caller says so. */
+    if (uv_stream_get_write_queue_size((uv_stream_t *)&link->tcp) > ROBOT_LINK_MAX_QUEUED)
+        return -ENOBUFS;
     sr = malloc(sizeof(*sr) + size);
     if (!sr)
         return -ENOMEM;

@@ -102,7 +102,7 @@ def test_dropped_connections_reconnect():
         wait_until(lambda: u32(s, STATUS_RECONNECTS) >= 2, 10, "two reconnects")
         wait_until(lambda: fresh(s), 5, "live data after reconnecting")
         out = gw.output()
-        check(out.count("status link: connection to") >= 2, "no log line per loss")
+        check(out.count("status link: lost the connection to") >= 2, "no log line per loss")
     with_fault(["--drop-every-ms", "600"], "[robot]\nreconnect_min_ms = 50\n",
                check_fn=verify)
 
@@ -117,7 +117,17 @@ def test_silent_robot_goes_stale():
         wait_until(lambda: "no complete document for" in gw.output(), 3, "a log line")
         wait_until(lambda: u32(s, 18) > age + 200, 2,
                    "status age to grow while the robot is silent")
-    with_fault(["--silent-after-ms", "800"], "[robot]\nstatus_timeout_ms = 300\n",
+        # A robot that keeps accepting and staying silent: each transition is
+        # logged once, not every reconnect (it was two lines per reconnect).
+        wait_until(lambda: u32(s, STATUS_RECONNECTS) >= 6, 15, "six silent reconnects")
+        lines = [l for l in gw.output().splitlines()
+                 if l.startswith(("<4>", "<5>")) and "status link" in l]
+        print("  %d reconnects of a silent robot, %d warning/notice lines"
+              % (u32(s, STATUS_RECONNECTS), len(lines)))
+        check(len(lines) <= 4, "silent reconnects flood the log:\n" + "\n".join(lines))
+    with_fault(["--silent-after-ms", "800"],
+               "[robot]\nstatus_timeout_ms = 300\nreconnect_min_ms = 50\n"
+               "reconnect_max_ms = 200\n",
                check_fn=verify)
 
 
