@@ -13,6 +13,7 @@
 #include <errno.h>
 #include <getopt.h>
 #include <signal.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -41,12 +42,14 @@ struct sim_options {
     const char *fail_command;
     const char *ignore_command;
     unsigned reply_delay_ms;
+    const char *delay_command; /* delay only this command's reply */
     bool log_commands;
 };
 
 struct peer {
     uv_tcp_t tcp;
     struct sim *sim;
+    uint64_t id; /* unique for the simulator's life: memory is reused */
     bool status; /* a status-port client, else a command-port client */
     bool synced; /* has seen a document start: a client joining while a
                     document is sent in pieces waits for the next one */
@@ -75,6 +78,8 @@ struct sim {
     unsigned merged_count;
     char *pieces;       /* the rest of a document sent in pieces (--split) */
     size_t piece_size, piece_sent;
+    uint64_t next_peer_id;
+    struct delayed_reply *delayed; /* replies waiting for --reply-delay-ms */
 };
 
 struct write_req {
@@ -268,7 +273,12 @@ static void on_drop_timer(uv_timer_t *t)
 struct delayed_reply {
     uv_timer_t timer;
     struct sim *sim;
-    uv_tcp_t *tcp; /* the peer, checked against the live list */
+    /* The connection the command came on, by id, not by address: a
+     * connection made since may occupy the freed peer's memory, and must
+     * never receive a reply meant for a closed one. */
+    uint64_t peer_id;
+    char name[64]; /* the command's cmdName */
+    struct delayed_reply *next;
     size_t size;
     char data[];
 };
@@ -278,13 +288,30 @@ static void delayed_closed(uv_handle_t *h)
     free(h->data);
 }
 
+static void drop_delayed(struct delayed_reply *d)
+{
+    for (struct delayed_reply **pp = &d->sim->delayed; *pp; pp = &(*pp)->next) {
+        if (*pp == d) {
+            *pp = d->next;
+            break;
+        }
+    }
+    uv_close((uv_handle_t *)&d->timer, delayed_closed);
+}
+
 static void on_delayed_reply(uv_timer_t *t)
 {
     struct delayed_reply *d = t->data;
-    for (struct peer *p = d->sim->peers; p; p = p->next)
-        if (&p->tcp == d->tcp)
+    bool sent = false;
+    for (struct peer *p = d->sim->peers; p && !sent; p = p->next)
+        if (p->id == d->peer_id && !p->closing) {
             send_to(p, d->data, d->size);
-    uv_close((uv_handle_t *)&d->timer, delayed_closed);
+            sent = true;
+        }
+    if (d->sim->opt.log_commands)
+        log_info("jakasim: delayed reply to %s %s", d->name,
+                 sent ? "sent" : "dropped: its client has gone");
+    drop_delayed(d);
 }
 
 static void on_command_object(void *user, enum framer_event ev, const char *data,
@@ -303,15 +330,26 @@ static void on_command_object(void *user, enum framer_event ev, const char *data
     const char *ignore = sim->opt.ignore_command;
     if (ignore && (strcmp(ignore, "all") == 0 || strcmp(ignore, name) == 0))
         answer = false;
-    if (sim->opt.log_commands)
-        log_info("jakasim: command %.*s -> %s", (int)size, data,
-                 answer ? reply.buf : "(no reply)");
+    if (sim->opt.log_commands) {
+        /* A log line holds about 1000 bytes: a longer reply is cut, and
+         * its whole length given. */
+        if (answer && reply.len > 600)
+            log_info("jakasim: command %.*s -> %.300s... (%zu bytes)", (int)size, data,
+                     reply.buf, reply.len);
+        else
+            log_info("jakasim: command %.*s -> %s", (int)size, data,
+                     answer ? reply.buf : "(no reply)");
+    }
+    const char *delayed = sim->opt.delay_command;
     if (answer && !reply.failed) {
-        if (sim->opt.reply_delay_ms) {
+        if (sim->opt.reply_delay_ms && (!delayed || strcmp(delayed, name) == 0)) {
             struct delayed_reply *d = malloc(sizeof(*d) + reply.len);
             if (d) {
                 d->sim = sim;
-                d->tcp = &p->tcp;
+                d->peer_id = p->id;
+                snprintf(d->name, sizeof(d->name), "%s", name);
+                d->next = sim->delayed;
+                sim->delayed = d;
                 d->size = reply.len;
                 memcpy(d->data, reply.buf, reply.len);
                 uv_timer_init(sim->loop, &d->timer);
@@ -351,6 +389,7 @@ static void accept_peer(uv_stream_t *server, bool status)
     if (!p)
         return;
     p->sim = sim;
+    p->id = ++sim->next_peer_id;
     p->status = status;
     uv_tcp_init(sim->loop, &p->tcp);
     p->tcp.data = p;
@@ -417,6 +456,8 @@ static void on_signal(uv_signal_t *s, int signum)
     (void)signum;
     while (sim->peers)
         close_peer(sim->peers);
+    while (sim->delayed)
+        drop_delayed(sim->delayed);
     uv_close((uv_handle_t *)&sim->status_server, on_close_quiet);
     uv_close((uv_handle_t *)&sim->command_server, on_close_quiet);
     uv_close((uv_handle_t *)&sim->tick, on_close_quiet);
@@ -485,7 +526,8 @@ static void usage(FILE *out)
         "  --corrupt-every N      break the JSON of every Nth document, keeping its length\n"
         "  --fail-command NAME    answer command NAME with errorCode \"2\"\n"
         "  --ignore-command NAME  never answer NAME (\"all\": any command)\n"
-        "  --reply-delay-ms N     answer commands after N ms\n");
+        "  --reply-delay-ms N     answer commands after N ms\n"
+        "  --delay-command NAME   delay only NAME's replies (with --reply-delay-ms)\n");
 }
 
 static int parse_uint(const char *flag, const char *text, unsigned max, unsigned *out)
@@ -525,6 +567,7 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         {"fail-command", required_argument, NULL, 'f'},
         {"ignore-command", required_argument, NULL, 'i'},
         {"reply-delay-ms", required_argument, NULL, 'd'},
+        {"delay-command", required_argument, NULL, 'e'},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
@@ -561,6 +604,7 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         case 'f': o->fail_command = optarg; break;
         case 'i': o->ignore_command = optarg; break;
         case 'd': if (parse_uint("reply-delay-ms", optarg, 600000, &o->reply_delay_ms)) return -1; break;
+        case 'e': o->delay_command = optarg; break;
         case 'h': usage(stdout); exit(0);
         default: usage(stderr); return -1;
         }
@@ -589,6 +633,7 @@ int main(int argc, char **argv)
         return 2;
     }
     sim_robot_init(&sim.robot, sim.opt.test_pattern);
+    sim.robot.profile = sim.profile;
     if (sim.opt.auto_run) {
         sim.robot.powered_on = sim.robot.enabled = true;
         snprintf(sim.robot.program, sizeof(sim.robot.program), "demo.jks");

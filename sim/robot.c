@@ -1,6 +1,8 @@
 /* robot.c - see robot.h. */
 #include "robot.h"
 
+#include "status_doc.h"
+
 #include <cJSON.h>
 #include <math.h>
 #include <stdio.h>
@@ -172,6 +174,10 @@ void sim_robot_init(struct sim_robot *r, bool test_pattern)
             r->tio_din[i] = i % 3 == 1;
             r->tio_dout[i] = i % 2 == 0;
         }
+        for (int i = 0; i < SIM_EXTIO_DO; i++)
+            r->extio_do[i] = (i + 1) % 3 == 0;
+        for (int i = 0; i < SIM_EXTIO_AO; i++)
+            r->extio_ao[i] = 4300.5 + i;
         r->tio_ain[0] = 466.0;
         r->tio_ain[1] = 469.5;
         r->rapid_rate = 0.625;
@@ -313,9 +319,25 @@ static bool call_failed(struct command_ctx *c)
     return reply_refused(c, msg);
 }
 
+/*
+ * Member 'key' of 'obj'. The controller answers in Python's json format
+ * and reads requests as Python's json.loads does: a member given twice
+ * counts with its last value (cJSON's lookup would take the first).
+ */
+static const cJSON *member(const cJSON *obj, const char *key)
+{
+    const cJSON *found = NULL;
+    if (!cJSON_IsObject(obj))
+        return NULL;
+    for (const cJSON *m = obj->child; m; m = m->next)
+        if (m->string && strcmp(m->string, key) == 0)
+            found = m;
+    return found;
+}
+
 static bool get_number(const cJSON *req, const char *key, double *out)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(req, key);
+    const cJSON *v = member(req, key);
     if (!cJSON_IsNumber(v))
         return false;
     *out = v->valuedouble;
@@ -324,7 +346,7 @@ static bool get_number(const cJSON *req, const char *key, double *out)
 
 static bool get_vector(const cJSON *req, const char *key, double *out, int n)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(req, key);
+    const cJSON *v = member(req, key);
     if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) < n)
         return false;
     for (int i = 0; i < n; i++) {
@@ -443,6 +465,15 @@ static bool cmd_movc(struct command_ctx *c)
     return cartesian_move(c, "pos_end", 0.2);
 }
 
+/* 4.66: "a movement instruction": the arm moves to jointPosition. */
+static bool cmd_start_payload_identify(struct command_ctx *c)
+{
+    double target[6];
+    if (!get_vector(c->req, "jointPosition", target, 6))
+        return call_failed(c);
+    return start_joint_move(c, target, 30);
+}
+
 static bool cmd_jog(struct command_ctx *c)
 {
     double mode = -1, coord = -1, jnum = -1, vel = 0, pos = 0;
@@ -479,6 +510,26 @@ static bool cmd_get_robot_state(struct command_ctx *c)
                                     "enable", c->r->enabled ? "robot_enabled" : "robot_disabled",
                                     "power", c->r->powered_on ? "powered_on" : "powered_off",
                                     NULL});
+}
+
+/*
+ * The whole status document, as port 10000 would push it now, as the
+ * reply's "data" member: several kilobytes, more than one read of the
+ * command port.
+ */
+static bool cmd_get_data(struct command_ctx *c)
+{
+    const struct sim_profile *p = c->r->profile ? c->r->profile : sim_profile_find("full");
+    struct pyjson doc;
+
+    pyjson_init(&doc);
+    sim_status_document(&doc, c->r, p, 0);
+    reply_head(c, "0", "", c->name);
+    pyjson_key(c->w, "data");
+    pyjson_raw(c->w, doc.failed ? "{}" : doc.buf);
+    pyjson_end_object(c->w);
+    pyjson_free(&doc);
+    return true;
 }
 
 static bool cmd_servo_move(struct command_ctx *c)
@@ -532,7 +583,7 @@ static bool cmd_rapid_rate(struct command_ctx *c)
 
 static bool cmd_load_program(struct command_ctx *c)
 {
-    const cJSON *name = cJSON_GetObjectItemCaseSensitive(c->req, "programName");
+    const cJSON *name = member(c->req, "programName");
     if (!cJSON_IsString(name) || name->valuestring[0] == '\0')
         return call_failed(c);
     if (c->r->interp_state == 3 || c->r->interp_state == 2)
@@ -599,10 +650,14 @@ static bool cmd_set_digital_output(struct command_ctx *c)
     get_number(c->req, "value", &value);
     if ((value != 0 && value != 1) || index < 0)
         return call_failed(c);
+    if (index != floor(index))
+        return call_failed(c);
     if (type == 0 && index < SIM_MAX_DIO)
         c->r->dout[(int)index] = value != 0;
     else if (type == 1 && index < 8)
         c->r->tio_dout[(int)index] = value != 0;
+    else if (type == 2 && index < SIM_EXTIO_DO)
+        c->r->extio_do[(int)index] = value != 0;
     else
         return call_failed(c);
     return reply_ok(c);
@@ -613,10 +668,15 @@ static bool cmd_set_analog_output(struct command_ctx *c)
     double type = -1, index = -1, value;
     get_number(c->req, "type", &type);
     get_number(c->req, "index", &index);
-    if (!get_number(c->req, "value", &value) || type != 0 || index < 0 ||
-        index >= SIM_MAX_AIO)
+    if (!get_number(c->req, "value", &value) || index < 0 || index != floor(index))
         return call_failed(c);
-    c->r->aout[(int)index] = value;
+    /* The manual: type 0 the cabinet's AO, 2 the extension module's. */
+    if (type == 0 && index < SIM_MAX_AIO)
+        c->r->aout[(int)index] = value;
+    else if (type == 2 && index < SIM_EXTIO_AO)
+        c->r->extio_ao[(int)index] = value;
+    else
+        return call_failed(c);
     return reply_ok(c);
 }
 
@@ -889,6 +949,7 @@ static const struct command commands[] = {
     {"movc", cmd_movc},
     {"quit", cmd_quit},
     {"get_robot_state", cmd_get_robot_state},
+    {"get_data", cmd_get_data},
     {"is_in_servomove", cmd_is_in_servomove},
     {"servo_move", cmd_servo_move},
     {"servo_j", cmd_servo_j},
@@ -926,6 +987,7 @@ static const struct command commands[] = {
     {"get_tcp_pos", cmd_get_tcp_pos},
     {"get_version", cmd_get_version},
     {"set_network_exception_handle", cmd_set_network_exception_handle},
+    {"start_torq_sensor_payload_identify", cmd_start_payload_identify},
 };
 
 bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
@@ -933,7 +995,7 @@ bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
                        char *cmd_name, size_t cmd_name_size)
 {
     cJSON *req = cJSON_ParseWithLength(json, size);
-    const cJSON *name = cJSON_GetObjectItemCaseSensitive(req, "cmdName");
+    const cJSON *name = member(req, "cmdName");
     struct command_ctx c = {r, req, NULL, reply};
     bool answered = true;
 

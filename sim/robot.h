@@ -6,6 +6,8 @@
  * refused the way a controller refuses it (errorCode "2" and a message)
  * when the state does not allow it: enable while powered off, motion while
  * disabled, play with no program loaded, servo_j outside servo mode.
+ * Requests are read as the controller's Python reads them: when a member
+ * appears twice, the last one counts.
  */
 #ifndef JAKASIM_ROBOT_H
 #define JAKASIM_ROBOT_H
@@ -18,6 +20,13 @@
 #define SIM_JOINTS 6
 #define SIM_MAX_DIO 256
 #define SIM_MAX_AIO 128
+/* The extension IO module's pins (one Modbus TCP module). */
+#define SIM_EXTIO_DI 10
+#define SIM_EXTIO_DO 16
+#define SIM_EXTIO_AI 8
+#define SIM_EXTIO_AO 8
+
+struct sim_profile;
 
 struct sim_robot {
     bool powered_on;
@@ -51,11 +60,15 @@ struct sim_robot {
     double ain[SIM_MAX_AIO], aout[SIM_MAX_AIO];
     bool tio_din[8], tio_dout[8];
     double tio_ain[2];
+    bool extio_do[SIM_EXTIO_DO];
+    double extio_ao[SIM_EXTIO_AO];
 
     char errcode[16];
     char errmsg[128];
     double uptime_s;
     bool test_pattern; /* distinct values in every field, for map tests */
+    /* The status document's shape, for get_data (NULL: the "full" one). */
+    const struct sim_profile *profile;
 };
 
 void sim_robot_init(struct sim_robot *r, bool test_pattern);

@@ -41,14 +41,18 @@ static void write_extio(struct pyjson *w, const struct sim_robot *r)
     pyjson_begin_object(w);
     pyjson_key(w, "status");
     pyjson_begin_array(w);
+    static const int counts[4] = {SIM_EXTIO_DI, SIM_EXTIO_DO, SIM_EXTIO_AI, SIM_EXTIO_AO};
     for (int k = 0; k < 4; k++) {
-        int n = k < 2 ? 10 : 8;
         pyjson_begin_array(w);
-        for (int i = 0; i < n; i++) {
-            if (k < 2)
-                pyjson_int(w, r->test_pattern ? (i + k) % 3 == 0 : 0);
+        for (int i = 0; i < counts[k]; i++) {
+            if (k == 0)
+                pyjson_int(w, r->test_pattern ? i % 3 == 0 : 0);
+            else if (k == 1)
+                pyjson_int(w, r->extio_do[i]); /* set_digital_output type 2 */
+            else if (k == 2)
+                pyjson_float(w, pattern(r, 42, i, 0.0));
             else
-                pyjson_float(w, pattern(r, 40 + k, i, 0.0));
+                pyjson_float(w, r->extio_ao[i]); /* set_analog_output type 2 */
         }
         pyjson_end_array(w);
     }
@@ -64,7 +68,8 @@ static void write_extio(struct pyjson *w, const struct sim_robot *r)
     pyjson_int(w, 1);
     pyjson_end_array(w);
     pyjson_begin_array(w);
-    static const int pins[4][2] = {{104096, 10}, {0, 10}, {0, 8}, {0, 8}};
+    static const int pins[4][2] = {{104096, SIM_EXTIO_DI}, {0, SIM_EXTIO_DO},
+                                   {0, SIM_EXTIO_AI}, {0, SIM_EXTIO_AO}};
     for (int k = 0; k < 4; k++) {
         pyjson_begin_array(w);
         pyjson_int(w, pins[k][0] + (r->test_pattern ? k : 0));
