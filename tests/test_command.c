@@ -1,0 +1,723 @@
+/*
+ * test_command.c - the command queue (command.h) with a fake link and a
+ * fake clock: one command at a time, replies matched by order, the reply
+ * timeout, the link going down, and done callbacks that run exactly once.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "command.h"
+
+#define MAX_SENT 256
+#define MAX_JOBS 160
+
+/* The robot side: what was sent, the clock, restarts. */
+struct fake_link {
+    struct cmd_queue *q;
+    char sent[MAX_SENT][128];
+    unsigned sent_count;
+    int fail_sends;   /* the next this many sends fail with send_error */
+    int send_error;
+    uint64_t now;
+    unsigned restarts;
+    char restart_why[128];
+    bool restart_disconnects; /* restart_link drops the link, as robot_link does */
+    bool in_submit;           /* inside cmd_queue_submit (test_submit) */
+};
+
+/* One command as its owner sees it. */
+struct job {
+    const char *json;
+    unsigned calls;
+    struct cmd_result result; /* reply pointer cleared: it dies with the call */
+    char reply[256];
+    unsigned order; /* position among all done callbacks, from 1 */
+    /* A command to submit from inside this job's done callback. */
+    struct job *submit_from_done;
+    int submit_from_done_rc;
+};
+
+static struct fake_link link;
+static struct cmd_queue queue;
+static unsigned done_calls;
+/* Set by the teardown: a test that failed half-way leaves commands whose
+ * jobs lived on its stack; their callbacks must not touch them. */
+static bool tearing_down;
+
+static int fake_send(void *io, const char *data, size_t size)
+{
+    struct fake_link *l = io;
+    if (l->fail_sends > 0) {
+        l->fail_sends--;
+        return l->send_error;
+    }
+    assert_true(l->sent_count < MAX_SENT);
+    assert_true(size < sizeof(l->sent[0]));
+    memcpy(l->sent[l->sent_count], data, size);
+    l->sent[l->sent_count][size] = '\0';
+    l->sent_count++;
+    return 0;
+}
+
+static uint64_t fake_now(void *io)
+{
+    return ((struct fake_link *)io)->now;
+}
+
+static void fake_restart(void *io, const char *why)
+{
+    struct fake_link *l = io;
+    l->restarts++;
+    snprintf(l->restart_why, sizeof(l->restart_why), "%s", why);
+    if (l->restart_disconnects)
+        cmd_queue_set_connected(l->q, false);
+}
+
+static int test_submit(struct job *j);
+
+static void on_done(void *user, const struct cmd_result *r)
+{
+    struct job *j = user;
+
+    if (tearing_down)
+        return;
+    /* Never from inside cmd_queue_submit, never twice. */
+    assert_false(link.in_submit);
+    assert_int_equal(j->calls, 0);
+    j->calls++;
+    j->order = ++done_calls;
+    j->result = *r;
+    j->result.reply = NULL;
+    j->reply[0] = '\0';
+    if (r->reply) {
+        assert_true(r->reply_size < sizeof(j->reply));
+        memcpy(j->reply, r->reply, r->reply_size);
+        j->reply[r->reply_size] = '\0';
+    }
+    if (j->submit_from_done)
+        j->submit_from_done_rc = test_submit(j->submit_from_done);
+}
+
+static int test_submit(struct job *j)
+{
+    bool outer = link.in_submit;
+    link.in_submit = true;
+    int rc = cmd_queue_submit(&queue, j->json, strlen(j->json), on_done, j);
+    link.in_submit = outer;
+    return rc;
+}
+
+static void reply(const char *json)
+{
+    cmd_queue_on_reply(&queue, json, strlen(json));
+}
+
+static const char *last_sent(void)
+{
+    return link.sent_count ? link.sent[link.sent_count - 1] : "";
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    struct cmd_ops ops = {.send = fake_send, .now_ms = fake_now,
+                          .restart_link = fake_restart, .io = &link};
+    memset(&link, 0, sizeof(link));
+    link.q = &queue;
+    link.now = 1000;
+    link.send_error = -EPIPE;
+    done_calls = 0;
+    tearing_down = false;
+    cmd_queue_init(&queue, &ops, 500);
+    cmd_queue_set_connected(&queue, true);
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    tearing_down = true;
+    cmd_queue_free(&queue);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+    return 0;
+}
+
+static void table_lookups(void **state)
+{
+    (void)state;
+    assert_non_null(cmd_find("power_on"));
+    assert_int_equal(cmd_find("power_on")->code, 1);
+    assert_null(cmd_find("power"));
+    assert_null(cmd_find(""));
+    assert_string_equal(cmd_find_code(14)->name, "stop_program");
+    assert_null(cmd_find_code(0)); /* commands without a code are not offered */
+    assert_null(cmd_find_code(999));
+    assert_true(cmd_find("joint_move")->flags & CMD_MOTION);
+    assert_true(cmd_find("shutdown")->flags & CMD_SHUTDOWN);
+    /* Mailbox codes are unique. */
+    for (unsigned i = 0; i < cmd_table_count; i++)
+        if (cmd_table[i].code)
+            assert_ptr_equal(cmd_find_code(cmd_table[i].code), &cmd_table[i]);
+    assert_string_equal(cmd_outcome_name(CMD_DONE), "done");
+    assert_string_equal(cmd_outcome_name(CMD_LINK_DOWN), "link down");
+    assert_string_equal(cmd_outcome_name((enum cmd_outcome)99), "?");
+}
+
+static void one_at_a_time_in_order(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job b = {.json = "{\"cmdName\":\"enable_robot\"}"};
+    struct job c = {.json = "{\"cmdName\":\"play_program\"}"};
+
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), UINT64_MAX);
+    assert_int_equal(test_submit(&a), 0);
+    assert_int_equal(test_submit(&b), 0);
+    assert_int_equal(test_submit(&c), 0);
+    /* Only the first goes out; the others wait for its reply. */
+    assert_int_equal(link.sent_count, 1);
+    assert_string_equal(link.sent[0], a.json);
+    assert_int_equal(cmd_queue_pending(&queue), 3);
+    assert_int_equal(done_calls, 0);
+
+    reply("{\"cmdName\":\"power_on\",\"errorCode\":\"0\",\"errorMsg\":\"\"}");
+    assert_int_equal(a.calls, 1);
+    assert_int_equal(a.result.outcome, CMD_DONE);
+    assert_int_equal(link.sent_count, 2);
+    assert_string_equal(link.sent[1], b.json);
+    assert_int_equal(b.calls, 0);
+
+    reply("{\"cmdName\":\"enable_robot\",\"errorCode\":\"0\"}");
+    assert_int_equal(link.sent_count, 3);
+    assert_string_equal(link.sent[2], c.json);
+    reply("{\"cmdName\":\"play_program\",\"errorCode\":\"0\"}");
+    assert_int_equal(link.sent_count, 3);
+    assert_int_equal(a.order, 1);
+    assert_int_equal(b.order, 2);
+    assert_int_equal(c.order, 3);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+    assert_int_equal(queue.stats.sent, 3);
+    assert_int_equal(queue.stats.replies, 3);
+    assert_int_equal(queue.stats.robot_errors, 0);
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), UINT64_MAX);
+}
+
+/* Whatever cmdName a reply carries, it answers the command in flight. */
+static void replies_matched_by_order_not_name(void **state)
+{
+    (void)state;
+    struct job stop = {.json = "{\"cmdName\":\"stop_program\"}"};
+    struct job estop = {.json = "{\"cmdName\":\"emergency_stop_status\"}"};
+    struct job other = {.json = "{\"cmdName\":\"get_version\"}"};
+    struct job after = {.json = "{\"cmdName\":\"power_off\"}"};
+
+    test_submit(&stop);
+    test_submit(&estop);
+    test_submit(&other);
+    test_submit(&after);
+    /* The manual answers stop_program as pause_program. */
+    reply("{\"cmdName\":\"pause_program\",\"errorCode\":\"0\",\"errorMsg\":\"\"}");
+    assert_int_equal(stop.calls, 1);
+    assert_int_equal(stop.result.outcome, CMD_DONE);
+    assert_string_equal(stop.reply,
+                        "{\"cmdName\":\"pause_program\",\"errorCode\":\"0\",\"errorMsg\":\"\"}");
+    /* Real controllers answer some commands without a cmdName. */
+    reply("{\"errorCode\": \"1\", \"errorMsg\": \"Exception:function call failed\"}");
+    assert_int_equal(estop.calls, 1);
+    assert_int_equal(estop.result.outcome, CMD_ROBOT_ERROR);
+    assert_int_equal(estop.result.error_code, 1);
+    assert_string_equal(estop.result.error_msg, "Exception:function call failed");
+    /* Even another command's name answers the one in flight. */
+    reply("{\"cmdName\":\"power_off\",\"errorCode\":\"0\",\"version\":\"1.7\"}");
+    assert_int_equal(other.calls, 1);
+    assert_int_equal(other.result.outcome, CMD_DONE);
+    assert_int_equal(after.calls, 0);
+    assert_string_equal(last_sent(), after.json);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(after.calls, 1);
+    assert_int_equal(queue.stats.unsolicited, 0);
+}
+
+struct reply_case {
+    const char *reply;
+    enum cmd_outcome outcome;
+    long error_code;
+    const char *error_msg; /* NULL: not checked */
+};
+
+static void error_codes(void **state)
+{
+    (void)state;
+    static const struct reply_case cases[] = {
+        {"{\"errorCode\":\"0\",\"errorMsg\":\"\"}", CMD_DONE, 0, ""},
+        {"{\"errorCode\":\"1\",\"errorMsg\":\"Exception:function call failed\"}",
+         CMD_ROBOT_ERROR, 1, "Exception:function call failed"},
+        {"{\"errorCode\":\"2\",\"errorMsg\":\"call joint_move failed\"}", CMD_ROBOT_ERROR,
+         2, "call joint_move failed"},
+        {"{\"errorCode\":\"-1\",\"errorMsg\":\"servoj command can only be excuted\"}",
+         CMD_ROBOT_ERROR, -1, "servoj command can only be excuted"},
+        {"{\"errorCode\":\"3\"}", CMD_ROBOT_ERROR, 3, ""},
+        /* Some controllers send a number. */
+        {"{\"errorCode\":0}", CMD_DONE, 0, ""},
+        {"{\"errorCode\":7,\"errorMsg\":\"seven\"}", CMD_ROBOT_ERROR, 7, "seven"},
+        {"{\"errorCode\":-1}", CMD_ROBOT_ERROR, -1, ""},
+        /* No errorCode, or one that is no number: never taken as success. */
+        {"{\"cmdName\":\"power_on\"}", CMD_ROBOT_ERROR, -1, "reply has no errorCode"},
+        {"{\"errorCode\":\"\"}", CMD_ROBOT_ERROR, -1, "reply has no errorCode"},
+        {"{\"errorCode\":null}", CMD_ROBOT_ERROR, -1, "reply has no errorCode"},
+        {"{\"errorCode\":true}", CMD_ROBOT_ERROR, -1, "reply has no errorCode"},
+        {"{\"errorCode\":\"ok\"}", CMD_ROBOT_ERROR, -1, "errorCode 'ok' is not a number"},
+        {"{\"errorCode\":\"0x\"}", CMD_ROBOT_ERROR, -1, NULL},
+        {"{\"errorCode\":\"0 \"}", CMD_ROBOT_ERROR, -1, NULL},
+        /* Garbage and other JSON values. */
+        {"[0]", CMD_ROBOT_ERROR, -1, "reply is not a JSON object"},
+        {"{\"errorCode\":\"0\"", CMD_ROBOT_ERROR, -1, "reply is not a JSON object"},
+        {"\"0\"", CMD_ROBOT_ERROR, -1, "reply is not a JSON object"},
+        {"}{", CMD_ROBOT_ERROR, -1, "reply is not a JSON object"},
+    };
+    const unsigned n = sizeof(cases) / sizeof(cases[0]);
+    static struct job jobs[sizeof(cases) / sizeof(cases[0])];
+
+    for (unsigned i = 0; i < n; i++) {
+        jobs[i] = (struct job){.json = "{\"cmdName\":\"clear_error\"}"};
+        assert_int_equal(test_submit(&jobs[i]), 0);
+    }
+    for (unsigned i = 0; i < n; i++) {
+        reply(cases[i].reply);
+        assert_int_equal(jobs[i].calls, 1);
+        if (jobs[i].result.outcome != cases[i].outcome ||
+            jobs[i].result.error_code != cases[i].error_code)
+            fail_msg("reply %s: outcome %d code %ld, expected %d %ld", cases[i].reply,
+                     jobs[i].result.outcome, jobs[i].result.error_code, cases[i].outcome,
+                     cases[i].error_code);
+        if (cases[i].error_msg)
+            assert_string_equal(jobs[i].result.error_msg, cases[i].error_msg);
+        else
+            assert_true(jobs[i].result.error_msg[0] != '\0');
+        assert_string_equal(jobs[i].reply, cases[i].reply);
+    }
+    assert_int_equal(queue.stats.replies, n);
+    assert_int_equal(queue.stats.robot_errors, n - 2);
+}
+
+/* The replies real controllers sent, from tests/data. */
+static void recorded_replies(void **state)
+{
+    (void)state;
+    static const struct {
+        const char *file;
+        long code;
+        const char *msg;
+    } cases[] = {
+        {"reply-emergency_stop_status_nocmdname_errorCode1.json", 1,
+         "Exception:function call failed"},
+        {"reply-end_move_errorCode2.json", 2, "call end_move failed"},
+        {"reply-joint_move_errorCode2.json", 2, "call joint_move failed"},
+        {"reply-moveL_errorCode2.json", 2, "call moveL failed"},
+        {"reply-servo_j_errorCode-1.json", -1,
+         "servoj command can only be excuted in servo move mode"},
+    };
+    for (unsigned i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+        char path[512], text[1024];
+        snprintf(path, sizeof(path), "%s/%s", SAMPLES_DIR, cases[i].file);
+        FILE *f = fopen(path, "rb");
+        assert_non_null(f);
+        size_t n = fread(text, 1, sizeof(text), f);
+        fclose(f);
+        struct job j = {.json = "{\"cmdName\":\"joint_move\"}"};
+        assert_int_equal(test_submit(&j), 0);
+        cmd_queue_on_reply(&queue, text, n);
+        assert_int_equal(j.calls, 1);
+        assert_int_equal(j.result.outcome, CMD_ROBOT_ERROR);
+        assert_int_equal(j.result.error_code, cases[i].code);
+        assert_string_equal(j.result.error_msg, cases[i].msg);
+    }
+}
+
+static void timeout_at_the_limit_restarts_and_fails_the_rest(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"play_program\"}"};
+    struct job b = {.json = "{\"cmdName\":\"pause_program\"}"};
+    struct job c = {.json = "{\"cmdName\":\"stop_program\"}"};
+
+    link.now = 2000;
+    test_submit(&a);
+    link.now = 2100;
+    test_submit(&b);
+    test_submit(&c);
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), 400);
+    /* One millisecond before the limit: nothing happens. */
+    link.now = 2499;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(done_calls, 0);
+    assert_int_equal(link.restarts, 0);
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), 1);
+    /* At the limit: the command fails, and so does everything behind it. */
+    link.now = 2500;
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), 0);
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(a.calls, 1);
+    assert_int_equal(a.result.outcome, CMD_TIMEOUT);
+    assert_null(strstr(a.result.error_msg, "errorCode"));
+    assert_non_null(strstr(a.result.error_msg, "500 ms"));
+    assert_int_equal(b.calls, 1);
+    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(c.calls, 1);
+    assert_int_equal(c.result.outcome, CMD_LINK_DOWN);
+    assert_true(a.order < b.order && b.order < c.order);
+    assert_int_equal(link.restarts, 1);
+    assert_non_null(strstr(link.restart_why, "no reply within 500 ms"));
+    /* Nothing resent, nothing sent in its place. */
+    assert_int_equal(link.sent_count, 1);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), UINT64_MAX);
+    assert_int_equal(queue.stats.timeouts, 1);
+    assert_int_equal(queue.stats.failed_link_down, 2);
+
+    /* The late reply answers nothing. */
+    reply("{\"cmdName\":\"play_program\",\"errorCode\":\"0\"}");
+    assert_int_equal(queue.stats.unsolicited, 1);
+    assert_int_equal(queue.stats.replies, 0);
+    assert_int_equal(done_calls, 3);
+    /* Later checks find nothing to time out. */
+    link.now = 100000;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 1);
+}
+
+/*
+ * With the link restart as robot_link does it (the link goes down at
+ * once): a late reply is unsolicited, and after the reconnect a new
+ * command is answered by its own reply.
+ */
+static void late_reply_after_restart_never_matches(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job b = {.json = "{\"cmdName\":\"power_off\"}"};
+    struct job d = {.json = "{\"cmdName\":\"enable_robot\"}"};
+
+    link.restart_disconnects = true;
+    test_submit(&a);
+    test_submit(&b);
+    link.now += 500;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(a.result.outcome, CMD_TIMEOUT);
+    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
+    assert_false(queue.connected);
+    assert_int_equal(test_submit(&d), -ENOTCONN);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(queue.stats.unsolicited, 1);
+    cmd_queue_set_connected(&queue, true);
+    assert_int_equal(link.sent_count, 1);
+    assert_int_equal(test_submit(&d), 0);
+    assert_string_equal(last_sent(), d.json);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(d.calls, 1);
+    assert_int_equal(d.result.outcome, CMD_DONE);
+    assert_int_equal(a.calls + b.calls, 2);
+}
+
+static void link_down_fails_in_flight_and_queued(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job b = {.json = "{\"cmdName\":\"enable_robot\"}"};
+    struct job c = {.json = "{\"cmdName\":\"play_program\"}"};
+    struct job d = {.json = "{\"cmdName\":\"clear_error\"}"};
+
+    test_submit(&a);
+    test_submit(&b);
+    test_submit(&c);
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(a.calls, 1);
+    assert_int_equal(b.calls, 1);
+    assert_int_equal(c.calls, 1);
+    assert_int_equal(a.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(c.result.outcome, CMD_LINK_DOWN);
+    assert_true(a.order < b.order && b.order < c.order);
+    assert_int_equal(queue.stats.failed_link_down, 3);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), UINT64_MAX);
+
+    /* While down, nothing is accepted; the done callback never runs. */
+    assert_int_equal(test_submit(&d), -ENOTCONN);
+    assert_int_equal(d.calls, 0);
+    /* Down twice is down once. */
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(done_calls, 3);
+
+    /* After the reconnect, nothing that was accepted before it is sent. */
+    cmd_queue_set_connected(&queue, true);
+    assert_int_equal(link.sent_count, 1);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(queue.stats.unsolicited, 1);
+    assert_int_equal(done_calls, 3);
+    assert_int_equal(test_submit(&d), 0);
+    assert_int_equal(link.sent_count, 2);
+    assert_string_equal(last_sent(), d.json);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(d.calls, 1);
+}
+
+static void not_connected_before_the_first_connect(void **state)
+{
+    (void)state;
+    struct cmd_queue q;
+    struct cmd_ops ops = {.send = fake_send, .now_ms = fake_now,
+                          .restart_link = fake_restart, .io = &link};
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+
+    cmd_queue_init(&q, &ops, 100);
+    assert_int_equal(cmd_queue_submit(&q, a.json, strlen(a.json), on_done, &a), -ENOTCONN);
+    assert_int_equal(cmd_queue_pending(&q), 0);
+    assert_int_equal(link.sent_count, 0);
+    cmd_queue_free(&q);
+    assert_int_equal(a.calls, 0);
+}
+
+static void busy_at_capacity(void **state)
+{
+    (void)state;
+    static struct job jobs[CMD_QUEUE_CAPACITY + 1];
+
+    for (unsigned i = 0; i < CMD_QUEUE_CAPACITY; i++) {
+        jobs[i] = (struct job){.json = "{\"cmdName\":\"rapid_rate\",\"rate_value\":0.5}"};
+        assert_int_equal(test_submit(&jobs[i]), 0);
+    }
+    jobs[CMD_QUEUE_CAPACITY] = (struct job){.json = "{\"cmdName\":\"power_off\"}"};
+    assert_int_equal(test_submit(&jobs[CMD_QUEUE_CAPACITY]), -EBUSY);
+    assert_int_equal(cmd_queue_pending(&queue), CMD_QUEUE_CAPACITY);
+    /* One reply frees one place. */
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(test_submit(&jobs[CMD_QUEUE_CAPACITY]), 0);
+    assert_int_equal(test_submit(&jobs[CMD_QUEUE_CAPACITY]), -EBUSY);
+    for (unsigned i = 1; i <= CMD_QUEUE_CAPACITY; i++)
+        reply("{\"errorCode\":\"0\"}");
+    for (unsigned i = 0; i <= CMD_QUEUE_CAPACITY; i++) {
+        assert_int_equal(jobs[i].calls, 1);
+        assert_int_equal(jobs[i].order, i + 1);
+    }
+    assert_int_equal(link.sent_count, CMD_QUEUE_CAPACITY + 1);
+    assert_string_equal(last_sent(), "{\"cmdName\":\"power_off\"}");
+}
+
+/* The ring wraps many times over; order and matching hold throughout. */
+static void ring_wraps(void **state)
+{
+    (void)state;
+    static struct job jobs[MAX_JOBS];
+    static char names[MAX_JOBS][48];
+    unsigned submitted = 0, answered = 0;
+
+    while (answered < MAX_JOBS) {
+        while (submitted < MAX_JOBS && cmd_queue_pending(&queue) < 5) {
+            snprintf(names[submitted], sizeof(names[0]), "{\"cmdName\":\"n%u\"}", submitted);
+            jobs[submitted] = (struct job){.json = names[submitted]};
+            assert_int_equal(test_submit(&jobs[submitted]), 0);
+            submitted++;
+        }
+        assert_string_equal(last_sent(), names[answered]);
+        char r[64];
+        snprintf(r, sizeof(r), "{\"errorCode\":\"%u\"}", answered);
+        reply(r);
+        assert_int_equal(jobs[answered].calls, 1);
+        assert_int_equal(jobs[answered].result.error_code, (long)answered);
+        answered++;
+    }
+    assert_int_equal(link.sent_count, MAX_JOBS);
+}
+
+/* A send that fails when nothing is in flight is the caller's to report. */
+static void send_failure_on_submit(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job b = {.json = "{\"cmdName\":\"power_off\"}"};
+
+    link.fail_sends = 1;
+    assert_int_equal(test_submit(&a), -EPIPE);
+    assert_int_equal(a.calls, 0);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+    assert_int_equal(queue.stats.sent, 0);
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), UINT64_MAX);
+    /* The queue is usable afterwards. */
+    assert_int_equal(test_submit(&b), 0);
+    assert_string_equal(last_sent(), b.json);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(b.calls, 1);
+    assert_int_equal(b.result.outcome, CMD_DONE);
+}
+
+/* A queued command whose send fails is failed, and the next one goes. */
+static void send_failure_of_a_queued_command(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job b = {.json = "{\"cmdName\":\"enable_robot\"}"};
+    struct job c = {.json = "{\"cmdName\":\"play_program\"}"};
+
+    test_submit(&a);
+    test_submit(&b);
+    test_submit(&c);
+    link.fail_sends = 1;
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(a.result.outcome, CMD_DONE);
+    assert_int_equal(b.calls, 1);
+    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
+    assert_non_null(strstr(b.result.error_msg, "could not send"));
+    assert_int_equal(c.calls, 0);
+    assert_int_equal(link.sent_count, 2);
+    assert_string_equal(last_sent(), c.json);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(c.calls, 1);
+    assert_int_equal(c.result.outcome, CMD_DONE);
+    /* Every send failing: everything queued fails, each once. */
+    struct job d = {.json = "{\"cmdName\":\"a\"}"}, e = {.json = "{\"cmdName\":\"b\"}"},
+               f = {.json = "{\"cmdName\":\"c\"}"};
+    test_submit(&d);
+    test_submit(&e);
+    test_submit(&f);
+    link.fail_sends = 2;
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(e.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(f.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(d.calls + e.calls + f.calls, 3);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+}
+
+/*
+ * A done callback may submit (plc_commands fetches information again after
+ * load_program and the program commands). What it submits queues behind
+ * the commands accepted before it: the next command sent is the next in
+ * line, and every reply answers the command it was sent for.
+ */
+static void submit_from_done_queues_behind(void **state)
+{
+    (void)state;
+    struct job refresh = {.json = "{\"cmdName\":\"get_loaded_program\"}"};
+    struct job load = {.json = "{\"cmdName\":\"load_program\",\"programName\":\"a.jks\"}",
+                       .submit_from_done = &refresh};
+    struct job play = {.json = "{\"cmdName\":\"play_program\"}"};
+
+    test_submit(&load);
+    test_submit(&play);
+    reply("{\"cmdName\":\"load_program\",\"errorCode\":\"0\"}");
+    assert_int_equal(load.submit_from_done_rc, 0);
+    assert_int_equal(link.sent_count, 2);
+    assert_string_equal(link.sent[1], play.json);
+    reply("{\"cmdName\":\"play_program\",\"errorCode\":\"0\"}");
+    assert_int_equal(play.calls, 1);
+    assert_string_equal(play.reply, "{\"cmdName\":\"play_program\",\"errorCode\":\"0\"}");
+    assert_int_equal(link.sent_count, 3);
+    assert_string_equal(link.sent[2], refresh.json);
+    reply("{\"cmdName\":\"get_loaded_program\",\"errorCode\":\"0\"}");
+    assert_int_equal(refresh.calls, 1);
+    assert_int_equal(link.sent_count, 3);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+}
+
+/* With nothing queued, what a done callback submits goes out at once. */
+static void submit_from_done_on_an_empty_queue(void **state)
+{
+    (void)state;
+    struct job refresh = {.json = "{\"cmdName\":\"get_program_state\"}"};
+    struct job play = {.json = "{\"cmdName\":\"play_program\"}", .submit_from_done = &refresh};
+
+    test_submit(&play);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(play.calls, 1);
+    assert_int_equal(play.submit_from_done_rc, 0);
+    assert_int_equal(link.sent_count, 2);
+    assert_string_equal(last_sent(), refresh.json);
+    reply("{\"errorCode\":\"0\",\"programState\":\"running\"}");
+    assert_int_equal(refresh.calls, 1);
+    assert_int_equal(queue.stats.unsolicited, 0);
+}
+
+/* A done callback that runs on link down cannot queue anything. */
+static void submit_from_done_while_down(void **state)
+{
+    (void)state;
+    struct job again = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}", .submit_from_done = &again};
+
+    test_submit(&a);
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(a.calls, 1);
+    assert_int_equal(a.submit_from_done_rc, -ENOTCONN);
+    assert_int_equal(again.calls, 0);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+}
+
+static void unsolicited_when_idle(void **state)
+{
+    (void)state;
+    reply("{\"errorCode\":\"0\"}");
+    reply("garbage");
+    assert_int_equal(queue.stats.unsolicited, 2);
+    assert_int_equal(queue.stats.replies, 0);
+    assert_int_equal(done_calls, 0);
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 0);
+}
+
+static void free_fails_everything_once(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job b = {.json = "{\"cmdName\":\"power_off\"}"};
+
+    test_submit(&a);
+    test_submit(&b);
+    cmd_queue_free(&queue);
+    assert_int_equal(a.calls, 1);
+    assert_int_equal(b.calls, 1);
+    assert_int_equal(a.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
+    assert_non_null(strstr(a.result.error_msg, "stopping"));
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+    assert_int_equal(link.sent_count, 1);
+    /* Freeing again (the teardown does) changes nothing. */
+    cmd_queue_free(&queue);
+    assert_int_equal(done_calls, 2);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(table_lookups),
+        cmocka_unit_test_setup_teardown(one_at_a_time_in_order, setup, teardown),
+        cmocka_unit_test_setup_teardown(replies_matched_by_order_not_name, setup, teardown),
+        cmocka_unit_test_setup_teardown(error_codes, setup, teardown),
+        cmocka_unit_test_setup_teardown(recorded_replies, setup, teardown),
+        cmocka_unit_test_setup_teardown(timeout_at_the_limit_restarts_and_fails_the_rest,
+                                        setup, teardown),
+        cmocka_unit_test_setup_teardown(late_reply_after_restart_never_matches, setup,
+                                        teardown),
+        cmocka_unit_test_setup_teardown(link_down_fails_in_flight_and_queued, setup,
+                                        teardown),
+        cmocka_unit_test_setup_teardown(not_connected_before_the_first_connect, setup,
+                                        teardown),
+        cmocka_unit_test_setup_teardown(busy_at_capacity, setup, teardown),
+        cmocka_unit_test_setup_teardown(ring_wraps, setup, teardown),
+        cmocka_unit_test_setup_teardown(send_failure_on_submit, setup, teardown),
+        cmocka_unit_test_setup_teardown(send_failure_of_a_queued_command, setup, teardown),
+        cmocka_unit_test_setup_teardown(submit_from_done_queues_behind, setup, teardown),
+        cmocka_unit_test_setup_teardown(submit_from_done_on_an_empty_queue, setup, teardown),
+        cmocka_unit_test_setup_teardown(submit_from_done_while_down, setup, teardown),
+        cmocka_unit_test_setup_teardown(unsolicited_when_idle, setup, teardown),
+        cmocka_unit_test_setup_teardown(free_fails_everything_once, setup, teardown),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,1070 @@
+/*
+ * test_plc_commands.c - PLC writes that command the robot (plc_commands.h),
+ * against the real register map and image and a real command queue whose
+ * link records what is sent. Writes go through the same two phases as
+ * gateway.c's on_write: every element checked with the new values in
+ * place, then applied; one refusal restores the image and sends nothing.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "command.h"
+#include "log.h"
+#include "plc_commands.h"
+#include "regmap.h"
+
+#define MAX_SENT 128
+#define EX_NONE 0
+#define EX_NOT_PERMITTED MODBUS_EXCEPTION_ILLEGAL_FUNCTION         /* 01 */
+#define EX_INVALID MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE             /* 03 */
+#define EX_BUSY MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY              /* 06 */
+#define EX_LINK_DOWN MODBUS_EXCEPTION_GATEWAY_TARGET               /* 0B */
+
+struct fake_robot {
+    char sent[MAX_SENT][600];
+    unsigned sent_count;
+    int fail_sends;
+    uint64_t now;
+};
+
+static struct regmap map;
+static struct regmap_image img;
+static struct cmd_queue queue;
+static struct plc_commands pc;
+static struct fake_robot robot;
+static struct plc_commands_config cfg;
+static const char *client = "192.0.2.10";
+
+static int fake_send(void *io, const char *data, size_t size)
+{
+    struct fake_robot *r = io;
+    if (r->fail_sends > 0) {
+        r->fail_sends--;
+        return -EPIPE;
+    }
+    assert_true(r->sent_count < MAX_SENT);
+    assert_true(size < sizeof(r->sent[0]));
+    memcpy(r->sent[r->sent_count], data, size);
+    r->sent[r->sent_count][size] = '\0';
+    r->sent_count++;
+    return 0;
+}
+
+static uint64_t fake_now(void *io)
+{
+    return ((struct fake_robot *)io)->now;
+}
+
+static void fake_restart(void *io, const char *why)
+{
+    (void)io;
+    (void)why;
+    cmd_queue_set_connected(&queue, false);
+}
+
+/* (Re)creates the module with 'config'; the map and queue stay. */
+static void start(const struct plc_commands_config *config)
+{
+    cfg = *config;
+    assert_int_equal(plc_commands_init(&pc, &img, &queue, &cfg, fake_now, &robot), 0);
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    struct cmd_ops ops = {.send = fake_send, .now_ms = fake_now,
+                          .restart_link = fake_restart, .io = &robot};
+    struct plc_commands_config none = {0};
+
+    log_set_level(LOG_LEVEL_WARNING);
+    memset(&robot, 0, sizeof(robot));
+    robot.now = 50000;
+    assert_int_equal(regmap_init(&map), 0);
+    assert_int_equal(regmap_image_init(&img, &map, REGMAP_HIGH_WORD_FIRST), 0);
+    cmd_queue_init(&queue, &ops, 1000);
+    cmd_queue_set_connected(&queue, true);
+    start(&none);
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    cmd_queue_free(&queue);
+    plc_commands_free(&pc);
+    regmap_image_free(&img);
+    regmap_free(&map);
+    return 0;
+}
+
+/* ---- rows ---- */
+
+static const struct regmap_row *cmd_row(const char *path)
+{
+    const struct regmap_row *row = regmap_find_path(&map, REGMAP_SRC_CMD, path);
+    if (!row)
+        fail_msg("no row cmd:%s", path);
+    return row;
+}
+
+static const struct regmap_row *gw_row(const char *path)
+{
+    const struct regmap_row *row = regmap_find_path(&map, REGMAP_SRC_PATH, path);
+    if (!row)
+        fail_msg("no row gw:%s", path);
+    return row;
+}
+
+static double gw_number(const char *path)
+{
+    return regmap_get_number(&img, gw_row(path), 0);
+}
+
+static double gw_number_at(const char *path, unsigned i)
+{
+    return regmap_get_number(&img, gw_row(path), i);
+}
+
+static const char *gw_text(const char *path)
+{
+    static char text[600];
+    regmap_get_text(&img, gw_row(path), 0, text, sizeof(text));
+    return text;
+}
+
+/* ---- writes, as gateway.c's on_write makes them ---- */
+
+static int checked(void *user, const struct regmap_written *w)
+{
+    (void)user;
+    if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH)
+        return plc_commands_check(&pc, w);
+    return 0;
+}
+
+static int applied(void *user, const struct regmap_written *w)
+{
+    (void)user;
+    if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH)
+        plc_commands_apply(&pc, w);
+    return 0;
+}
+
+static int write_from(const char *who, enum regmap_table table, unsigned address,
+                      unsigned count, const uint16_t *values)
+{
+    uint16_t saved[1024];
+    int ex = plc_commands_may_write(&pc, who);
+
+    assert_true(count <= 1024);
+    if (ex)
+        return ex;
+    regmap_save(&img, table, address, count, saved);
+    regmap_load(&img, table, address, count, values);
+    plc_commands_begin(&pc);
+    ex = regmap_decode_write(&img, table, address, count, values, saved, checked, NULL);
+    if (ex) {
+        regmap_load(&img, table, address, count, saved);
+        return ex;
+    }
+    return regmap_decode_write(&img, table, address, count, values, saved, applied, NULL);
+}
+
+static int write_raw(enum regmap_table table, unsigned address, unsigned count,
+                     const uint16_t *values)
+{
+    return write_from(client, table, address, count, values);
+}
+
+static int write_bit(const struct regmap_row *row, unsigned element, int value)
+{
+    uint16_t v = (uint16_t)value;
+    return write_raw(row->table, regmap_element_address(row, element), 1, &v);
+}
+
+static int trigger(const char *cmd)
+{
+    return write_bit(cmd_row(cmd), 0, 1);
+}
+
+static int rearm(const char *cmd)
+{
+    return write_bit(cmd_row(cmd), 0, 0);
+}
+
+static int write_u16(const struct regmap_row *row, unsigned element, uint16_t value)
+{
+    return write_raw(row->table, regmap_element_address(row, element), 1, &value);
+}
+
+static void put_f32(uint16_t *regs, double v)
+{
+    regmap_encode_value(regs, REGMAP_F32, v, true, 1, img.word_order);
+}
+
+static int write_f32(const struct regmap_row *row, unsigned element, double v)
+{
+    uint16_t regs[2];
+    put_f32(regs, v);
+    return write_raw(row->table, regmap_element_address(row, element), 2, regs);
+}
+
+static int write_text(const struct regmap_row *row, const char *text)
+{
+    uint16_t regs[256];
+    assert_true(row->str_regs <= 256);
+    regmap_encode_string(regs, row->str_regs, text);
+    return write_raw(row->table, row->address, row->str_regs, regs);
+}
+
+/* The whole exactly-once mailbox in one write: code, arguments, seq last. */
+static int mailbox(unsigned code, const double *args, unsigned nargs, uint16_t seq)
+{
+    const struct regmap_row *code_row = gw_row("mailbox.code");
+    const struct regmap_row *arg_row = gw_row("mailbox.arg[*]");
+    const struct regmap_row *seq_row = gw_row("mailbox.seq");
+    uint16_t regs[64] = {0};
+    unsigned count = seq_row->address - code_row->address + 1;
+
+    assert_true(count <= 64);
+    assert_true(nargs <= arg_row->elements);
+    regs[0] = (uint16_t)code;
+    for (unsigned i = 0; i < arg_row->elements; i++)
+        put_f32(&regs[regmap_element_address(arg_row, i) - code_row->address],
+                i < nargs ? args[i] : 0);
+    regs[count - 1] = seq;
+    return write_raw(REGMAP_HOLDING_REGISTER, code_row->address, count, regs);
+}
+
+static int json_mailbox(const char *text)
+{
+    int ex = write_text(gw_row("json.request"), text);
+    if (ex)
+        return ex;
+    ex = write_bit(gw_row("json.trigger"), 0, 0);
+    if (ex)
+        return ex;
+    return write_bit(gw_row("json.trigger"), 0, 1);
+}
+
+/* ---- the robot side ---- */
+
+static void reply(const char *json)
+{
+    cmd_queue_on_reply(&queue, json, strlen(json));
+}
+
+static void reply_ok(void)
+{
+    reply("{\"errorCode\":\"0\",\"errorMsg\":\"\"}");
+}
+
+/* Macros, so that a failure names the line of the test. */
+#define expect_sent(index, json)                                               \
+    do {                                                                       \
+        unsigned i_ = (index);                                                 \
+        if (i_ >= robot.sent_count)                                            \
+            fail_msg("expected %s as command %u; only %u sent", (json), i_,    \
+                     robot.sent_count);                                        \
+        assert_string_equal(robot.sent[i_], (json));                           \
+    } while (0)
+
+#define expect_last_sent(json)                                                 \
+    do {                                                                       \
+        assert_true(robot.sent_count > 0);                                     \
+        expect_sent(robot.sent_count - 1, (json));                             \
+    } while (0)
+
+static double result_state(const char *cmd)
+{
+    char path[96];
+    snprintf(path, sizeof(path), "result.%s.state", cmd);
+    return gw_number(path);
+}
+
+/* ---- triggers ---- */
+
+static void trigger_sends_on_rising_edge_only(void **state)
+{
+    (void)state;
+    assert_int_equal(result_state("power_on"), CMD_IDLE);
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+    expect_sent(0, "{\"cmdName\":\"power_on\"}");
+    assert_int_equal(result_state("power_on"), CMD_PENDING);
+    reply_ok();
+    assert_int_equal(result_state("power_on"), CMD_DONE);
+    assert_int_equal(gw_number("result.power_on.error_code"), 0);
+    /* A retransmitted 1 is no new command; 0 re-arms and sends nothing. */
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    assert_int_equal(rearm("power_on"), EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    assert_int_equal(robot.sent_count, 2);
+    reply("{\"cmdName\":\"power_on\",\"errorCode\":\"2\",\"errorMsg\":\"call power_on failed\"}");
+    assert_int_equal(result_state("power_on"), CMD_ROBOT_ERROR);
+    assert_int_equal(gw_number("result.power_on.error_code"), 2);
+    assert_string_equal(gw_text("result.power_on.error_msg"), "call power_on failed");
+    /* A negative errorCode reads back negative. */
+    rearm("power_on");
+    trigger("power_on");
+    reply("{\"errorCode\":\"-1\",\"errorMsg\":\"no\"}");
+    assert_int_equal(gw_number("result.power_on.error_code"), -1);
+    /* stop_program's reply comes as pause_program: it still answers stop. */
+    trigger("stop_program");
+    expect_last_sent("{\"cmdName\":\"stop_program\"}");
+    reply("{\"cmdName\":\"pause_program\",\"errorCode\":\"0\",\"errorMsg\":\"\"}");
+    assert_int_equal(result_state("stop_program"), CMD_DONE);
+    assert_int_equal(result_state("pause_program"), CMD_IDLE);
+}
+
+static void trigger_sends_its_parameters(void **state)
+{
+    (void)state;
+    assert_int_equal(write_text(cmd_row("load_program.programName"), "track/test.jks"),
+                     EX_NONE);
+    assert_int_equal(robot.sent_count, 0); /* a parameter sends nothing */
+    assert_int_equal(trigger("load_program"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"load_program\",\"programName\":\"track/test.jks\"}");
+    reply_ok();
+    /* Its refresh follows. */
+    expect_last_sent("{\"cmdName\":\"get_loaded_program\"}");
+    reply("{\"cmdName\":\"get_loaded_program\",\"errorCode\":\"0\",\"programName\":\"track/test.jks\"}");
+    assert_string_equal(gw_text("info.loaded_program"), "track/test.jks");
+
+    /* Floats go as the PLC wrote them, not as their binary expansion. */
+    const struct regmap_row *centroid = cmd_row("set_payload.centroid[*]");
+    write_f32(cmd_row("set_payload.mass"), 0, 2.5);
+    write_f32(centroid, 0, 0.1);
+    write_f32(centroid, 1, -20);
+    write_f32(centroid, 2, 30.25);
+    assert_int_equal(trigger("set_payload"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"set_payload\",\"mass\":2.5,\"centroid\":[0.1,-20,30.25]}");
+}
+
+static void motion_trigger_with_every_parameter(void **state)
+{
+    (void)state;
+    struct plc_commands_config on = {.motion = true};
+    start(&on);
+    const struct regmap_row *pos = cmd_row("joint_move.jointPosition[*]");
+    for (unsigned i = 0; i < 6; i++)
+        write_f32(pos, i, 10.5 * (i + 1) - 30);
+    write_f32(cmd_row("joint_move.speed"), 0, 20);
+    write_f32(cmd_row("joint_move.accel"), 0, 100);
+    write_u16(cmd_row("joint_move.relFlag"), 0, 1);
+    assert_int_equal(trigger("joint_move"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"joint_move\",\"jointPosition\":[-19.5,-9,1.5,12,22.5,33],"
+                     "\"speed\":20,\"accel\":100,\"relFlag\":1}");
+    reply_ok();
+
+    const struct regmap_row *cart = cmd_row("moveL.cartPosition[*]");
+    for (unsigned i = 0; i < 6; i++)
+        write_f32(cart, i, i == 2 ? 300.125 : 0);
+    write_f32(cmd_row("moveL.speed"), 0, 50);
+    write_f32(cmd_row("moveL.accel"), 0, 500);
+    write_f32(cmd_row("moveL.tol"), 0, 0.5);
+    assert_int_equal(trigger("moveL"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"moveL\",\"cartPosition\":[0,0,300.125,0,0,0],"
+                     "\"speed\":50,\"accel\":500,\"relFlag\":0,\"tol\":0.5}");
+}
+
+/* ---- setpoints ---- */
+
+static void setpoints_send_each_write(void **state)
+{
+    (void)state;
+    const struct regmap_row *rate = cmd_row("rapid_rate.rate_value");
+    assert_int_equal(write_u16(rate, 0, 500), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"rapid_rate\",\"rate_value\":0.5}");
+    reply_ok();
+    assert_int_equal(result_state("rapid_rate"), CMD_DONE);
+    /* The same value again is sent again: a setpoint is a command. */
+    assert_int_equal(write_u16(rate, 0, 500), EX_NONE);
+    assert_int_equal(robot.sent_count, 2);
+    reply_ok();
+    assert_int_equal(write_u16(rate, 0, 1000), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"rapid_rate\",\"rate_value\":1}");
+    reply_ok();
+    assert_int_equal(write_u16(rate, 0, 1001), EX_INVALID); /* past max */
+    assert_int_equal(robot.sent_count, 3);
+
+    /* Digital outputs: a coil each, with its type and index. */
+    const struct regmap_row *cab = NULL, *tool = NULL, *ext = NULL;
+    for (unsigned r = 0; r < map.row_count; r++) {
+        const struct regmap_row *row = &map.rows[r];
+        if (row->source != REGMAP_SRC_CMD || !row->fixed ||
+            strcmp(row->path, "set_digital_output.value") != 0)
+            continue;
+        if (strstr(row->fixed, "\"type\": 0"))
+            cab = row;
+        else if (strstr(row->fixed, "\"type\": 1"))
+            tool = row;
+        else if (strstr(row->fixed, "\"type\": 2"))
+            ext = row;
+    }
+    assert_non_null(cab);
+    assert_non_null(tool);
+    assert_non_null(ext);
+    char expected[160];
+    assert_int_equal(write_bit(cab, 0, 1), EX_NONE);
+    snprintf(expected, sizeof(expected),
+             "{\"cmdName\":\"set_digital_output\",\"type\":0,\"index\":%u,\"value\":1}",
+             cab->index);
+    expect_last_sent(expected);
+    reply_ok();
+    assert_int_equal(write_bit(cab, 0, 0), EX_NONE);
+    snprintf(expected, sizeof(expected),
+             "{\"cmdName\":\"set_digital_output\",\"type\":0,\"index\":%u,\"value\":0}",
+             cab->index);
+    expect_last_sent(expected);
+    reply_ok();
+    assert_int_equal(write_bit(tool, 1, 1), EX_NONE);
+    snprintf(expected, sizeof(expected),
+             "{\"cmdName\":\"set_digital_output\",\"type\":1,\"index\":%u,\"value\":1}",
+             tool->index + 1);
+    expect_last_sent(expected);
+    reply_ok();
+    assert_int_equal(write_bit(ext, 15, 1), EX_NONE);
+    snprintf(expected, sizeof(expected),
+             "{\"cmdName\":\"set_digital_output\",\"type\":2,\"index\":%u,\"value\":1}",
+             ext->index + 15);
+    expect_last_sent(expected);
+    reply_ok();
+
+    /* Analog output, tool and user frame, collision level. */
+    const struct regmap_row *ao = NULL;
+    for (unsigned r = 0; r < map.row_count && !ao; r++)
+        if (map.rows[r].source == REGMAP_SRC_CMD && map.rows[r].fixed &&
+            strcmp(map.rows[r].path, "set_analog_output.value") == 0)
+            ao = &map.rows[r];
+    assert_non_null(ao);
+    assert_int_equal(write_f32(ao, 2, 1.5), EX_NONE);
+    snprintf(expected, sizeof(expected),
+             "{\"cmdName\":\"set_analog_output\",\"type\":0,\"index\":%u,\"value\":1.5}",
+             ao->index + 2);
+    expect_last_sent(expected);
+    reply_ok();
+    assert_int_equal(write_u16(cmd_row("set_tool_id.tool_id"), 0, 3), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"set_tool_id\",\"tool_id\":3}");
+    reply_ok();
+    assert_int_equal(write_u16(cmd_row("set_user_id.user_id"), 0, 2), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"set_user_id\",\"user_id\":2}");
+    reply_ok();
+    assert_int_equal(write_u16(cmd_row("set_clsn_sensitivity.sensitivityVal"), 0, 4),
+                     EX_NONE);
+    expect_last_sent("{\"cmdName\":\"set_clsn_sensitivity\",\"sensitivityVal\":4}");
+    reply_ok();
+    expect_last_sent("{\"cmdName\":\"get_clsn_sensitivity\"}");
+    reply("{\"errorCode\":\"0\",\"sensitivityLevel\":4}");
+    assert_int_equal(gw_number("info.collision_level"), 4);
+}
+
+/* One write of several outputs: one command each, in address order. */
+static void multiple_coils_queue_in_order(void **state)
+{
+    (void)state;
+    const struct regmap_row *cab = cmd_row("set_digital_output.value");
+    uint16_t bits[4] = {1, 0, 1, 1};
+    char expected[160];
+
+    assert_int_equal(write_raw(cab->table, cab->address, 4, bits), EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+    assert_int_equal(cmd_queue_pending(&queue), 4);
+    for (unsigned i = 0; i < 4; i++) {
+        snprintf(expected, sizeof(expected),
+                 "{\"cmdName\":\"set_digital_output\",\"type\":0,\"index\":%u,\"value\":%u}",
+                 cab->index + i, bits[i]);
+        expect_sent(i, expected);
+        reply_ok();
+    }
+    assert_int_equal(robot.sent_count, 4);
+    assert_int_equal(result_state("set_digital_output"), CMD_DONE);
+}
+
+/* ---- the exactly-once mailbox ---- */
+
+static void mailbox_runs_each_sequence_number_once(void **state)
+{
+    (void)state;
+    const double dout[] = {0, 5, 1};
+    assert_int_equal(mailbox(21, dout, 3, 1), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"set_digital_output\",\"type\":0,\"index\":5,\"value\":1}");
+    assert_int_equal(gw_number("mailbox.ack_seq"), 1);
+    assert_int_equal(gw_number("mailbox.done_seq"), 0);
+    assert_int_equal(gw_number("mailbox.state"), CMD_PENDING);
+    reply_ok();
+    assert_int_equal(gw_number("mailbox.done_seq"), 1);
+    assert_int_equal(gw_number("mailbox.state"), CMD_DONE);
+
+    /* The same number again, whatever else: nothing is sent. */
+    assert_int_equal(mailbox(21, dout, 3, 1), EX_NONE);
+    assert_int_equal(mailbox(1, NULL, 0, 1), EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+    assert_int_equal(gw_number("mailbox.ack_seq"), 1);
+
+    const double rate[] = {0.25};
+    assert_int_equal(mailbox(20, rate, 1, 2), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"rapid_rate\",\"rate_value\":0.25}");
+    reply("{\"errorCode\":\"2\",\"errorMsg\":\"refused\"}");
+    assert_int_equal(gw_number("mailbox.done_seq"), 2);
+    assert_int_equal(gw_number("mailbox.state"), CMD_ROBOT_ERROR);
+    assert_int_equal(gw_number("mailbox.error_code"), 2);
+    assert_string_equal(gw_text("mailbox.error_msg"), "refused");
+
+    const double payload[] = {1.5, 0.1, -2, 3};
+    assert_int_equal(mailbox(25, payload, 4, 3), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"set_payload\",\"mass\":1.5,\"centroid\":[0.1,-2,3]}");
+    reply_ok();
+    while (cmd_queue_pending(&queue))
+        reply_ok(); /* information fetched again, if any */
+
+    /* A text argument comes from the command's own text registers. */
+    write_text(cmd_row("load_program.programName"), "welding/seam 2.jks");
+    assert_int_equal(mailbox(10, NULL, 0, 4), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"load_program\",\"programName\":\"welding/seam 2.jks\"}");
+    reply_ok();
+    while (cmd_queue_pending(&queue))
+        reply_ok();
+
+    assert_int_equal(mailbox(1, NULL, 0, 5), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"power_on\"}");
+    reply_ok();
+    /* Wrapping the number is a new number too. */
+    assert_int_equal(mailbox(2, NULL, 0, 0), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"power_off\"}");
+    reply_ok();
+    assert_int_equal(gw_number("mailbox.done_seq"), 0);
+    assert_int_equal(queue.stats.unsolicited, 0);
+}
+
+static void mailbox_motion_with_motion_on(void **state)
+{
+    (void)state;
+    struct plc_commands_config on = {.motion = true};
+    start(&on);
+    const double args[] = {1, 2, 3, 4, 5, 6, 10, 20, 0};
+    assert_int_equal(mailbox(30, args, 9, 7), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"joint_move\",\"jointPosition\":[1,2,3,4,5,6],"
+                     "\"speed\":10,\"accel\":20,\"relFlag\":0}");
+    /* relFlag must be whole. */
+    reply_ok();
+    const double half[] = {1, 2, 3, 4, 5, 6, 10, 20, 0.5};
+    assert_int_equal(mailbox(30, half, 9, 8), EX_INVALID);
+    assert_int_equal(robot.sent_count, 1);
+}
+
+static void mailbox_refusals(void **state)
+{
+    (void)state;
+    const struct regmap_row *seq = gw_row("mailbox.seq");
+
+    assert_int_equal(mailbox(99, NULL, 0, 1), EX_INVALID);
+    assert_int_equal(gw_number("mailbox.state"), CMD_INVALID);
+    assert_string_equal(gw_text("mailbox.error_msg"), "unknown command code");
+    assert_int_equal(regmap_get_number(&img, seq, 0), 0); /* the write was undone */
+    assert_int_equal(gw_number("mailbox.ack_seq"), 0);
+    assert_int_equal(mailbox(0, NULL, 0, 1), EX_INVALID);
+    /* Codes of commands not offered in the mailbox. */
+    assert_int_equal(mailbox(cmd_find("get_version")->code, NULL, 0, 1), EX_INVALID);
+    /* A whole number expected: index 1.5. */
+    const double half[] = {0, 1.5, 1};
+    assert_int_equal(mailbox(21, half, 3, 1), EX_INVALID);
+    /* An empty program name. */
+    assert_int_equal(mailbox(10, NULL, 0, 1), EX_INVALID);
+    /* Not permitted by the configuration. */
+    const double args[] = {1, 2, 3, 4, 5, 6, 10, 20, 0};
+    assert_int_equal(mailbox(30, args, 9, 1), EX_NOT_PERMITTED);
+    assert_int_equal(gw_number("mailbox.state"), CMD_REFUSED);
+    assert_int_equal(mailbox(6, NULL, 0, 1), EX_NOT_PERMITTED);
+    assert_int_equal(robot.sent_count, 0);
+    assert_int_equal(gw_number("mailbox.ack_seq"), 0);
+
+    /* Busy while the last one is pending; nothing of the refused write stays. */
+    assert_int_equal(mailbox(1, NULL, 0, 1), EX_NONE);
+    assert_int_equal(mailbox(2, NULL, 0, 2), EX_BUSY);
+    assert_int_equal(regmap_get_number(&img, seq, 0), 1);
+    assert_int_equal(regmap_get_number(&img, gw_row("mailbox.code"), 0), 1);
+    assert_int_equal(gw_number("mailbox.state"), CMD_PENDING);
+    assert_int_equal(robot.sent_count, 1);
+    reply_ok();
+    assert_int_equal(mailbox(2, NULL, 0, 2), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"power_off\"}");
+    reply_ok();
+    assert_int_equal(gw_number("mailbox.done_seq"), 2);
+
+    /* Link down. */
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(mailbox(1, NULL, 0, 3), EX_LINK_DOWN);
+    assert_int_equal(gw_number("mailbox.state"), CMD_LINK_DOWN);
+    assert_int_equal(gw_number("mailbox.ack_seq"), 2);
+    assert_int_equal(robot.sent_count, 2);
+}
+
+/*
+ * A mailbox command that was accepted but could not be sent still ends:
+ * the PLC waits for done_seq to echo its number, and must see it with
+ * the result, or it waits forever.
+ */
+static void mailbox_send_failure_still_completes(void **state)
+{
+    (void)state;
+    robot.fail_sends = 1;
+    assert_int_equal(mailbox(1, NULL, 0, 1), EX_NONE);
+    assert_int_equal(robot.sent_count, 0);
+    assert_int_equal(gw_number("mailbox.ack_seq"), 1);
+    assert_true(gw_number("mailbox.state") != CMD_PENDING);
+    assert_true(gw_number("mailbox.state") != CMD_DONE);
+    assert_int_equal(gw_number("mailbox.done_seq"), 1);
+}
+
+/*
+ * Information is fetched again after the commands that change it, however
+ * they came: a trigger, the exactly-once mailbox or the JSON mailbox.
+ */
+static void mailbox_commands_refresh_information(void **state)
+{
+    (void)state;
+    write_text(cmd_row("load_program.programName"), "b.jks");
+    assert_int_equal(mailbox(10, NULL, 0, 1), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"load_program\",\"programName\":\"b.jks\"}");
+    reply_ok();
+    expect_last_sent("{\"cmdName\":\"get_loaded_program\"}");
+    reply("{\"errorCode\":\"0\",\"programName\":\"b.jks\"}");
+    assert_string_equal(gw_text("info.loaded_program"), "b.jks");
+
+    const double payload[] = {1.5, 0.1, -2, 3};
+    assert_int_equal(mailbox(25, payload, 4, 2), EX_NONE);
+    reply_ok();
+    expect_last_sent("{\"cmdName\":\"get_payload\"}");
+    reply("{\"errorCode\":\"0\",\"mass\":1.5,\"centroid\":[0.1,-2,3]}");
+    assert_float_equal(gw_number("info.payload_mass"), 1.5, 1e-6);
+
+    assert_int_equal(json_mailbox("{\"cmdName\":\"play_program\"}"), EX_NONE);
+    reply_ok();
+    expect_last_sent("{\"cmdName\":\"get_program_state\"}");
+    reply("{\"errorCode\":\"0\",\"programState\":\"running\"}");
+    assert_int_equal(gw_number("info.program_state"), 1);
+}
+
+/* ---- the JSON mailbox ---- */
+
+static void json_mailbox_sends_the_text(void **state)
+{
+    (void)state;
+    const char *text = "{\"cmdName\": \"get_data\", \"note\": \"as written\"}";
+    assert_int_equal(json_mailbox(text), EX_NONE);
+    expect_last_sent(text);
+    assert_int_equal(gw_number("json.state"), CMD_PENDING);
+    const char *answer = "{\"cmdName\":\"get_data\",\"errorCode\":\"0\",\"errorMsg\":\"\","
+                         "\"data\":{\"x\":\"\xc3\xa9\"}}";
+    reply(answer);
+    assert_int_equal(gw_number("json.state"), CMD_DONE);
+    assert_string_equal(gw_text("json.reply"), answer);
+    assert_int_equal(gw_number("json.reply_truncated"), 0);
+    assert_int_equal(gw_number("json.reply_length"), strlen(answer));
+    /* Writing 1 again sends nothing; the trigger sends on 0 -> 1 only. */
+    assert_int_equal(write_bit(gw_row("json.trigger"), 0, 1), EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+    /* A robot error shows its code. */
+    assert_int_equal(json_mailbox("{\"cmdName\":\"power_on\"}"), EX_NONE);
+    reply("{\"errorCode\":\"3\",\"errorMsg\":\"nope\"}");
+    assert_int_equal(gw_number("json.state"), CMD_ROBOT_ERROR);
+    assert_int_equal(gw_number("json.error_code"), 3);
+}
+
+/* The reply's registers as bytes (not up to the first NUL). */
+static size_t json_reply_bytes(char *out, size_t size)
+{
+    const struct regmap_row *row = gw_row("json.reply");
+    const uint16_t *regs = &img.mb->tab_input_registers[row->address];
+    size_t n = 0;
+    assert_true(size >= (size_t)row->str_regs * 2 + 1);
+    for (unsigned r = 0; r < row->str_regs; r++) {
+        out[n++] = (char)(regs[r] >> 8);
+        out[n++] = (char)(regs[r] & 0xFF);
+    }
+    out[n] = '\0';
+    return strlen(out);
+}
+
+/* A long reply is cut to the block, never inside a UTF-8 sequence. */
+static void json_reply_truncated_on_a_character_boundary(void **state)
+{
+    (void)state;
+    static const char *const chars[] = {"\xc3\xa9", "\xe2\x82\xac", "\xf0\x9f\x98\x80"};
+    const size_t block = (size_t)gw_row("json.reply")->str_regs * 2;
+    char answer[2048], got[2048];
+
+    for (unsigned c = 0; c < 3; c++) {
+        size_t clen = strlen(chars[c]);
+        for (size_t shift = 0; shift < clen; shift++) {
+            /* The multi-byte character starts 'shift' bytes before the end
+             * of the block (0: exactly at its end). */
+            const char *head = "{\"errorCode\":\"0\",\"errorMsg\":\"";
+            size_t before = block - strlen(head) - shift;
+            size_t n = (size_t)snprintf(answer, sizeof(answer), "%s", head);
+            memset(answer + n, 'a', before);
+            n += before;
+            n += (size_t)snprintf(answer + n, sizeof(answer) - n, "%s%s\"}", chars[c],
+                                  "tail \xc3\xa9");
+            assert_int_equal(json_mailbox("{\"cmdName\":\"get_data\"}"), EX_NONE);
+            reply(answer);
+            size_t kept = json_reply_bytes(got, sizeof(got));
+            size_t start = block - shift; /* where the character begins */
+            size_t expect = shift == 0 ? block : start;
+            if (kept != expect)
+                fail_msg("character of %zu bytes %zu before the end: kept %zu, expected %zu",
+                         clen, shift, kept, expect);
+            assert_memory_equal(got, answer, kept);
+            assert_int_equal(gw_number("json.reply_truncated"), 1);
+            assert_int_equal(gw_number("json.reply_length"), strlen(answer));
+        }
+    }
+    /* Exactly the block's size: whole, not truncated. */
+    memset(answer, 0, sizeof(answer));
+    int n = snprintf(answer, sizeof(answer), "{\"errorCode\":\"0\",\"errorMsg\":\"");
+    memset(answer + n, 'b', block - (size_t)n - 2);
+    memcpy(answer + block - 2, "\"}", 3);
+    assert_int_equal(strlen(answer), block);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_data\"}"), EX_NONE);
+    reply(answer);
+    assert_int_equal(json_reply_bytes(got, sizeof(got)), block);
+    assert_string_equal(got, answer);
+    assert_int_equal(gw_number("json.reply_truncated"), 0);
+    assert_int_equal(gw_number("json.reply_length"), block);
+    /* A short reply after a long one leaves nothing of the long one. */
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_data\"}"), EX_NONE);
+    reply("{\"errorCode\":\"0\"}");
+    json_reply_bytes(got, sizeof(got));
+    assert_string_equal(got, "{\"errorCode\":\"0\"}");
+    /* No reply at all (link down): an empty reply of length 0. */
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_data\"}"), EX_NONE);
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(gw_number("json.state"), CMD_LINK_DOWN);
+    json_reply_bytes(got, sizeof(got));
+    assert_string_equal(got, "");
+    assert_int_equal(gw_number("json.reply_length"), 0);
+    assert_int_equal(gw_number("json.reply_truncated"), 0);
+}
+
+static void json_mailbox_refusals(void **state)
+{
+    (void)state;
+    assert_int_equal(json_mailbox("{\"cmdName\":"), EX_INVALID);
+    assert_int_equal(gw_number("json.state"), CMD_INVALID);
+    assert_int_equal(json_mailbox("not json"), EX_INVALID);
+    assert_int_equal(json_mailbox("[\"power_on\"]"), EX_INVALID);
+    assert_int_equal(json_mailbox("{\"errorCode\":\"0\"}"), EX_INVALID);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"\"}"), EX_INVALID);
+    assert_int_equal(json_mailbox("{\"cmdName\":5}"), EX_INVALID);
+    assert_int_equal(json_mailbox(""), EX_INVALID);
+    /* Motion and shutdown stay off through the JSON mailbox too. */
+    assert_int_equal(json_mailbox("{\"cmdName\":\"joint_move\",\"jointPosition\":[0,0,0,0,0,0],"
+                                  "\"speed\":1,\"accel\":1,\"relFlag\":1}"),
+                     EX_NOT_PERMITTED);
+    assert_int_equal(gw_number("json.state"), CMD_REFUSED);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"servo_j\"}"), EX_NOT_PERMITTED);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"shutdown\"}"), EX_NOT_PERMITTED);
+    assert_int_equal(robot.sent_count, 0);
+    /* The refused trigger reads 0 again: the next 0 -> 1 is a new one. */
+    assert_int_equal(regmap_get_number(&img, gw_row("json.trigger"), 0), 0);
+    /* Busy. */
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_version\"}"), EX_NONE);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_version\"}"), EX_BUSY);
+    assert_int_equal(robot.sent_count, 1);
+}
+
+/* ---- refusals of triggers and setpoints ---- */
+
+static void not_permitted(void **state)
+{
+    (void)state;
+    assert_int_equal(trigger("joint_move"), EX_NOT_PERMITTED);
+    assert_int_equal(result_state("joint_move"), CMD_REFUSED);
+    assert_int_equal(regmap_get_number(&img, cmd_row("joint_move"), 0), 0);
+    assert_int_equal(trigger("end_move"), EX_NOT_PERMITTED);
+    assert_int_equal(trigger("moveL"), EX_NOT_PERMITTED);
+    assert_int_equal(trigger("shutdown"), EX_NOT_PERMITTED);
+    assert_int_equal(result_state("shutdown"), CMD_REFUSED);
+    /* One refused element refuses the whole write: power_on, in the same
+     * write of coils before joint_move, is not sent either. */
+    const struct regmap_row *first = cmd_row("power_on"), *last = cmd_row("joint_move");
+    uint16_t ones[64];
+    for (unsigned i = 0; i < 64; i++)
+        ones[i] = 0;
+    ones[0] = 1;
+    ones[last->address - first->address] = 1;
+    assert_int_equal(write_raw(REGMAP_COIL, first->address,
+                               last->address - first->address + 1, ones),
+                     EX_NOT_PERMITTED);
+    assert_int_equal(regmap_get_number(&img, first, 0), 0);
+    assert_int_equal(robot.sent_count, 0);
+
+    /* Read-only: nothing at all may be written. */
+    struct plc_commands_config ro = {.read_only = true, .motion = true};
+    start(&ro);
+    assert_int_equal(trigger("power_on"), EX_NOT_PERMITTED);
+    assert_int_equal(write_u16(cmd_row("rapid_rate.rate_value"), 0, 300), EX_NOT_PERMITTED);
+    assert_int_equal(regmap_get_number(&img, cmd_row("rapid_rate.rate_value"), 0), 0);
+
+    /* write_allow: only the clients named. */
+    struct plc_commands_config allow = {.allowed_count = 2};
+    snprintf(allow.allowed[0], sizeof(allow.allowed[0]), "192.0.2.7");
+    snprintf(allow.allowed[1], sizeof(allow.allowed[1]), "2001:db8::7");
+    start(&allow);
+    uint16_t one = 1;
+    assert_int_equal(write_from("192.0.2.70", REGMAP_COIL, first->address, 1, &one),
+                     EX_NOT_PERMITTED);
+    assert_int_equal(write_from("192.0.2.10", REGMAP_COIL, first->address, 1, &one),
+                     EX_NOT_PERMITTED);
+    assert_int_equal(robot.sent_count, 0);
+    assert_int_equal(write_from("2001:db8::7", REGMAP_COIL, first->address, 1, &one),
+                     EX_NONE);
+    expect_last_sent("{\"cmdName\":\"power_on\"}");
+    reply_ok();
+    assert_int_equal(plc_commands_may_write(&pc, "192.0.2.7"), 0);
+    /* Shutdown when allowed. */
+    struct plc_commands_config down = {.allow_shutdown = true};
+    start(&down);
+    assert_int_equal(trigger("shutdown"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"shutdown\"}");
+}
+
+static void invalid_values(void **state)
+{
+    (void)state;
+    /* load_program without a program name. */
+    assert_int_equal(trigger("load_program"), EX_INVALID);
+    assert_int_equal(result_state("load_program"), CMD_INVALID);
+    assert_int_equal(regmap_get_number(&img, cmd_row("load_program"), 0), 0);
+    /* A name, then erased. */
+    write_text(cmd_row("load_program.programName"), "x.jks");
+    write_text(cmd_row("load_program.programName"), "");
+    assert_int_equal(trigger("load_program"), EX_INVALID);
+    /* Out of range and not finite: the map refuses them. */
+    assert_int_equal(write_u16(cmd_row("set_tool_id.tool_id"), 0, 11), EX_INVALID);
+    assert_int_equal(write_f32(cmd_row("set_payload.mass"), 0, NAN), EX_INVALID);
+    assert_int_equal(write_f32(cmd_row("set_payload.mass"), 0, -1), EX_INVALID);
+    assert_int_equal(robot.sent_count, 0);
+}
+
+static void busy(void **state)
+{
+    (void)state;
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    rearm("power_on");
+    /* The same command again while it is pending. */
+    assert_int_equal(trigger("power_on"), EX_BUSY);
+    assert_int_equal(regmap_get_number(&img, cmd_row("power_on"), 0), 0);
+    assert_int_equal(result_state("power_on"), CMD_PENDING);
+    /* Another command queues behind it. */
+    assert_int_equal(trigger("enable_robot"), EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+    reply_ok();
+    expect_last_sent("{\"cmdName\":\"enable_robot\"}");
+    reply_ok();
+
+    /* A full queue refuses the whole write. */
+    const struct regmap_row *rate = cmd_row("rapid_rate.rate_value");
+    for (unsigned i = 0; i < CMD_QUEUE_CAPACITY; i++)
+        assert_int_equal(write_u16(rate, 0, (uint16_t)i), EX_NONE);
+    assert_int_equal(cmd_queue_pending(&queue), CMD_QUEUE_CAPACITY);
+    assert_int_equal(write_u16(rate, 0, 999), EX_BUSY);
+    assert_int_equal(img.mb->tab_registers[rate->address], CMD_QUEUE_CAPACITY - 1);
+    reply_ok();
+    /* One place, but a write of two outputs needs two. */
+    const struct regmap_row *cab = cmd_row("set_digital_output.value");
+    uint16_t bits[2] = {1, 1};
+    assert_int_equal(write_raw(cab->table, cab->address, 2, bits), EX_BUSY);
+    assert_int_equal(write_raw(cab->table, cab->address, 1, bits), EX_NONE);
+    assert_int_equal(cmd_queue_pending(&queue), CMD_QUEUE_CAPACITY);
+    unsigned sent = robot.sent_count;
+    while (cmd_queue_pending(&queue))
+        reply_ok();
+    assert_int_equal(robot.sent_count, sent + CMD_QUEUE_CAPACITY - 1);
+}
+
+static void link_down(void **state)
+{
+    (void)state;
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(trigger("power_on"), EX_LINK_DOWN);
+    assert_int_equal(result_state("power_on"), CMD_LINK_DOWN);
+    assert_int_equal(regmap_get_number(&img, cmd_row("power_on"), 0), 0);
+    /* A write of several setpoints: none sent, none kept. */
+    const struct regmap_row *rate = cmd_row("rapid_rate.rate_value");
+    uint16_t regs[4] = {500, 1, 2, 3};
+    assert_int_equal(write_raw(rate->table, rate->address, 4, regs), EX_LINK_DOWN);
+    assert_int_equal(regmap_get_number(&img, rate, 0), 0);
+    assert_int_equal(regmap_get_number(&img, cmd_row("set_tool_id.tool_id"), 0), 0);
+    assert_int_equal(robot.sent_count, 0);
+    /* Parameters alone are no command: they may be written while down. */
+    assert_int_equal(write_text(cmd_row("load_program.programName"), "a.jks"), EX_NONE);
+    /* A command pending when the link goes down shows it. */
+    cmd_queue_set_connected(&queue, true);
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(result_state("power_on"), CMD_LINK_DOWN);
+    /* The reply timeout shows too. */
+    cmd_queue_set_connected(&queue, true);
+    rearm("power_on");
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    robot.now += 1000;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(result_state("power_on"), CMD_TIMEOUT);
+    assert_false(queue.connected);
+}
+
+/* ---- robot information ---- */
+
+static void information_after_replies(void **state)
+{
+    (void)state;
+    plc_commands_refresh(&pc);
+    assert_int_equal(gw_number("info.age_ms"), 4294967295.0);
+
+    plc_commands_link_up(&pc);
+    expect_last_sent("{\"cmdName\":\"get_version\"}");
+    reply("{\"cmdName\":\"get_version\",\"errorCode\":\"0\",\"errorMsg\":\"\","
+          "\"version\":\"1.7.2.16\"}");
+    expect_last_sent("{\"cmdName\":\"get_loaded_program\"}");
+    reply("{\"cmdName\":\"get_loaded_program\",\"errorCode\":\"0\",\"errorMsg\":\"\","
+          "\"programName\":\"track/\xc3\xa9t\xc3\xa9.jks\"}");
+    expect_last_sent("{\"cmdName\":\"get_program_state\"}");
+    reply("{\"cmdName\":\"get_program_state\",\"errorCode\":\"0\",\"errorMsg\":\"\","
+          "\"programState\":\"running\"}");
+    expect_last_sent("{\"cmdName\":\"get_payload\"}");
+    reply("{\"cmdName\":\"get_payload\",\"errorCode\":\"0\",\"errorMsg\":\"\","
+          "\"mass\":2.5,\"centroid\":[10,-20.5,30]}");
+    expect_last_sent("{\"cmdName\":\"get_clsn_sensitivity\"}");
+    robot.now = 60000;
+    reply("{\"cmdName\":\"get_clsn_sensitivity\",\"errorCode\":\"0\",\"errorMsg\":\"\","
+          "\"sensitivityLevel\":3}");
+    assert_int_equal(robot.sent_count, 5);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+
+    assert_string_equal(gw_text("info.controller_version"), "1.7.2.16");
+    assert_string_equal(gw_text("info.loaded_program"), "track/\xc3\xa9t\xc3\xa9.jks");
+    assert_int_equal(gw_number("info.program_state"), 1);
+    assert_float_equal(gw_number("info.payload_mass"), 2.5, 1e-6);
+    assert_float_equal(gw_number_at("info.payload_centroid[*]", 0), 10, 1e-6);
+    assert_float_equal(gw_number_at("info.payload_centroid[*]", 1), -20.5, 1e-6);
+    assert_float_equal(gw_number_at("info.payload_centroid[*]", 2), 30, 1e-6);
+    assert_int_equal(gw_number("info.collision_level"), 3);
+    robot.now = 60250;
+    plc_commands_refresh(&pc);
+    assert_int_equal(gw_number("info.age_ms"), 250);
+    /* Information fetches never show in a command's result registers. */
+    assert_int_equal(result_state("set_payload"), CMD_IDLE);
+
+    /* The collision level as a string; program states by name or number. */
+    plc_commands_link_up(&pc);
+    reply_ok();
+    reply_ok();
+    reply("{\"errorCode\":\"0\",\"programState\":\"paused\"}");
+    assert_int_equal(gw_number("info.program_state"), 2);
+    reply_ok();
+    reply("{\"errorCode\":\"0\",\"sensitivityLevel\":\"4\"}");
+    assert_int_equal(gw_number("info.collision_level"), 4);
+    /* A reply without the member leaves the value as it was. */
+    assert_string_equal(gw_text("info.loaded_program"), "track/\xc3\xa9t\xc3\xa9.jks");
+
+    trigger("stop_program");
+    reply_ok();
+    expect_last_sent("{\"cmdName\":\"get_program_state\"}");
+    reply("{\"errorCode\":\"0\",\"programState\":\"idle\"}");
+    assert_int_equal(gw_number("info.program_state"), 0);
+    rearm("stop_program");
+    trigger("stop_program");
+    reply_ok();
+    reply("{\"errorCode\":\"0\",\"programState\":2}");
+    assert_int_equal(gw_number("info.program_state"), 2);
+    /* A refused command fetches nothing. */
+    trigger("play_program");
+    unsigned sent = robot.sent_count;
+    reply("{\"errorCode\":\"1\"}");
+    assert_int_equal(robot.sent_count, sent);
+    /* A failed fetch keeps the last values. */
+    plc_commands_link_up(&pc);
+    reply("{\"errorCode\":\"1\",\"version\":\"9\"}");
+    assert_string_equal(gw_text("info.controller_version"), "1.7.2.16");
+}
+
+/* Connecting twice while the fetches are pending fetches each once. */
+static void information_fetched_once_at_a_time(void **state)
+{
+    (void)state;
+    plc_commands_link_up(&pc);
+    plc_commands_link_up(&pc);
+    assert_int_equal(cmd_queue_pending(&queue), PLC_INFO_COMMANDS);
+    cmd_queue_set_connected(&queue, false);
+    cmd_queue_set_connected(&queue, true);
+    plc_commands_link_up(&pc);
+    assert_int_equal(cmd_queue_pending(&queue), PLC_INFO_COMMANDS);
+}
+
+/*
+ * A command accepted while another is in flight is the next sent, even
+ * when the reply to the one in flight asks for information again: the
+ * refresh of load_program queues behind play_program, and each reply
+ * answers its own command.
+ */
+static void refresh_queues_behind_accepted_commands(void **state)
+{
+    (void)state;
+    write_text(cmd_row("load_program.programName"), "a.jks");
+    assert_int_equal(trigger("load_program"), EX_NONE);
+    assert_int_equal(trigger("play_program"), EX_NONE);
+    reply("{\"cmdName\":\"load_program\",\"errorCode\":\"0\"}");
+    assert_int_equal(result_state("load_program"), CMD_DONE);
+    expect_sent(1, "{\"cmdName\":\"play_program\"}");
+    reply("{\"cmdName\":\"play_program\",\"errorCode\":\"0\"}");
+    assert_int_equal(result_state("play_program"), CMD_DONE);
+    expect_sent(2, "{\"cmdName\":\"get_loaded_program\"}");
+    reply("{\"cmdName\":\"get_loaded_program\",\"errorCode\":\"0\",\"programName\":\"a.jks\"}");
+    expect_sent(3, "{\"cmdName\":\"get_program_state\"}");
+    reply("{\"cmdName\":\"get_program_state\",\"errorCode\":\"0\",\"programState\":\"running\"}");
+    assert_int_equal(robot.sent_count, 4);
+    assert_string_equal(gw_text("info.loaded_program"), "a.jks");
+    assert_int_equal(gw_number("info.program_state"), 1);
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+}
+
+int main(void)
+{
+#define T(name) cmocka_unit_test_setup_teardown(name, setup, teardown)
+    const struct CMUnitTest tests[] = {
+        T(trigger_sends_on_rising_edge_only),
+        T(trigger_sends_its_parameters),
+        T(motion_trigger_with_every_parameter),
+        T(setpoints_send_each_write),
+        T(multiple_coils_queue_in_order),
+        T(mailbox_runs_each_sequence_number_once),
+        T(mailbox_motion_with_motion_on),
+        T(mailbox_refusals),
+        T(mailbox_send_failure_still_completes),
+        T(mailbox_commands_refresh_information),
+        T(json_mailbox_sends_the_text),
+        T(json_reply_truncated_on_a_character_boundary),
+        T(json_mailbox_refusals),
+        T(not_permitted),
+        T(invalid_values),
+        T(busy),
+        T(link_down),
+        T(information_after_replies),
+        T(information_fetched_once_at_a_time),
+        T(refresh_queues_behind_accepted_commands),
+    };
+#undef T
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
