@@ -1040,6 +1040,113 @@ static void refresh_queues_behind_accepted_commands(void **state)
     assert_int_equal(cmd_queue_pending(&queue), 0);
 }
 
+/* ---- the robot's network-exception handler, the gate, send_now ---- */
+
+static void robot_handler_first_on_every_connect(void **state)
+{
+    (void)state;
+    struct plc_commands_config c = {.robot_handle = true, .robot_time_limit_ms = 500,
+                                    .robot_mot_type = 1, .require_robot_handle = true};
+    start(&c);
+    assert_int_equal(gw_number("network_exception.robot_handle"), PLC_HANDLE_NOT_SENT);
+    /* Before the robot accepts it, commands are refused. */
+    assert_int_equal(trigger("power_on"), EX_NOT_PERMITTED);
+    assert_int_equal(result_state("power_on"), CMD_REFUSED);
+    assert_int_equal(robot.sent_count, 0);
+    plc_commands_link_up(&pc);
+    expect_sent(0, "{\"cmdName\":\"set_network_exception_handle\",\"timeLimit\":500,"
+                   "\"motType\":1}");
+    assert_int_equal(gw_number("network_exception.robot_handle"), PLC_HANDLE_PENDING);
+    assert_int_equal(trigger("power_on"), EX_NOT_PERMITTED);
+    reply_ok();
+    assert_int_equal(gw_number("network_exception.robot_handle"), PLC_HANDLE_ACCEPTED);
+    expect_last_sent("{\"cmdName\":\"get_version\"}");
+    while (cmd_queue_pending(&queue))
+        reply_ok();
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"power_on\"}");
+    reply_ok();
+
+    /* A new connection sets it again; refused, commands stay refused. */
+    cmd_queue_set_connected(&queue, false);
+    plc_commands_link_down(&pc);
+    assert_int_equal(gw_number("network_exception.robot_handle"), PLC_HANDLE_NOT_SENT);
+    cmd_queue_set_connected(&queue, true);
+    plc_commands_link_up(&pc);
+    reply("{\"errorCode\":\"1\",\"errorMsg\":\"unsupported\"}");
+    assert_int_equal(gw_number("network_exception.robot_handle"), PLC_HANDLE_FAILED);
+    while (cmd_queue_pending(&queue))
+        reply_ok();
+    rearm("power_on");
+    unsigned sent = robot.sent_count;
+    assert_int_equal(trigger("power_on"), EX_NOT_PERMITTED);
+    assert_int_equal(robot.sent_count, sent);
+    /* Not required: sent, but its failure refuses nothing. */
+    c.require_robot_handle = false;
+    start(&c);
+    assert_int_equal(trigger("power_on"), EX_NONE);
+}
+
+static char gate_seen[64];
+
+static int gate_all_but_stop(void *user, const struct cmd_def *def, char *why, size_t size)
+{
+    (void)user;
+    snprintf(gate_seen, sizeof(gate_seen), "%s", def ? def->name : "(none)");
+    if (def && strcmp(def->name, "stop_program") == 0)
+        return 0;
+    snprintf(why, size, "fault latched");
+    return EX_NOT_PERMITTED;
+}
+
+static void gate_has_a_say_on_every_command(void **state)
+{
+    (void)state;
+    struct plc_commands_config c = {.gate = gate_all_but_stop};
+    start(&c);
+    assert_int_equal(trigger("play_program"), EX_NOT_PERMITTED);
+    assert_string_equal(gate_seen, "play_program");
+    assert_int_equal(result_state("play_program"), CMD_REFUSED);
+    assert_string_equal(gw_text("result.play_program.error_msg"), "fault latched");
+    assert_int_equal(write_u16(cmd_row("rapid_rate.rate_value"), 0, 100), EX_NOT_PERMITTED);
+    assert_int_equal(mailbox(1, NULL, 0, 1), EX_NOT_PERMITTED);
+    assert_int_equal(gw_number("mailbox.ack_seq"), 0);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_data\"}"), EX_NOT_PERMITTED);
+    assert_string_equal(gate_seen, "(none)");
+    assert_int_equal(robot.sent_count, 0);
+    /* Writes that send nothing are not the gate's business. */
+    gate_seen[0] = '\0';
+    assert_int_equal(write_text(cmd_row("load_program.programName"), "a.jks"), EX_NONE);
+    assert_string_equal(gate_seen, "");
+    assert_int_equal(trigger("stop_program"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"stop_program\"}");
+}
+
+static void send_now_passes_every_gate(void **state)
+{
+    (void)state;
+    struct plc_commands_config c = {.gate = gate_all_but_stop, .read_only = true};
+    start(&c);
+    assert_int_equal(plc_commands_send_now(&pc, "pause_program"), 0);
+    expect_last_sent("{\"cmdName\":\"pause_program\"}");
+    assert_int_equal(result_state("pause_program"), CMD_PENDING);
+    reply_ok();
+    assert_int_equal(result_state("pause_program"), CMD_DONE);
+    expect_last_sent("{\"cmdName\":\"get_program_state\"}");
+    reply_ok();
+    /* (Sent while pause_program is pending, stop_program meets the
+     * ordering fault refresh_queues_behind_accepted_commands shows.) */
+    assert_int_equal(plc_commands_send_now(&pc, "stop_program"), 0);
+    expect_last_sent("{\"cmdName\":\"stop_program\"}");
+    reply_ok();
+    assert_int_equal(result_state("stop_program"), CMD_DONE);
+    assert_int_equal(plc_commands_send_now(&pc, "no_such_command"), -EINVAL);
+    while (cmd_queue_pending(&queue))
+        reply_ok();
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(plc_commands_send_now(&pc, "stop_program"), -ENOTCONN);
+}
+
 int main(void)
 {
 #define T(name) cmocka_unit_test_setup_teardown(name, setup, teardown)
@@ -1064,6 +1171,9 @@ int main(void)
         T(information_after_replies),
         T(information_fetched_once_at_a_time),
         T(refresh_queues_behind_accepted_commands),
+        T(robot_handler_first_on_every_connect),
+        T(gate_has_a_say_on_every_command),
+        T(send_now_passes_every_gate),
     };
 #undef T
     return cmocka_run_group_tests(tests, NULL, NULL);
