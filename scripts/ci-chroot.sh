@@ -9,7 +9,7 @@
 # (success, failure, SIGINT, SIGTERM, SIGHUP) the processes still running in
 # ROOT are stopped, the mounts are undone in reverse order, and the script
 # checks that nothing is left mounted under ROOT. The environment inside is
-# minimal: PATH, HOME, LANG, TERM and CI.
+# minimal: PATH, HOME, LANG, TERM and CI, and pip's settings (below).
 set -euo pipefail
 
 say() { echo "ci-chroot: $*"; }
@@ -85,8 +85,25 @@ if [ -f /etc/resolv.conf ]; then   # for apt-get
     cp -L /etc/resolv.conf "$ROOT/etc/resolv.conf"
 fi
 
+# The machine's way to the Python package index, if it has one of its own
+# (a certificate authority for pip, a local folder of wheels): the tests
+# that install from PyPI reach it from inside as they do outside. Nothing
+# else of the host's environment goes in.
+PIP_ENV=()
+if [ -n "${PIP_CERT:-}" ] && [ -r "$PIP_CERT" ]; then
+    mkdir -p "$ROOT/etc/jakagw-ci"
+    cp -L "$PIP_CERT" "$ROOT/etc/jakagw-ci/pip-ca.pem"
+    PIP_ENV+=(PIP_CERT=/etc/jakagw-ci/pip-ca.pem)
+fi
+if [ -n "${PIP_FIND_LINKS:-}" ] && [ -d "$PIP_FIND_LINKS" ]; then
+    mkdir -p "$ROOT$PIP_FIND_LINKS"
+    mnt "$PIP_FIND_LINKS" --bind -o ro "$PIP_FIND_LINKS"
+    PIP_ENV+=(PIP_FIND_LINKS="$PIP_FIND_LINKS")
+fi
+[ -n "${PIP_DEFAULT_TIMEOUT:-}" ] && PIP_ENV+=(PIP_DEFAULT_TIMEOUT="$PIP_DEFAULT_TIMEOUT")
+
 # In the background so that a signal interrupts the wait at once.
 chroot "$ROOT" /usr/bin/env -i \
     PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
-    HOME=/root LANG=C.UTF-8 TERM=dumb CI="${CI:-}" "$@" </dev/null &
+    HOME=/root LANG=C.UTF-8 TERM=dumb CI="${CI:-}" "${PIP_ENV[@]}" "$@" </dev/null &
 wait $!
