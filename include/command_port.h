@@ -17,6 +17,7 @@
 #include <uv.h>
 
 #include "command.h"
+#include "log.h"
 #include "robot_link.h"
 
 struct command_port {
@@ -24,6 +25,7 @@ struct command_port {
     struct robot_link link;
     struct cmd_queue queue;
     uv_timer_t timer; /* the reply timeout of the command in flight */
+    struct log_ratelimit unsolicited_log;
     /* The link came up or went down (after the queue has been told). */
     void (*on_state)(struct command_port *cp, enum robot_link_state state);
     void *user;

@@ -48,10 +48,14 @@ static void on_reply(struct robot_link *link, const char *json, size_t size)
     struct command_port *cp = link->user;
     uint64_t unsolicited = cp->queue.stats.unsolicited;
 
+    uint64_t suppressed;
+
     cmd_queue_on_reply(&cp->queue, json, size);
-    if (cp->queue.stats.unsolicited != unsolicited)
+    if (cp->queue.stats.unsolicited != unsolicited &&
+        log_ratelimit_pass(&cp->unsolicited_log, uv_now(cp->loop), &suppressed))
         log_warn("command link: a %zu-byte message came with no command in flight; "
-                 "dropped: %.*s", size, (int)(size > 120 ? 120 : size), json);
+                 "dropped (%llu more since the last such line): %.*s",
+                 size, (unsigned long long)suppressed, (int)(size > 120 ? 120 : size), json);
     arm_timer(cp);
 }
 
@@ -80,6 +84,7 @@ int command_port_init(uv_loop_t *loop, struct command_port *cp,
     cp->loop = loop;
     cp->on_state = on_state;
     cp->user = user;
+    cp->unsolicited_log.interval_ms = 5000;
     cmd_queue_init(&cp->queue, &ops, reply_timeout_ms);
     int rc = robot_link_init(loop, &cp->link, link_cfg, &cb, cp);
     if (rc)
