@@ -71,9 +71,12 @@ $(BUILD)/bench/%: bench/%.c $(BUILD)/libjakagw.a
 	@mkdir -p $(dir $@)
 	$(CC) $(ALL_CFLAGS) $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) -lm
 
-# Prints costs as ratios to references measured in the same run.
-bench: $(BUILD)/bench/bench_pipeline
-	$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
+# Prints costs as ratios to references measured in the same run: a status
+# document, a Modbus read, and a command from a Modbus write to the robot's
+# socket through the whole gateway.
+bench: $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands
+	@$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
+	@$(BUILD)/bench/bench_commands
 
 # Installs the Debian packages the build and the tests need, if missing,
 # saying which and why. DEPS_GROUPS="build tests ..." picks groups
