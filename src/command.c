@@ -94,9 +94,16 @@ void cmd_parse_reply(const char *json, size_t size, struct cmd_result *r)
     } else if (cJSON_IsNumber(code) || (cJSON_IsString(code) && code->valuestring[0])) {
         char *end = NULL;
         /* Real controllers send "0", "1", "2", "-1", "3"; some a number. */
-        r->error_code = cJSON_IsNumber(code) ? (long)code->valuedouble
+        /* A number outside long's range would be undefined to convert. */
+        bool huge = cJSON_IsNumber(code) &&
+                    !(code->valuedouble > -2147483648.0 && code->valuedouble < 2147483648.0);
+        r->error_code = cJSON_IsNumber(code) ? (huge ? -1 : (long)code->valuedouble)
                                              : strtol(code->valuestring, &end, 10);
-        if (cJSON_IsString(code) && *end != '\0') {
+        if (huge) {
+            r->outcome = CMD_ROBOT_ERROR;
+            snprintf(r->error_msg, sizeof(r->error_msg), "errorCode %g is out of range",
+                     code->valuedouble);
+        } else if (cJSON_IsString(code) && *end != '\0') {
             r->outcome = CMD_ROBOT_ERROR;
             r->error_code = -1;
             snprintf(r->error_msg, sizeof(r->error_msg), "errorCode '%.60s' is not a number",
@@ -177,7 +184,9 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
     memcpy(copy, json, size);
     *entry_at(q, q->count) = (struct cmd_entry){copy, size, done, user};
     q->count++;
-    if (!q->in_flight) {
+    /* Only an empty queue sends at once: a command submitted from a done
+     * callback, while others wait, must not jump ahead of them. */
+    if (!q->in_flight && q->count == 1) {
         /* Sent now: a failure here is the caller's to report. */
         int rc = q->ops.send(q->ops.io, copy, size);
         if (rc < 0) {

@@ -437,6 +437,11 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
         char why[96];
         snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
         set_result(slot, rc == -ENOTCONN ? CMD_LINK_DOWN : CMD_REFUSED, 0, why);
+        /* The mailbox's sequence number is finished too: a PLC waiting on
+         * done_seq must not wait for ever. */
+        if (slot->kind == PLC_SLOT_MAILBOX)
+            regmap_set_number(pc->img, pc->mailbox_done, 0,
+                              regmap_get_number(pc->img, pc->mailbox_ack, 0), true);
         return;
     }
     slot->pending++;
@@ -455,6 +460,10 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
     cJSON *cmd = build(pc, act, w, &def);
     if (!cmd)
         return; /* the check refused it; not reached */
+    if (act == ACT_MAILBOX || act == ACT_JSON)
+        slot->def = def; /* one pending at a time: its refresh, its log line */
+    if (act == ACT_MAILBOX)
+        regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
     if (act == ACT_JSON) {
         /* Exactly the PLC's text goes to the robot. */
         char text[512];
@@ -467,8 +476,6 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
         free(text);
     }
     cJSON_Delete(cmd);
-    if (act == ACT_MAILBOX)
-        regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
 }
 
 /* Maps a reply member onto an info row. */
