@@ -1,0 +1,615 @@
+/*
+ * test_policy.c - the network-exception policy's state machine (policy.h)
+ * over every transition, with time given as arguments and the action
+ * recorded by a fake sink: the heartbeat watch, the connection watch, both,
+ * the motion-enable coil, the latch and its reset, the write owner and the
+ * fault's age.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <modbus.h>
+#include <string.h>
+
+#include "policy.h"
+
+#define LIMIT 1000 /* time_limit_ms of every test */
+#define T0 100000  /* a clock that does not start at 0 */
+#define MOVING true
+#define IDLE false
+#define PLC_A 1
+#define PLC_B 2
+#define ADDR_A "192.0.2.10:50001"
+#define ADDR_B "192.0.2.11:50002"
+
+struct sink_record {
+    unsigned calls;
+    enum policy_action action[8];
+    enum policy_fault reason[8];
+};
+
+static struct policy p;
+static struct sink_record sent;
+
+static void record_action(void *user, enum policy_action action, enum policy_fault reason)
+{
+    struct sink_record *r = user;
+    assert_true(r->calls < 8);
+    r->action[r->calls] = action;
+    r->reason[r->calls] = reason;
+    r->calls++;
+}
+
+static void start(enum policy_action action, enum policy_watch watch, bool motion_enable,
+                  bool single_owner)
+{
+    struct policy_config cfg = {
+        .time_limit_ms = LIMIT,
+        .action = action,
+        .watch = watch,
+        .motion_enable = motion_enable,
+        .single_owner = single_owner,
+    };
+    struct policy_sink sink = {.send_action = record_action, .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    policy_init(&p, &cfg, &sink);
+}
+
+static void start_heartbeat(enum policy_action action)
+{
+    start(action, POLICY_WATCH_HEARTBEAT, false, true);
+}
+
+/* Checks at every 10 ms from 'from' to 'to' inclusive, as the timer does. */
+static void check_span(uint64_t from, uint64_t to, bool moving)
+{
+    for (uint64_t t = from; t <= to; t += 10)
+        policy_check(&p, t, moving);
+}
+
+static void expect_nothing(void)
+{
+    assert_int_equal(sent.calls, 0);
+    assert_int_equal(p.fault, POLICY_FAULT_NONE);
+    assert_false(policy_blocks_commands(&p));
+}
+
+static void expect_one(enum policy_action action, enum policy_fault reason)
+{
+    assert_int_equal(sent.calls, 1);
+    assert_int_equal(sent.action[0], action);
+    assert_int_equal(sent.reason[0], reason);
+    assert_int_equal(p.fault, reason);
+    assert_true(policy_blocks_commands(&p));
+}
+
+/* ---- the heartbeat ---- */
+
+static void heartbeat_not_armed_before_a_first_change(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    /* Never written: a PLC that does not use the heartbeat is not judged. */
+    check_span(T0, T0 + 5 * LIMIT, MOVING);
+    expect_nothing();
+    assert_false(p.heartbeat_armed);
+}
+
+static void heartbeat_armed_on_first_write(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    /* The first write arms the watch, whatever its value (0 included). */
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 0);
+    assert_true(p.heartbeat_armed);
+    check_span(T0, T0 + LIMIT - 1, MOVING);
+    policy_check(&p, T0 + LIMIT - 1, MOVING);
+    expect_nothing();
+    policy_check(&p, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+}
+
+static void heartbeat_changes_keep_it_alive(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    for (unsigned i = 0; i < 50; i++) {
+        uint64_t t = T0 + i * (LIMIT - 100);
+        policy_heartbeat(&p, t, PLC_A, ADDR_A, i);
+        check_span(t, t + LIMIT - 110, MOVING);
+    }
+    expect_nothing();
+}
+
+static void same_value_is_not_a_change(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 7);
+    /* A PLC stuck writing the same value is silent. */
+    for (uint64_t t = T0 + 100; t < T0 + LIMIT; t += 100) {
+        policy_heartbeat(&p, t, PLC_A, ADDR_A, 7);
+        policy_check(&p, t, MOVING);
+    }
+    expect_nothing();
+    policy_check(&p, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+}
+
+static void loss_while_moving_pauses_once(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 10 * LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    assert_int_equal(p.faults, 1);
+}
+
+static void loss_while_moving_stops_once(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_STOP);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 10 * LIMIT, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
+}
+
+static void keep_sends_nothing_but_latches(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_KEEP);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 10 * LIMIT, MOVING);
+    assert_int_equal(sent.calls, 0);
+    assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
+    assert_int_equal(p.faults, 1);
+    assert_true(policy_blocks_commands(&p));
+}
+
+static void loss_while_idle_does_nothing(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 10 * LIMIT, IDLE);
+    expect_nothing();
+    assert_int_equal(p.faults, 0);
+    assert_int_equal(policy_fault_age_ms(&p, T0 + 10 * LIMIT), 0);
+}
+
+static void motion_after_an_idle_loss_acts_once(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 3 * LIMIT, IDLE);
+    expect_nothing();
+    /* The robot starts moving (a pendant, a program) with the PLC still
+     * gone: the first check that sees it acts. */
+    policy_check(&p, T0 + 3 * LIMIT + 10, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    check_span(T0 + 3 * LIMIT + 20, T0 + 6 * LIMIT, MOVING);
+    check_span(T0 + 6 * LIMIT, T0 + 7 * LIMIT, IDLE);
+    check_span(T0 + 7 * LIMIT, T0 + 8 * LIMIT, MOVING);
+    assert_int_equal(sent.calls, 1);
+}
+
+/* ---- the latch and its reset ---- */
+
+static void latched_fault_never_repeats_and_blocks(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    /* Time passes, the robot keeps moving or stops and starts again: the
+     * action went once; the fault stays until the PLC resets it. */
+    check_span(T0 + LIMIT, T0 + 20 * LIMIT, MOVING);
+    check_span(T0 + 20 * LIMIT, T0 + 21 * LIMIT, IDLE);
+    check_span(T0 + 21 * LIMIT, T0 + 22 * LIMIT, MOVING);
+    assert_int_equal(sent.calls, 1);
+    assert_int_equal(p.faults, 1);
+    assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
+    assert_true(policy_blocks_commands(&p));
+    /* A heartbeat that resumes does not clear it either. */
+    policy_heartbeat(&p, T0 + 22 * LIMIT, PLC_A, ADDR_A, 2);
+    check_span(T0 + 22 * LIMIT, T0 + 22 * LIMIT + 500, MOVING);
+    assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
+    assert_true(policy_blocks_commands(&p));
+}
+
+static void reset_clears_the_fault(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    /* The PLC is back: heartbeat, then reset. */
+    uint64_t back = T0 + 3 * LIMIT;
+    policy_heartbeat(&p, back, PLC_A, ADDR_A, 2);
+    policy_reset(&p);
+    assert_int_equal(p.fault, POLICY_FAULT_NONE);
+    assert_false(policy_blocks_commands(&p));
+    assert_int_equal(policy_fault_age_ms(&p, back), 0);
+    assert_int_equal(p.faults, 1); /* the count of faults ever stays */
+    check_span(back, back + LIMIT - 10, MOVING);
+    assert_int_equal(sent.calls, 1);
+    /* A second loss acts again, once. */
+    policy_check(&p, back + LIMIT, MOVING);
+    assert_int_equal(sent.calls, 2);
+    assert_int_equal(sent.action[1], POLICY_PAUSE);
+    assert_int_equal(p.faults, 2);
+    check_span(back + LIMIT, back + 5 * LIMIT, MOVING);
+    assert_int_equal(sent.calls, 2);
+}
+
+static void reset_without_a_fault_is_harmless(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_reset(&p);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_reset(&p);
+    check_span(T0, T0 + LIMIT - 10, MOVING);
+    expect_nothing();
+    assert_int_equal(p.faults, 0);
+}
+
+static void fault_age_counts_from_the_latch(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    assert_int_equal(policy_fault_age_ms(&p, T0), 0);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + LIMIT + 30, IDLE);
+    policy_check(&p, T0 + LIMIT + 40, MOVING); /* latches here */
+    assert_int_equal(policy_fault_age_ms(&p, T0 + LIMIT + 40), 0);
+    assert_int_equal(policy_fault_age_ms(&p, T0 + LIMIT + 290), 250);
+    check_span(T0 + LIMIT + 40, T0 + 100 * LIMIT, MOVING);
+    assert_int_equal(policy_fault_age_ms(&p, T0 + 100 * LIMIT + 40), 99 * LIMIT);
+    policy_reset(&p);
+    assert_int_equal(policy_fault_age_ms(&p, T0 + 100 * LIMIT + 40), 0);
+}
+
+/* ---- the connection ---- */
+
+static void connection_not_armed_before_a_first_client(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_CONNECTION, false, true);
+    check_span(T0, T0 + 5 * LIMIT, MOVING);
+    expect_nothing();
+}
+
+static void connection_lost_counts_from_the_last_close(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_CONNECTION, false, true);
+    policy_client_opened(&p, T0, 1);
+    policy_client_opened(&p, T0 + 10, 2);
+    /* Connected for long: nothing. */
+    check_span(T0, T0 + 5 * LIMIT, MOVING);
+    uint64_t t = T0 + 5 * LIMIT;
+    policy_client_closed(&p, t, PLC_B, 1);
+    check_span(t, t + 3 * LIMIT, MOVING); /* one left: still watched */
+    expect_nothing();
+    t += 3 * LIMIT;
+    policy_client_closed(&p, t, PLC_A, 0);
+    check_span(t, t + LIMIT - 10, MOVING);
+    policy_check(&p, t + LIMIT - 1, MOVING);
+    expect_nothing();
+    policy_check(&p, t + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_NO_CLIENT);
+    check_span(t + LIMIT, t + 5 * LIMIT, MOVING);
+    assert_int_equal(sent.calls, 1);
+}
+
+static void client_back_in_time_is_no_fault(void **state)
+{
+    (void)state;
+    start(POLICY_STOP, POLICY_WATCH_CONNECTION, false, true);
+    policy_client_opened(&p, T0, 1);
+    policy_client_closed(&p, T0 + 100, PLC_A, 0);
+    check_span(T0 + 100, T0 + 100 + LIMIT - 10, MOVING);
+    policy_client_opened(&p, T0 + LIMIT, 1);
+    check_span(T0 + LIMIT, T0 + 5 * LIMIT, MOVING);
+    expect_nothing();
+    /* It goes again: the limit counts from this close, not the first. */
+    uint64_t t = T0 + 5 * LIMIT;
+    policy_client_closed(&p, t, PLC_A, 0);
+    policy_check(&p, t + LIMIT - 1, MOVING);
+    expect_nothing();
+    policy_check(&p, t + LIMIT, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_NO_CLIENT);
+}
+
+static void connection_lost_while_idle_does_nothing(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_CONNECTION, false, true);
+    policy_client_opened(&p, T0, 1);
+    policy_client_closed(&p, T0, PLC_A, 0);
+    check_span(T0, T0 + 5 * LIMIT, IDLE);
+    expect_nothing();
+    policy_check(&p, T0 + 5 * LIMIT + 10, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_NO_CLIENT);
+}
+
+static void connection_watch_ignores_the_heartbeat(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_CONNECTION, false, true);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 5 * LIMIT, MOVING);
+    expect_nothing();
+}
+
+static void heartbeat_watch_ignores_the_connection(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_client_opened(&p, T0, 1);
+    policy_client_closed(&p, T0 + 10, PLC_A, 0);
+    check_span(T0, T0 + 5 * LIMIT, MOVING);
+    expect_nothing();
+}
+
+static void both_watches_either_signal(void **state)
+{
+    (void)state;
+    /* The heartbeat stops while a client stays connected. */
+    start(POLICY_PAUSE, POLICY_WATCH_BOTH, false, true);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT - 1, MOVING);
+    expect_nothing();
+    policy_check(&p, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+
+    /* Every client goes while the heartbeat (never written) is unarmed. */
+    start(POLICY_STOP, POLICY_WATCH_BOTH, false, true);
+    policy_client_opened(&p, T0, 1);
+    policy_client_closed(&p, T0 + 10, PLC_A, 0);
+    policy_check(&p, T0 + 10 + LIMIT - 1, MOVING);
+    expect_nothing();
+    policy_check(&p, T0 + 10 + LIMIT, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_NO_CLIENT);
+
+    /* Both lost at once: one action, one fault. */
+    start(POLICY_PAUSE, POLICY_WATCH_BOTH, false, true);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_client_closed(&p, T0 + 10, PLC_A, 0);
+    check_span(T0, T0 + 5 * LIMIT, MOVING);
+    assert_int_equal(sent.calls, 1);
+    assert_int_equal(p.faults, 1);
+    assert_int_not_equal(p.fault, POLICY_FAULT_NONE);
+}
+
+/* ---- the motion-enable coil ---- */
+
+static void motion_enable_drop_pauses_at_once(void **state)
+{
+    (void)state;
+    start(POLICY_STOP, POLICY_WATCH_HEARTBEAT, true, true);
+    /* Required and not yet given: commands are refused, nothing latched. */
+    assert_true(policy_blocks_commands(&p));
+    assert_int_equal(p.fault, POLICY_FAULT_NONE);
+    policy_motion_enable(&p, T0, true, IDLE);
+    assert_false(policy_blocks_commands(&p));
+    /* Held again: no change. */
+    policy_motion_enable(&p, T0 + 10, true, MOVING);
+    assert_int_equal(sent.calls, 0);
+    /* Dropped while the program runs: pause_program now, no check needed. */
+    policy_motion_enable(&p, T0 + 20, false, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+    assert_int_equal(policy_fault_age_ms(&p, T0 + 20), 0);
+    check_span(T0 + 20, T0 + 5 * LIMIT, MOVING);
+    policy_motion_enable(&p, T0 + 5 * LIMIT, true, MOVING);
+    policy_motion_enable(&p, T0 + 5 * LIMIT + 10, false, MOVING);
+    assert_int_equal(sent.calls, 1);
+    /* Reset with the coil back at 1: commands pass again. */
+    policy_motion_enable(&p, T0 + 6 * LIMIT, true, IDLE);
+    policy_reset(&p);
+    assert_false(policy_blocks_commands(&p));
+}
+
+static void motion_enable_drop_while_idle_latches_nothing(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, true);
+    policy_motion_enable(&p, T0, true, IDLE);
+    /* policy.h: "A loss while the robot is idle sends nothing and latches
+     * nothing." Commands stay refused while the coil is 0 (that is the
+     * coil's purpose), and raising it again lets them pass without a
+     * reset. */
+    policy_motion_enable(&p, T0 + 10, false, IDLE);
+    assert_int_equal(sent.calls, 0);
+    assert_true(policy_blocks_commands(&p));
+    assert_int_equal(p.fault, POLICY_FAULT_NONE);
+    assert_int_equal(p.faults, 0);
+    policy_motion_enable(&p, T0 + 20, true, IDLE);
+    assert_false(policy_blocks_commands(&p));
+}
+
+static void motion_enable_not_required(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, false, true);
+    assert_false(policy_blocks_commands(&p));
+    policy_motion_enable(&p, T0, true, MOVING);
+    policy_motion_enable(&p, T0 + 10, false, MOVING);
+    expect_nothing();
+    assert_false(p.motion_enabled); /* still shown as written */
+}
+
+static void motion_enable_drop_under_a_latched_fault(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, true);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    policy_motion_enable(&p, T0 + LIMIT + 10, false, MOVING);
+    assert_int_equal(sent.calls, 1);
+    assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
+    assert_int_equal(p.faults, 1);
+}
+
+/* ---- the write owner ---- */
+
+static void owner_is_the_heartbeat_writer(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    /* Nobody owns it before a heartbeat: anyone may write. */
+    assert_int_equal(policy_may_write(&p, PLC_A), 0);
+    assert_int_equal(policy_may_write(&p, PLC_B), 0);
+    assert_string_equal(p.owner_address, "");
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    assert_int_equal(p.owner, PLC_A);
+    assert_string_equal(p.owner_address, ADDR_A);
+    assert_int_equal(policy_may_write(&p, PLC_A), 0);
+    assert_int_equal(policy_may_write(&p, PLC_B), MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    /* Kept while the heartbeat lives. */
+    for (unsigned i = 1; i < 10; i++) {
+        policy_heartbeat(&p, T0 + i * 500, PLC_A, ADDR_A, 1 + i);
+        check_span(T0 + i * 500, T0 + i * 500 + 490, IDLE);
+        assert_int_equal(policy_may_write(&p, PLC_B), MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    }
+}
+
+static void owner_released_when_it_disconnects(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_client_opened(&p, T0, 1);
+    policy_client_opened(&p, T0, 2);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    /* Another client's close changes nothing. */
+    policy_client_closed(&p, T0 + 10, PLC_B, 1);
+    assert_int_equal(policy_may_write(&p, PLC_B), MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    policy_client_closed(&p, T0 + 20, PLC_A, 0);
+    assert_int_equal(p.owner, 0);
+    assert_string_equal(p.owner_address, "");
+    assert_int_equal(policy_may_write(&p, PLC_B), 0);
+    /* The next heartbeat writer takes it. */
+    policy_heartbeat(&p, T0 + 30, PLC_B, ADDR_B, 2);
+    assert_int_equal(p.owner, PLC_B);
+    assert_string_equal(p.owner_address, ADDR_B);
+    assert_int_equal(policy_may_write(&p, PLC_A), MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+}
+
+static void owner_released_when_its_heartbeat_expires(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT - 1, IDLE);
+    assert_int_equal(p.owner, PLC_A);
+    policy_check(&p, T0 + LIMIT, IDLE);
+    assert_int_equal(p.owner, 0);
+    assert_string_equal(p.owner_address, "");
+    assert_int_equal(policy_may_write(&p, PLC_B), 0);
+    expect_nothing(); /* idle: released, nothing latched */
+    policy_heartbeat(&p, T0 + LIMIT + 10, PLC_B, ADDR_B, 50);
+    assert_int_equal(p.owner, PLC_B);
+    assert_int_equal(policy_may_write(&p, PLC_A), MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    /* B's heartbeat lives on: B keeps it. */
+    policy_heartbeat(&p, T0 + LIMIT + 500, PLC_B, ADDR_B, 51);
+    check_span(T0 + LIMIT + 500, T0 + 2 * LIMIT + 400, MOVING);
+    assert_int_equal(p.owner, PLC_B);
+    expect_nothing();
+}
+
+static void owner_released_on_expiry_while_latched(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    /* A standby PLC can take over, feed the heartbeat and reset. */
+    assert_int_equal(p.owner, 0);
+    assert_int_equal(policy_may_write(&p, PLC_B), 0);
+    policy_heartbeat(&p, T0 + LIMIT + 100, PLC_B, ADDR_B, 9);
+    assert_int_equal(p.owner, PLC_B);
+    policy_reset(&p);
+    check_span(T0 + LIMIT + 100, T0 + 2 * LIMIT + 90, MOVING);
+    assert_int_equal(sent.calls, 1);
+    assert_int_equal(p.fault, POLICY_FAULT_NONE);
+    assert_int_equal(p.owner, PLC_B);
+}
+
+static void no_owner_without_single_owner(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, false, false);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    assert_int_equal(p.owner, 0);
+    assert_string_equal(p.owner_address, "");
+    assert_int_equal(policy_may_write(&p, PLC_B), 0);
+    /* B's heartbeat counts as well. */
+    check_span(T0, T0 + 890, MOVING);
+    policy_heartbeat(&p, T0 + 900, PLC_B, ADDR_B, 2);
+    check_span(T0 + 900, T0 + 900 + LIMIT - 10, MOVING);
+    expect_nothing();
+}
+
+static void sink_without_a_callback(void **state)
+{
+    (void)state;
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = POLICY_PAUSE,
+                                .watch = POLICY_WATCH_HEARTBEAT};
+    struct policy_sink none = {0};
+    policy_init(&p, &cfg, &none);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, MOVING);
+    assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(heartbeat_not_armed_before_a_first_change),
+        cmocka_unit_test(heartbeat_armed_on_first_write),
+        cmocka_unit_test(heartbeat_changes_keep_it_alive),
+        cmocka_unit_test(same_value_is_not_a_change),
+        cmocka_unit_test(loss_while_moving_pauses_once),
+        cmocka_unit_test(loss_while_moving_stops_once),
+        cmocka_unit_test(keep_sends_nothing_but_latches),
+        cmocka_unit_test(loss_while_idle_does_nothing),
+        cmocka_unit_test(motion_after_an_idle_loss_acts_once),
+        cmocka_unit_test(latched_fault_never_repeats_and_blocks),
+        cmocka_unit_test(reset_clears_the_fault),
+        cmocka_unit_test(reset_without_a_fault_is_harmless),
+        cmocka_unit_test(fault_age_counts_from_the_latch),
+        cmocka_unit_test(connection_not_armed_before_a_first_client),
+        cmocka_unit_test(connection_lost_counts_from_the_last_close),
+        cmocka_unit_test(client_back_in_time_is_no_fault),
+        cmocka_unit_test(connection_lost_while_idle_does_nothing),
+        cmocka_unit_test(connection_watch_ignores_the_heartbeat),
+        cmocka_unit_test(heartbeat_watch_ignores_the_connection),
+        cmocka_unit_test(both_watches_either_signal),
+        cmocka_unit_test(motion_enable_drop_pauses_at_once),
+        cmocka_unit_test(motion_enable_drop_while_idle_latches_nothing),
+        cmocka_unit_test(motion_enable_not_required),
+        cmocka_unit_test(motion_enable_drop_under_a_latched_fault),
+        cmocka_unit_test(owner_is_the_heartbeat_writer),
+        cmocka_unit_test(owner_released_when_it_disconnects),
+        cmocka_unit_test(owner_released_when_its_heartbeat_expires),
+        cmocka_unit_test(owner_released_on_expiry_while_latched),
+        cmocka_unit_test(no_owner_without_single_owner),
+        cmocka_unit_test(sink_without_a_callback),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
