@@ -3,12 +3,20 @@
 #   make            build build/jakagw and build/jakasim
 #   make demo       install missing packages, build, run the gateway on the simulator
 #   make test       install missing packages, build, run every test (plain and ASan/UBSan)
-#   make install    install into $(DESTDIR)$(PREFIX) (binaries, config, unit, docs)
+#   make install    install into $(DESTDIR)$(PREFIX) (binaries, config, units, man pages, docs)
+#   make deb        build the Debian package into $(BUILD)/deb/
 
 VERSION   := 0.1.0
 PREFIX    ?= /usr/local
+BINDIR    ?= $(PREFIX)/bin
+SBINDIR   ?= $(PREFIX)/sbin
 SYSCONFDIR ?= /etc
-UNITDIR   ?= /lib/systemd/system
+DOCDIR    ?= $(PREFIX)/share/doc/jakagw
+MANDIR    ?= $(PREFIX)/share/man
+# Debian 12's systemd keeps the units of /usr in /lib/systemd/system; any
+# other prefix keeps them under itself (/usr/local/lib/systemd/system is on
+# systemd's search path too).
+UNITDIR   ?= $(if $(filter /usr,$(PREFIX)),/lib/systemd/system,$(PREFIX)/lib/systemd/system)
 DESTDIR   ?=
 BUILD     ?= build
 CC        ?= cc
@@ -18,7 +26,7 @@ PKGS      := libuv libmodbus libcjson inih libsystemd
 # deps, demo, test and clean work on a bare machine (demo and test install
 # the packages first); any other goal needs the compiler and the .pc files,
 # and says how to get them instead of failing with compiler errors.
-NO_PKG_GOALS := deps demo test clean uninstall
+NO_PKG_GOALS := deps demo test clean uninstall deb test-package
 ifneq ($(filter-out $(NO_PKG_GOALS),$(or $(MAKECMDGOALS),all)),)
 MISSING_PKGS := $(shell command -v $(CC) >/dev/null || echo $(CC); \
     for p in $(PKGS) $(if $(filter unit-tests san valgrind,$(MAKECMDGOALS)),cmocka); do \
@@ -34,7 +42,7 @@ TEST_LIBS  := $(shell pkg-config --libs cmocka 2>/dev/null)
 WARN      := -Wall -Wextra -Werror -Wshadow -Wstrict-prototypes -Wmissing-prototypes -Wformat=2
 CFLAGS    ?= -O2 -g
 ALL_CFLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' \
-              $(WARN) $(CFLAGS) $(EXTRA_CFLAGS) -Iinclude $(PKG_CFLAGS) -MMD -MP
+              $(WARN) $(CPPFLAGS) $(CFLAGS) $(EXTRA_CFLAGS) -Iinclude $(PKG_CFLAGS) -MMD -MP
 ALL_LDFLAGS := $(LDFLAGS) $(EXTRA_LDFLAGS)
 
 LIB_SRCS  := $(filter-out src/main.c,$(wildcard src/*.c))
@@ -44,7 +52,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o)
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: all deps demo test unit-tests check-docs docs install uninstall clean san valgrind bench fuzz test-can
+.PHONY: all deps demo test unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz test-can
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -101,7 +109,7 @@ test: deps
 	@tests/run.sh
 
 # docs/register-map.md is generated from the table in src/regmap_table.c.
-docs: $(BUILD)/jakagw
+docs: $(BUILD)/jakagw man
 	$(BUILD)/jakagw --print-map md > docs/register-map.md
 	$(BUILD)/jakagw --print-map csv > docs/register-map.csv
 	$(BUILD)/jakagw -c config/jakagw.conf --print-dbc > docs/jakagw.dbc
@@ -137,21 +145,59 @@ fuzz:
 	build-fuzz/fuzz_stream -max_total_time=$(FUZZ_SECONDS) -max_len=20000 build-fuzz/corpus-stream fuzz/seeds/stream
 	build-fuzz/fuzz_modbus -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-modbus fuzz/seeds/modbus
 
-install: all
-	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(SYSCONFDIR)/jakagw \
-	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(PREFIX)/share/doc/jakagw
-	install -m 0755 $(BUILD)/jakagw $(BUILD)/jakasim $(DESTDIR)$(PREFIX)/bin/
-	install -m 0644 config/jakagw.conf $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
-	sed 's|@BINDIR@|$(PREFIX)/bin|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g' \
-	    systemd/jakagw.service.in > $(DESTDIR)$(UNITDIR)/jakagw.service
-	chmod 0644 $(DESTDIR)$(UNITDIR)/jakagw.service
-	install -m 0644 README.md docs/register-map.md docs/register-map.csv docs/jakagw.dbc \
-	    $(DESTDIR)$(PREFIX)/share/doc/jakagw/
+# The man pages: man/*.in with the options of --help, the keys of
+# --print-config-keys and their descriptions in config/jakagw.conf.
+man: $(BUILD)/jakagw $(BUILD)/jakasim
+	/usr/bin/python3 scripts/gen-man.py $(BUILD) jakagw.8 > man/jakagw.8
+	/usr/bin/python3 scripts/gen-man.py $(BUILD) jakasim.1 > man/jakasim.1
 
+UNITS := jakagw.service jakagw@.service jakagw.socket jakagw-socket.service
+DOCS  := README.md docs/register-map.md docs/register-map.csv \
+         $(wildcard docs/plc-guide.md docs/jakagw.dbc)
+CONF  := $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
+# A configuration already there is the user's: it is never overwritten.
+install: all
+	install -d $(DESTDIR)$(SBINDIR) $(DESTDIR)$(BINDIR) $(DESTDIR)$(SYSCONFDIR)/jakagw \
+	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(DOCDIR) $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
+	install -m 0755 $(BUILD)/jakagw $(DESTDIR)$(SBINDIR)/
+	install -m 0755 $(BUILD)/jakasim $(DESTDIR)$(BINDIR)/
+	@if [ -e $(CONF) ]; then \
+	    install -m 0644 config/jakagw.conf $(CONF).dist; \
+	    echo "install: $(CONF) exists and is kept; the new default configuration is $(CONF).dist"; \
+	else \
+	    echo "install -m 0644 config/jakagw.conf $(CONF)"; \
+	    install -m 0644 config/jakagw.conf $(CONF); \
+	fi
+	for unit in $(UNITS); do \
+	    sed 's|@SBINDIR@|$(SBINDIR)|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g; s|@DOCDIR@|$(DOCDIR)|g' \
+	        systemd/$$unit.in > $(DESTDIR)$(UNITDIR)/$$unit && \
+	    chmod 0644 $(DESTDIR)$(UNITDIR)/$$unit || exit 1; \
+	done
+	install -m 0644 man/jakagw.8 $(DESTDIR)$(MANDIR)/man8/
+	install -m 0644 man/jakasim.1 $(DESTDIR)$(MANDIR)/man1/
+	install -m 0644 $(DOCS) $(DESTDIR)$(DOCDIR)/
+	@case "$(UNITDIR)" in /lib/systemd/system|/usr/lib/systemd/system|/usr/local/lib/systemd/system|/etc/systemd/system) ;; \
+	*) echo "install: $(UNITDIR) is not on systemd's unit search path: 'systemctl link' the units there" ;; esac
+
+# The configuration is left in place, as a package removal (not a purge) does.
 uninstall:
-	rm -f $(DESTDIR)$(PREFIX)/bin/jakagw $(DESTDIR)$(PREFIX)/bin/jakasim \
-	    $(DESTDIR)$(UNITDIR)/jakagw.service
-	rm -rf $(DESTDIR)$(PREFIX)/share/doc/jakagw
+	rm -f $(DESTDIR)$(SBINDIR)/jakagw $(DESTDIR)$(BINDIR)/jakagw $(DESTDIR)$(BINDIR)/jakasim \
+	    $(addprefix $(DESTDIR)$(UNITDIR)/,$(UNITS)) \
+	    $(DESTDIR)$(MANDIR)/man8/jakagw.8 $(DESTDIR)$(MANDIR)/man1/jakasim.1
+	rm -rf $(DESTDIR)$(DOCDIR)
+	@echo "uninstall: $(DESTDIR)$(SYSCONFDIR)/jakagw is kept; remove it when its configuration is no longer wanted"
+
+# The Debian package (dpkg-buildpackage -us -uc -b) from a copy of the
+# source files, so that nothing in this tree is cleaned or rebuilt:
+# $(BUILD)/deb/jakagw_$(VERSION)_ARCH.deb.
+deb:
+	@scripts/build-deb.sh $(BUILD)/deb
+
+# Builds the package and installs it into a fresh Debian 12 root file
+# system (mmdebstrap): files, enabled units, the conffile kept on upgrade,
+# systemd-analyze verify and security, lintian. make test runs it.
+test-package:
+	@/usr/bin/python3 tests/package/test_package.py $(BUILD)
 
 clean:
 	rm -rf build build-san build-fuzz

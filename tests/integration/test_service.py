@@ -3,6 +3,7 @@
 the running one), SIGTERM answers the requests that have arrived before it
 stops, and a socket passed by systemd (socket activation) is served."""
 import os
+import re
 import shutil
 import signal
 import socket
@@ -142,10 +143,12 @@ def test_sigterm_answers_requests_that_have_arrived():
         check("received Terminated: stopping" in out and "(no command is sent)" in out, out)
         sim_log = sim.stop()
         sim = None
-        # Queries (get_*) only: nothing that moves or changes the robot.
-        commands = [l for l in sim_log.splitlines() if "jakasim: command {" in l]
-        check(all('{"cmdName":"get_' in l for l in commands),
-              "the robot received a command that is not a query:\n" + sim_log)
+        # Queries, and the robot's own network-exception handler set on
+        # connecting: nothing that moves or changes the robot, at stop or before.
+        names = re.findall(r'jakasim: command \{"cmdName": ?"(\w+)"', sim_log)
+        check(names and all(n.startswith("get_") or n == "set_network_exception_handle"
+                            for n in names),
+              "the robot received a command that is not a query: %s\n%s" % (names, sim_log))
     finally:
         if gw:
             gw.stop(expect_code=None)
