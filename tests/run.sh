@@ -74,6 +74,20 @@ if [ "$what" = all ]; then
     record "tests/can/test_can_vm.py($build)" "$status" "${ok:-0}" "${bad:-0}"
 fi
 
+# The Debian package, built and installed into a fresh Debian 12 root file
+# system (also make test-package): once, with the first build.
+if [ "$what" = all ]; then
+    build=${BUILDS%% *}
+    echo "== tests/package/test_package.py ($build)"
+    "$PYTHON" tests/package/test_package.py "$build" 2>&1 | tee "$log"
+    status=${PIPESTATUS[0]}
+    line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
+    ok=${line%% passed*}
+    bad=${line#*, }
+    bad=${bad%% failed}
+    record "tests/package/test_package.py" "$status" "${ok:-0}" "${bad:-0}"
+fi
+
 echo
 [ -n "$failures" ] && echo "failed suites:$failures"
 echo "$passed passed, $failed failed"

@@ -1,0 +1,291 @@
+#!/usr/bin/env python3
+"""The Debian package, as an administrator meets it: built with make deb
+(dpkg-buildpackage), checked by lintian, installed with apt into a fresh
+Debian 12 root filesystem made by mmdebstrap (the mechanism CI uses, which
+also works inside CI's own chroot), then upgraded twice over a local edit of
+the configuration, removed and purged. Every unit is checked with
+systemd-analyze verify and rated with systemd-analyze security.
+
+  tests/package/test_package.py [BUILD_DIR]     (make test-package)
+
+Needs root (mmdebstrap --mode=root, chroot), mmdebstrap, debhelper,
+lintian and systemd: 'make deps' installs them (group 'package').
+"""
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.abspath(os.path.join(HERE, "..", ".."))
+sys.path.insert(0, os.path.join(ROOT, "tests", "integration"))
+from harness import TestFailure, check, run  # noqa: E402
+
+BUILD = sys.argv[1] if len(sys.argv) > 1 else "build"
+UNITS = ["jakagw.service", "jakagw@.service", "jakagw.socket", "jakagw-socket.service"]
+# What systemd-analyze security may rate each service, at most.
+EXPOSURE_LIMITS = {"jakagw.service": 1.9, "jakagw@cell1.service": 1.9,
+                   "jakagw-socket.service": 1.2}
+state = {}
+
+
+def sh(argv, timeout=600, ok=(0,), **kw):
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, **kw)
+    if r.returncode not in ok:
+        raise TestFailure("%s: exit %d\n%s%s" % (" ".join(argv), r.returncode,
+                                                  r.stdout[-3000:], r.stderr[-3000:]))
+    return r
+
+
+def makefile_version():
+    with open(os.path.join(ROOT, "Makefile")) as f:
+        return re.search(r"^VERSION\s*:=\s*(\S+)", f.read(), re.M).group(1)
+
+
+def in_root(*argv, ok=(0,), stdin=subprocess.DEVNULL):
+    return sh(["chroot", need("root"), "env", "-i", "PATH=/usr/sbin:/usr/bin:/sbin:/bin",
+               "LANG=C.UTF-8", "DEBIAN_FRONTEND=noninteractive"] + list(argv), ok=ok,
+              stdin=stdin)
+
+
+def need(key):
+    """What an earlier step made, or a failure that says it is missing."""
+    if key not in state:
+        raise TestFailure("not run: an earlier step failed (no %s)" % key)
+    return state[key]
+
+
+def rootpath(path):
+    return os.path.join(need("root"), path.lstrip("/"))
+
+
+def conf_text():
+    with open(rootpath("/etc/jakagw/jakagw.conf")) as f:
+        return f.read()
+
+
+def repack(version, conf_extra=None):
+    """The built package again, as another version: an upgrade to install."""
+    work = tempfile.mkdtemp(dir=need("work"))
+    sh(["dpkg-deb", "-R", need("deb"), work])
+    control = os.path.join(work, "DEBIAN", "control")
+    with open(control) as f:
+        text = re.sub(r"^Version: .*$", "Version: " + version, f.read(), flags=re.M)
+    with open(control, "w") as f:
+        f.write(text)
+    if conf_extra:
+        with open(os.path.join(work, "etc", "jakagw", "jakagw.conf"), "a") as f:
+            f.write(conf_extra)
+    name = "jakagw_%s.deb" % version
+    sh(["dpkg-deb", "--root-owner-group", "-b", work, rootpath("/tmp/" + name)])
+    shutil.rmtree(work)
+    return "/tmp/" + name
+
+
+def test_make_deb_builds_the_package():
+    """make deb, without the unit tests a package build runs (make test has
+    run them already)."""
+    start = time.monotonic()
+    options = (os.environ.get("DEB_BUILD_OPTIONS", "") + " nocheck").strip()
+    r = sh(["make", "-s", "-C", ROOT, "BUILD=" + BUILD, "deb"], timeout=900,
+           env=dict(os.environ, DEB_BUILD_OPTIONS=options))
+    deb = r.stdout.strip().splitlines()[-1]
+    check(deb.endswith(".deb") and os.path.isfile(deb), "make deb printed %r" % r.stdout)
+    state["deb"] = deb
+    state["changes"] = deb[:-len(".deb")] + ".changes"
+    version = sh(["dpkg-deb", "-f", deb, "Version"]).stdout.strip()
+    check(version == makefile_version(),
+          "package version %s, Makefile VERSION %s" % (version, makefile_version()))
+    print("  built %s in %.0f s" % (os.path.basename(deb), time.monotonic() - start))
+
+
+def test_package_contents():
+    deb = need("deb")
+    listing = sh(["dpkg-deb", "-c", deb]).stdout
+    files = {line.split()[-1].lstrip(".") for line in listing.splitlines()}
+    want = ["/usr/sbin/jakagw", "/usr/bin/jakasim", "/etc/jakagw/jakagw.conf",
+            "/usr/share/man/man8/jakagw.8.gz", "/usr/share/man/man1/jakasim.1.gz",
+            "/usr/share/doc/jakagw/copyright"]
+    want += ["/lib/systemd/system/" + u for u in UNITS]
+    for doc in ["README.md", "register-map.md", "register-map.csv", "plc-guide.md",
+                "jakagw.dbc"]:
+        if doc == "README.md" or os.path.exists(os.path.join(ROOT, "docs", doc)):
+            want.append("/usr/share/doc/jakagw/" + doc)
+    for path in want:
+        check(path in files or path + ".gz" in files, "%s is not in the package" % path)
+    conffiles = sh(["dpkg-deb", "-I", deb, "conffiles"]).stdout.split()
+    check(conffiles == ["/etc/jakagw/jakagw.conf"], "conffiles: %s" % conffiles)
+    depends = sh(["dpkg-deb", "-f", deb, "Depends"]).stdout
+    for lib in ["libuv1", "libmodbus5", "libcjson1", "libinih1", "libsystemd0", "procps"]:
+        check(lib in depends, "Depends lacks %s: %s" % (lib, depends))
+
+
+def test_lintian_finds_no_error():
+    r = sh(["lintian", "--info", "--display-info", "--pedantic", "--tag-display-limit", "0",
+            need("changes")], ok=(0, 1, 2), timeout=600)
+    tags = [l for l in r.stdout.splitlines() if re.match(r"^[EWIPX]: ", l)]
+    counts = {k: sum(1 for t in tags if t.startswith(k + ":")) for k in "EWIP"}
+    print("  lintian (pedantic): %d errors, %d warnings, %d info, %d pedantic"
+          % (counts["E"], counts["W"], counts["I"], counts["P"]))
+    for t in tags:
+        print("    " + t)
+    check(counts["E"] == 0, "lintian errors:\n" + "\n".join(t for t in tags if t[0] == "E"))
+    check("error" not in r.stderr.lower() or counts["E"] == 0, r.stderr)
+
+
+def apt_sources():
+    """This machine's Debian apt sources, as CI passes them to mmdebstrap."""
+    for path in ("/etc/apt/sources.list.d/debian.sources",
+                 "/etc/apt/sources.list.d/0000debian.sources", "/etc/apt/sources.list"):
+        if os.path.isfile(path) and os.path.getsize(path) > 0:
+            return [path]
+    return []
+
+
+def test_installs_into_a_fresh_debian_12():
+    """apt installs the .deb, pulling its dependencies, into a fresh root
+    filesystem with systemd: the units are in place and jakagw.service is
+    enabled, the others are not; the installed binary runs."""
+    start = time.monotonic()
+    deb = need("deb")
+    work = tempfile.mkdtemp(prefix="jakagw-package.", dir="/var/tmp")
+    state["work"] = work
+    root = os.path.join(work, "root")
+    sh(["mmdebstrap", "--mode=root", "--variant=apt", "--include=systemd",
+        "--customize-hook=copy-in %s /tmp" % deb,
+        "--customize-hook=chroot \"$1\" env DEBIAN_FRONTEND=noninteractive "
+        "apt-get install -y --no-install-recommends /tmp/%s" % os.path.basename(deb),
+        "bookworm", root] + apt_sources(), timeout=900)
+    state["root"] = root
+    print("  mmdebstrap and apt-get install: %.0f s" % (time.monotonic() - start))
+    check(os.access(rootpath("/usr/sbin/jakagw"), os.X_OK), "/usr/sbin/jakagw")
+    for unit in UNITS:
+        check(os.path.isfile(rootpath("/lib/systemd/system/" + unit)), unit)
+    wants = rootpath("/etc/systemd/system/multi-user.target.wants")
+    check(os.path.islink(os.path.join(wants, "jakagw.service")), "jakagw.service not enabled")
+    for unit in ("jakagw-socket.service", "jakagw@.service"):
+        check(not os.path.lexists(os.path.join(wants, unit)), "%s enabled" % unit)
+    check(not os.path.lexists(rootpath("/etc/systemd/system/sockets.target.wants/jakagw.socket")),
+          "jakagw.socket enabled")
+    r = in_root("/usr/sbin/jakagw", "--version")
+    check(r.stdout.startswith("jakagw " + makefile_version()), r.stdout)
+    r = in_root("/usr/sbin/jakagw", "--check-config")
+    check("[modbus]" in r.stdout and "no configuration file" not in r.stdout, r.stdout)
+    with open(rootpath("/lib/systemd/system/jakagw.service")) as f:
+        unit = f.read()
+    check("ExecStart=/usr/sbin/jakagw -c /etc/jakagw/jakagw.conf" in unit, unit)
+    check("file:///usr/share/doc/jakagw/README.md" in unit, "Documentation=: " + unit)
+    check(os.path.isfile(rootpath("/usr/share/doc/jakagw/README.md.gz"))
+          or os.path.isfile(rootpath("/usr/share/doc/jakagw/README.md")), "README")
+
+
+def test_installed_man_pages_render_without_warnings():
+    for page in ("/usr/share/man/man8/jakagw.8.gz", "/usr/share/man/man1/jakasim.1.gz"):
+        r = sh(["man", "--warnings", "-l", rootpath(page)], env=dict(os.environ, MANWIDTH="80"))
+        check(r.stderr == "", "%s: %s" % (page, r.stderr))
+        check(len(r.stdout.splitlines()) > 40, "%s is short: %s" % (page, r.stdout))
+
+
+def test_units_verify():
+    r = sh(["systemd-analyze", "verify", "--man=no", "--root=" + need("root"),
+            "jakagw.service", "jakagw@cell1.service", "jakagw.socket",
+            "jakagw-socket.service"], ok=(0, 1))
+    check(r.returncode == 0 and r.stdout.strip() == "" and r.stderr.strip() == "",
+          "systemd-analyze verify: %s%s" % (r.stdout, r.stderr))
+
+
+def test_units_exposure():
+    scores = []
+    for unit, limit in EXPOSURE_LIMITS.items():
+        r = sh(["systemd-analyze", "security", "--offline=true", "--root=" + need("root"),
+                unit], ok=(0, 1))
+        m = re.search(r"Overall exposure level for %s: ([0-9.]+)" % re.escape(unit), r.stdout)
+        check(m, "%s: no rating: %s %s" % (unit, r.stdout[-500:], r.stderr))
+        scores.append("%s %s" % (unit, m.group(1)))
+        check(float(m.group(1)) <= limit, "%s rates %s, above %s" % (unit, m.group(1), limit))
+    print("  systemd-analyze security: " + ", ".join(scores))
+
+
+def test_upgrades_keep_a_local_edit():
+    """An edit survives an upgrade that ships the same configuration file
+    silently; when the new version ships a changed one, dpkg asks (and, with
+    no answer, changes nothing), and keeping the edit leaves the new
+    default beside it as jakagw.conf.dpkg-dist."""
+    path = rootpath("/etc/jakagw/jakagw.conf")
+    edited = conf_text().replace("\nport = 502\n", "\nport = 1502\n") + "; local edit\n"
+    check("port = 1502" in edited, "no 'port = 502' line to edit")
+    with open(path, "w") as f:
+        f.write(edited)
+
+    same = repack(makefile_version() + "+test1")
+    in_root("dpkg", "-i", same)
+    check(conf_text() == edited, "the upgrade changed the edited configuration")
+    left = sorted(os.listdir(rootpath("/etc/jakagw")))
+    check(left == ["jakagw.conf"], "left in /etc/jakagw: %s" % left)
+
+    changed = repack(makefile_version() + "+test2", "; a new default\n")
+    r = in_root("dpkg", "-i", changed, ok=(1,))
+    check("conffile prompt" in r.stderr and "Configuration file '/etc/jakagw/jakagw.conf'"
+          in r.stdout + r.stderr,
+          "dpkg did not ask about the configuration: %s%s" % (r.stdout, r.stderr))
+    check(conf_text() == edited, "an unanswered question changed the configuration")
+    in_root("dpkg", "--configure", "-a", "--force-confold")
+    check(conf_text() == edited, "--force-confold did not keep the edit")
+    with open(rootpath("/etc/jakagw/jakagw.conf.dpkg-dist")) as f:
+        check(f.read().endswith("; a new default\n"), "jakagw.conf.dpkg-dist")
+    version = in_root("dpkg-query", "-W", "-f=${Version} ${Status}", "jakagw").stdout
+    check(version == makefile_version() + "+test2 install ok installed", version)
+    wants = rootpath("/etc/systemd/system/multi-user.target.wants/jakagw.service")
+    check(os.path.islink(wants), "jakagw.service no longer enabled after the upgrades")
+
+
+def test_remove_keeps_the_configuration_and_purge_removes_it():
+    in_root("dpkg", "-r", "jakagw")
+    check(not os.path.exists(rootpath("/usr/sbin/jakagw")), "removed, /usr/sbin/jakagw stays")
+    check(os.path.isfile(rootpath("/etc/jakagw/jakagw.conf")), "remove deleted the configuration")
+    in_root("dpkg", "-P", "jakagw")
+    check(not os.path.exists(rootpath("/etc/jakagw/jakagw.conf")), "purge left the configuration")
+    check(not os.path.lexists(rootpath("/etc/systemd/system/multi-user.target.wants/"
+                                       "jakagw.service")), "purge left the unit enabled")
+
+
+def cleanup():
+    work = state.get("work")
+    if not work:
+        return
+    # mmdebstrap unmounts what it mounted; never remove through a mount.
+    with open("/proc/self/mounts") as f:
+        mounted = [line.split()[1] for line in f if work in line.split()[1]]
+    if mounted:
+        print("  not removing %s: still mounted: %s" % (work, mounted))
+        return
+    shutil.rmtree(work, ignore_errors=True)
+
+
+def main():
+    missing = [tool for tool in ("mmdebstrap", "dpkg-buildpackage", "dh", "lintian",
+                                 "systemd-analyze", "chroot", "man")
+               if not shutil.which(tool)]
+    if os.geteuid() != 0 or missing:
+        print("package test skipped: %s" % ("needs root" if os.geteuid() != 0 else
+                                            "missing %s: make deps" % " ".join(missing)))
+        print("0 passed, 0 failed")
+        return
+    start = time.monotonic()
+    import atexit
+    atexit.register(lambda: print("package test: %.0f s in all" % (time.monotonic() - start)))
+    try:
+        run([test_make_deb_builds_the_package, test_package_contents,
+             test_lintian_finds_no_error, test_installs_into_a_fresh_debian_12,
+             test_installed_man_pages_render_without_warnings, test_units_verify,
+             test_units_exposure, test_upgrades_keep_a_local_edit,
+             test_remove_keeps_the_configuration_and_purge_removes_it])
+    finally:
+        cleanup()
+
+
+if __name__ == "__main__":
+    main()
