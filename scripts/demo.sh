@@ -2,6 +2,11 @@
 # Runs jakasim (a simulated robot running a program, so values move) and
 # jakagw in front of it. Modbus TCP on 127.0.0.1:1502 unless MODBUS_BIND /
 # MODBUS_PORT say otherwise. Ctrl-C stops both. DEMO_SECONDS=N stops after N s.
+#
+# Both run in sessions of their own, so that Ctrl-C reaches this script
+# only: it stops the gateway first, then the simulator (stopped the other
+# way round, the gateway would log the robot's going as a lost connection),
+# and ends with status 0, as a demo that was asked to stop.
 set -eu
 cd "$(dirname "$0")/.."
 MODBUS_BIND=${MODBUS_BIND:-127.0.0.1}
@@ -9,15 +14,21 @@ MODBUS_PORT=${MODBUS_PORT:-1502}
 STATUS_PORT=${STATUS_PORT:-10000}
 COMMAND_PORT=${COMMAND_PORT:-10001}
 
-build/jakasim --status-port "$STATUS_PORT" --command-port "$COMMAND_PORT" --auto-run &
+setsid build/jakasim --status-port "$STATUS_PORT" --command-port "$COMMAND_PORT" --auto-run &
 SIM=$!
 GW=
-cleanup() {
-    [ -n "$GW" ] && kill "$GW" 2>/dev/null
-    kill "$SIM" 2>/dev/null
-    wait 2>/dev/null
+stop() { # pid: SIGTERM, and wait until it has exited
+    if [ -n "$1" ] && kill -TERM "$1" 2>/dev/null; then
+        wait "$1" 2>/dev/null || true
+    fi
 }
-trap cleanup EXIT INT TERM
+cleanup() {
+    trap - EXIT INT TERM HUP
+    stop "$GW"
+    stop "$SIM"
+}
+trap cleanup EXIT
+trap 'cleanup; exit 0' INT TERM HUP
 
 cat <<MSG
 
@@ -31,11 +42,18 @@ Modbus TCP on $MODBUS_BIND:$MODBUS_PORT. In another terminal, try:
 Register map: docs/register-map.md. Press Ctrl-C to stop.
 
 MSG
-build/jakagw -c /dev/null --robot-host 127.0.0.1 --status-port "$STATUS_PORT" \
+setsid build/jakagw -c /dev/null --robot-host 127.0.0.1 --status-port "$STATUS_PORT" \
     --command-port "$COMMAND_PORT" --modbus-bind "$MODBUS_BIND" --modbus-port "$MODBUS_PORT" &
 GW=$!
 if [ -n "${DEMO_SECONDS:-}" ]; then
     sleep "$DEMO_SECONDS"
+    cleanup
     exit 0
 fi
-wait "$GW"
+# The gateway ending on its own (its port taken, say) ends the demo with
+# its exit status.
+status=0
+wait "$GW" || status=$?
+GW=
+cleanup
+exit "$status"
