@@ -54,7 +54,7 @@ struct cmd_def {
 extern const struct cmd_def cmd_table[];
 extern const unsigned cmd_table_count;
 
-/* The command named 'name', or NULL. */
+/* The command named 'name' (a space may stand for an underscore), or NULL. */
 const struct cmd_def *cmd_find(const char *name);
 /* The command with mailbox code 'code', or NULL. */
 const struct cmd_def *cmd_find_code(unsigned code);
@@ -94,6 +94,8 @@ struct cmd_ops {
     uint64_t (*now_ms)(void *io);
     /* Drops the connection (it reconnects by itself). */
     void (*restart_link)(void *io, const char *why);
+    /* A command went out: its reply's deadline starts (may be NULL). */
+    void (*sent)(void *io);
     void *io;
 };
 

@@ -79,6 +79,8 @@ struct plc_slot {
     const struct cmd_def *def; /* PLC_SLOT_COMMAND, PLC_SLOT_INFO */
     const struct regmap_row *state, *error_code, *error_msg;
     unsigned pending;
+    bool failed;               /* a failure among the pending ones */
+    struct cmd_result failure; /* the first of them */
 };
 
 #define PLC_INFO_COMMANDS 5

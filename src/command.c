@@ -28,7 +28,7 @@ const struct cmd_def cmd_table[] = {
     {"set_digital_output", 0, 21, "", "type#,index#,value#"},
     {"set_analog_output", 0, 22, "", "type#,index#,value"},
     {"set_tool_id", 0, 23, "", "tool_id#"},
-    {"set_user_id", 0, 24, "", "user_id#"},
+    {"set_user_id", 0, 24, "", "user_frame_id#"},
     {"set_payload", 0, 25, "get_payload", "mass,centroid[3]"},
     {"set_clsn_sensitivity", 0, 26, "get_clsn_sensitivity", "sensitivityVal#"},
     {"joint_move", CMD_MOTION, 30, "", "jointPosition[6],speed,accel,relFlag#"},
@@ -48,13 +48,28 @@ const struct cmd_def cmd_table[] = {
     {"servo_j", CMD_MOTION, 0, "", ""},
     {"servo_p", CMD_MOTION, 0, "", ""},
     {"torque_control_enable", CMD_MOTION, 0, "", ""},
+    /* These move the arm, or let forces move it. */
+    {"start_torq_sensor_payload_identify", CMD_MOTION, 0, "", ""},
+    {"enable_admittance_ctrl", CMD_MOTION, 0, "", ""},
+    {"set_compliant_type", CMD_MOTION, 0, "", ""},
+    {"set_traj_sample_mode", CMD_MOTION, 0, "", ""},
 };
 const unsigned cmd_table_count = sizeof(cmd_table) / sizeof(cmd_table[0]);
+
+/* Equal names, where a space matches an underscore: the manual writes
+ * "joint move" for joint_move, and some controllers may accept either. */
+static bool same_name(const char *table_name, const char *name)
+{
+    for (; *table_name && *name; table_name++, name++)
+        if (*table_name != *name && !(*table_name == '_' && *name == ' '))
+            return false;
+    return *table_name == *name;
+}
 
 const struct cmd_def *cmd_find(const char *name)
 {
     for (unsigned i = 0; i < cmd_table_count; i++)
-        if (strcmp(cmd_table[i].name, name) == 0)
+        if (same_name(cmd_table[i].name, name))
             return &cmd_table[i];
     return NULL;
 }
@@ -168,6 +183,8 @@ static void send_next(struct cmd_queue *q)
         q->in_flight = true;
         q->sent_at_ms = q->ops.now_ms(q->ops.io);
         q->stats.sent++;
+        if (q->ops.sent)
+            q->ops.sent(q->ops.io);
     }
 }
 
@@ -197,6 +214,8 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
         q->in_flight = true;
         q->sent_at_ms = q->ops.now_ms(q->ops.io);
         q->stats.sent++;
+        if (q->ops.sent)
+            q->ops.sent(q->ops.io);
     }
     return 0;
 }

@@ -43,6 +43,11 @@ static void on_timer(uv_timer_t *t)
     arm_timer(cp);
 }
 
+static void on_sent(void *io)
+{
+    arm_timer(io);
+}
+
 static void on_reply(struct robot_link *link, const char *json, size_t size)
 {
     struct command_port *cp = link->user;
@@ -78,7 +83,7 @@ int command_port_init(uv_loop_t *loop, struct command_port *cp,
 {
     struct robot_link_callbacks cb = {.on_object = on_reply, .on_state = on_link_state};
     struct cmd_ops ops = {.send = send_bytes, .now_ms = now_ms,
-                          .restart_link = restart_link, .io = cp};
+                          .restart_link = restart_link, .sent = on_sent, .io = cp};
 
     memset(cp, 0, sizeof(*cp));
     cp->loop = loop;

@@ -283,14 +283,32 @@ invalid:
     return NULL;
 }
 
+/*
+ * Does any member name appear twice? cJSON finds the first, a controller
+ * may act on the last: a second "cmdName" could smuggle motion past the
+ * checks made on the first.
+ */
+static bool has_repeated_member(const cJSON *obj)
+{
+    for (const cJSON *a = obj->child; a; a = a->next)
+        for (const cJSON *b = a->next; b; b = b->next)
+            if (a->string && b->string && strcmp(a->string, b->string) == 0)
+                return true;
+    return false;
+}
+
 /* The JSON mailbox's command: the PLC's text, if it is a command. */
 static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd_def **def)
 {
     char text[512];
+    const char *end = NULL;
     regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
-    cJSON *obj = cJSON_Parse(text);
+    /* One object and nothing after it: the robot must act on exactly what
+     * is judged here. */
+    cJSON *obj = cJSON_ParseWithOpts(text, &end, true);
     const cJSON *name = cJSON_GetObjectItemCaseSensitive(obj, "cmdName");
-    if (!cJSON_IsObject(obj) || !cJSON_IsString(name) || !name->valuestring[0]) {
+    if (!cJSON_IsObject(obj) || !cJSON_IsString(name) || !name->valuestring[0] ||
+        has_repeated_member(obj)) {
         cJSON_Delete(obj);
         return NULL;
     }
@@ -575,6 +593,19 @@ static void on_done(void *user, const struct cmd_result *r)
     struct plc_commands *pc = slot->pc;
 
     slot->pending--;
+    /* Several commands of one setpoint (an FC15 of outputs): the result
+     * stays pending until the last is answered, and the first failure
+     * among them is what it shows then. */
+    if (r->outcome != CMD_DONE && !slot->failed) {
+        slot->failed = true;
+        slot->failure = *r;
+        slot->failure.reply = NULL;
+    }
+    if (slot->pending > 0 && slot->kind == PLC_SLOT_COMMAND)
+        return;
+    if (slot->failed && slot->kind == PLC_SLOT_COMMAND && r->outcome == CMD_DONE)
+        r = &slot->failure;
+    slot->failed = false;
     if (slot->kind == PLC_SLOT_INFO) {
         record_info(pc, slot, r);
         return;

@@ -457,8 +457,8 @@ static void setpoints_send_each_write(void **state)
     assert_int_equal(write_u16(cmd_row("set_tool_id.tool_id"), 0, 3), EX_NONE);
     expect_last_sent("{\"cmdName\":\"set_tool_id\",\"tool_id\":3}");
     reply_ok();
-    assert_int_equal(write_u16(cmd_row("set_user_id.user_id"), 0, 2), EX_NONE);
-    expect_last_sent("{\"cmdName\":\"set_user_id\",\"user_id\":2}");
+    assert_int_equal(write_u16(cmd_row("set_user_id.user_frame_id"), 0, 2), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"set_user_id\",\"user_frame_id\":2}");
     reply_ok();
     assert_int_equal(write_u16(cmd_row("set_clsn_sensitivity.sensitivityVal"), 0, 4),
                      EX_NONE);

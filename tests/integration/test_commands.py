@@ -549,9 +549,6 @@ def test_setpoints_rapid_rate_tool_frame_collision_level():
         plc.close()
 
 
-@gateway_bug("src/regmap_table.c holding register 102 is 'set_user_id.user_id' and "
-             "src/command.c's mailbox_args 'user_id#': the manual (4.33) names the member "
-             "user_frame_id, so the robot refuses every user frame selection")
 def test_set_user_id_selects_the_user_frame():
     with running(["--log-commands"]) as (sim, gw):
         plc = Plc(gw)
@@ -607,11 +604,6 @@ def test_digital_outputs_cabinet_tool_and_extension():
         plc.close()
 
 
-@gateway_bug("src/plc_commands.c on_done() writes each reply's outcome into the result "
-             "registers while more commands of the same setpoint row are still queued "
-             "(slot->pending > 0): a PLC waiting on 'done' after an FC15 or FC16 that "
-             "set several outputs sees done after the first reply; keep PENDING until "
-             "slot->pending reaches 0, then show the first failure or done")
 def test_setpoint_result_waits_for_the_last_of_a_multiple_write():
     with running(["--log-commands", "--reply-delay-ms", "150",
                   "--delay-command", "set_digital_output"]) as (sim, gw):
@@ -642,19 +634,20 @@ def test_analog_outputs_cabinet_and_extension():
     with running(["--log-commands"]) as (sim, gw):
         plc = Plc(gw)
         plc.ready()
-        cabinet = [0.5 + 1.25 * i for i in range(7)] + [3.3]
+        cabinet = [0.5 + 1.25 * i for i in range(6)] + [3.3]  # AO 1-7 (4.27)
         extension = [-2.5 + i for i in range(8)]
         check(plc.regs(H_CABINET_AO, f32_regs(cabinet)) == 0, "cabinet AO FC16")
         check(plc.regs(H_EXTIO_AO, f32_regs(extension)) == 0, "extension AO FC16")
         expected = ['{"cmdName":"set_analog_output","type":0,"index":%d,"value":%s}'
-                    % (i, sent_float(v)) for i, v in enumerate(cabinet)]
+                    % (i + 1, sent_float(v)) for i, v in enumerate(cabinet)]
         expected += ['{"cmdName":"set_analog_output","type":2,"index":%d,"value":%s}'
                      % (i, sent_float(v)) for i, v in enumerate(extension)]
-        wait_until(lambda: len(sent(sim, "set_analog_output")) == 16, 10, "16 AO commands")
+        wait_until(lambda: len(sent(sim, "set_analog_output")) == 15, 10, "15 AO commands")
         got = sent(sim, "set_analog_output")
         check(got == expected, "set_analog_output JSON %s" % got)
-        check('"value":3.3}' in got[7], "3.3 (f32 3.2999999523) not sent as 3.3: %s" % got[7])
-        wait_until(lambda: close_to(plc.f32(I_AOUT, 8), cabinet, 1e-6), 5, "cabinet AO in status")
+        check('"value":3.3}' in got[6], "3.3 (f32 3.2999999523) not sent as 3.3: %s" % got[6])
+        wait_until(lambda: close_to(plc.f32(I_AOUT + 2, 7), cabinet, 1e-6), 5,
+                   "cabinet AO 1-7 in the status (aout[1..7])")
         wait_until(lambda: close_to(plc.f32(I_EXTIO_AO, 8), extension, 1e-6), 5,
                    "extension AO in the status")
         state, code, msg = plc.wait_result("set_analog_output")
@@ -907,12 +900,6 @@ def test_mailbox_codes_send_their_commands():
         plc.close()
 
 
-@gateway_bug("src/plc_commands.c on_done() fetches the information a command changes "
-             "(slot->def->refresh) only for trigger and setpoint slots: the mailbox and JSON "
-             "mailbox slots have no def, so load_program, play/pause/resume/stop_program, "
-             "set_payload and set_clsn_sensitivity sent through them leave loaded_program, "
-             "program_state, payload and collision_level stale; remember the command's "
-             "cmd_def with each submission and refresh by it")
 def test_mailbox_commands_refresh_the_robot_information():
     with running(["--log-commands"]) as (sim, gw):
         plc = Plc(gw)
@@ -977,11 +964,6 @@ TIMEOUT_CONFIG = "[commands]\nreply_timeout_ms = 400\n"
 LATE_REPLY = ["--log-commands", "--reply-delay-ms", "3000", "--delay-command", "power_off"]
 
 
-@gateway_bug("src/command_port.c arms the reply timer only from on_reply(), on_timer() and "
-             "on_link_state(): a command sent at once by cmd_queue_submit() (nothing in "
-             "flight) has no deadline, so a robot that never answers leaves it pending "
-             "forever and every later command queued behind it; arm the timer after each "
-             "submit (e.g. a command_port_submit() wrapper, or a 'sent' hook in cmd_ops)")
 def test_reply_timeout_of_a_command_sent_to_an_idle_queue():
     with running(LATE_REPLY, TIMEOUT_CONFIG) as (sim, gw):
         plc = Plc(gw)
@@ -1239,29 +1221,16 @@ def smuggle(text, moving_name):
           % (text, ex, [n for n in names if not housekeeping(n)], moved))
 
 
-@gateway_bug("src/plc_commands.c parse_json_request() judges the request with cJSON_Parse, "
-             "which ignores what follows the first object, then sends the whole text: a "
-             "second object (a motion command) goes to the robot unchecked, and its second "
-             "reply can answer the next command; refuse text after the object "
-             "(cJSON_ParseWithOpts with require_null_terminated)")
 def test_json_mailbox_refuses_a_second_object_in_the_text():
     smuggle('{"cmdName":"get_version"}{"cmdName":"joint_move","relFlag":1,'
             '"jointPosition":[20,0,0,0,0,0],"speed":100,"accel":100}', "joint_move")
 
 
-@gateway_bug("src/plc_commands.c parse_json_request() takes the first cmdName "
-             "(cJSON_GetObjectItemCaseSensitive) while the controller, reading JSON as "
-             "Python does, acts on the last: a repeated cmdName passes a motion command "
-             "as a harmless one; refuse requests with a repeated member")
 def test_json_mailbox_refuses_a_repeated_cmdName():
     smuggle('{"cmdName":"get_version","cmdName":"joint_move","relFlag":1,'
             '"jointPosition":[20,0,0,0,0,0],"speed":100,"accel":100}', "joint_move")
 
 
-@gateway_bug("src/command.c cmd_table lists motion by name and misses "
-             "start_torq_sensor_payload_identify, which the manual (4.66) calls a movement "
-             "instruction: with motion off the JSON mailbox sends it and the arm moves; mark it "
-             "CMD_MOTION (and consider allowing only known commands in the JSON mailbox)")
 def test_json_mailbox_treats_payload_identification_as_motion():
     smuggle('{"cmdName":"start_torq_sensor_payload_identify",'
             '"jointPosition":[20,90,90,90,0,90]}', "start_torq_sensor_payload_identify")
