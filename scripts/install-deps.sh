@@ -32,8 +32,8 @@ group tests "to run the tests: cmocka; python3 with pymodbus and serial_asyncio 
     mbpoll systemd valgrind
 group can "to test the CAN mirror on a real kernel CAN stack in a VM: qemu, Debian's kernel and its can/vcan modules, busybox, candump, a venv for cantools" \
     qemu-system-x86 linux-image-amd64 busybox-static can-utils python3-venv
-group package "to build the Debian package and test it (make deb, make test-package): debhelper, dpkg-dev, lintian, mmdebstrap for a fresh root filesystem to install it in, man-db and groff-base to check the man pages" \
-    debhelper dpkg-dev lintian mmdebstrap man-db groff-base
+group package "to build the Debian package and test it and the units (make deb, make test-package): debhelper, dpkg-dev, lintian, mmdebstrap for a fresh root filesystem to install it in, man-db and groff-base to check the man pages, procps for the kill the units' ExecReload runs (systemd-analyze verify looks for it)" \
+    debhelper dpkg-dev lintian mmdebstrap man-db groff-base procps
 
 DEFAULT_GROUPS="build tests can package"
 
