@@ -120,7 +120,11 @@ void policy_reset(struct policy *p);
  */
 void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving);
 
-/* Are commands refused now (a latched fault, or motion not enabled)? */
+/*
+ * Are commands that start motion refused now: a latched fault, or the
+ * motion-enable coil required and at 0? (Other commands are refused only
+ * by a latched fault, and stop_program never.)
+ */
 bool policy_blocks_commands(const struct policy *p);
 
 /* Milliseconds since the fault latched; 0 when none. */

@@ -273,8 +273,8 @@ static int gate_command(void *user, const struct cmd_def *def, char *why, size_t
                  gw->policy.fault);
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     }
-    if (gw->policy.cfg.motion_enable && !gw->policy.motion_enabled && def &&
-        (def->flags & (CMD_MOTION | CMD_STARTS_MOTION))) {
+    if (def && (def->flags & (CMD_MOTION | CMD_STARTS_MOTION)) &&
+        policy_blocks_commands(&gw->policy)) {
         snprintf(why, size, "motion enable is 0");
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     }

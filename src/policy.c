@@ -79,9 +79,10 @@ void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
     bool dropped = p->motion_enabled && !value;
 
     p->motion_enabled = value;
-    if (p->cfg.motion_enable && dropped && p->fault == POLICY_FAULT_NONE)
-        latch(p, now_ms, POLICY_FAULT_MOTION_ENABLE,
-              robot_moving ? POLICY_PAUSE : POLICY_KEEP);
+    /* Idle, nothing to pause: the coil at 0 already keeps programs and
+     * motion from starting (policy_blocks_motion). */
+    if (p->cfg.motion_enable && dropped && robot_moving && p->fault == POLICY_FAULT_NONE)
+        latch(p, now_ms, POLICY_FAULT_MOTION_ENABLE, POLICY_PAUSE);
 }
 
 void policy_reset(struct policy *p)
