@@ -34,8 +34,8 @@ bool config_reload_is_live(const char *section, const char *key);
 int config_reload_print_keys(FILE *out);
 
 struct config_reload_result {
-    unsigned applied;    /* live keys that changed and took effect */
-    unsigned restart;    /* changed keys that keep their value until a restart */
+    unsigned applied; /* live keys that changed and took effect */
+    unsigned restart; /* changed keys that keep their value until a restart */
 };
 
 /*

@@ -95,8 +95,7 @@ static const struct live_key live_keys[] = {
 static const struct live_key *find_live(const char *section, const char *key)
 {
     for (size_t i = 0; i < sizeof(live_keys) / sizeof(live_keys[0]); i++) {
-        if (strcmp(live_keys[i].section, section) == 0 &&
-            strcmp(live_keys[i].key, key) == 0)
+        if (strcmp(live_keys[i].section, section) == 0 && strcmp(live_keys[i].key, key) == 0)
             return &live_keys[i];
     }
     return NULL;
@@ -185,10 +184,8 @@ int config_reload_print_keys(FILE *out)
     if (rc)
         return rc;
     for (size_t i = 0; i < p.count; i++)
-        fprintf(out, "%s\t%s\t%s\t%s\n", p.entries[i].section, p.entries[i].key,
-                p.entries[i].value,
-                config_reload_is_live(p.entries[i].section, p.entries[i].key) ? "live"
-                                                                              : "restart");
+        fprintf(out, "%s\t%s\t%s\t%s\n", p.entries[i].section, p.entries[i].key, p.entries[i].value,
+                config_reload_is_live(p.entries[i].section, p.entries[i].key) ? "live" : "restart");
     printed_free(&p);
     return 0;
 }
@@ -218,8 +215,7 @@ int config_reload_apply(struct gateway *gw, const struct gw_config *next,
         live = find_live(a->section, a->key);
         if (live) {
             /* Logged first: a new log level may hide the line. */
-            log_notice("reload: [%s] %s: %s -> %s", a->section, a->key, a->value,
-                       b->value);
+            log_notice("reload: [%s] %s: %s -> %s", a->section, a->key, a->value, b->value);
             live->apply(gw, next);
             result->applied++;
         } else {
