@@ -142,8 +142,10 @@ void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv));
  * Stops serving gracefully, for a clean stop: the listener closes (no new
  * connection is accepted), every complete request that has arrived is
  * answered, and each client is closed once its replies are written (at
- * most MB_SERVER_FLUSH_MS later). A request that has not arrived whole is
- * dropped. 'cb' runs when all are closed.
+ * most MB_SERVER_FLUSH_MS later). Reads are answered from the image; writes
+ * get exception 06 (server busy) and are not acted on, so that nothing is
+ * started on the way out. A request that has not arrived whole is dropped.
+ * 'cb' runs when all are closed.
  */
 void mb_server_shutdown(struct mb_server *srv, void (*cb)(struct mb_server *srv));
 

@@ -443,6 +443,14 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         reply_device_id(c, req);
         return;
     }
+    if (srv->closing && mb_request_is_write(pdu[0])) {
+        /* Stopping (mb_server_shutdown): nothing may be started on the way
+         * out, so a write is refused rather than acted on. */
+        client_log(srv, &srv->refuse_log_limit, c->peer, "write refused",
+                   "the gateway is stopping (exception 06)");
+        reply_exception(c, req, MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY);
+        return;
+    }
     if (mb_request_is_write(pdu[0]) && srv->hooks.on_write) {
         /* Act before answering, so that a write can be refused. */
         static uint16_t values[MODBUS_MAX_WRITE_BITS];

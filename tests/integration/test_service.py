@@ -101,11 +101,15 @@ def stopped(pid):
 
 
 def test_sigterm_answers_requests_that_have_arrived():
-    """While the gateway is held (SIGSTOP), client a pipelines 1800 requests
-    (21.6 KB, more than libuv reads for one client in one loop iteration),
-    b sends one, and c half of one; then SIGTERM, SIGCONT. Every whole
-    request is answered, in order, then every connection is closed, and
-    nothing but queries ever reaches the robot."""
+    """While the gateway is held (SIGSTOP), client a pipelines 1800 reads,
+    then writes the power_on coil and the heartbeat; b sends a read, and c
+    half a request; then SIGTERM, SIGCONT. libuv reads at most 32 buffers
+    (16.6 KB here) per client per loop iteration and handles signals after
+    the other events of the iteration, so the stop begins with the end of
+    a's 21.6 KB still in the kernel: the stop must read and answer it.
+    Every whole request is answered, in order: the reads with data, the
+    writes with exception 06, not acted on. Then every connection is closed,
+    and nothing but queries ever reaches the robot."""
     sim = Sim("--log-commands")
     gw = None
     try:
@@ -118,7 +122,9 @@ def test_sigterm_answers_requests_that_have_arrived():
         try:
             wait_until(lambda: stopped(gw.proc.pid), 10, "jakagw to stop (SIGSTOP)")
             a.sendall(b"".join(mbap(tid, struct.pack(">BHH", 4, 0, 1))
-                               for tid in range(1, n + 1)))
+                               for tid in range(1, n + 1))
+                      + mbap(n + 1, struct.pack(">BHH", 5, 100, 0xFF00))    # power_on
+                      + mbap(n + 2, struct.pack(">BHH", 6, 0, 1234)))       # heartbeat
             b.sendall(mbap(7, struct.pack(">BHH", 2, 0, 3)))
             half.sendall(mbap(9, struct.pack(">BHH", 4, 0, 1))[:9])
             gw.proc.send_signal(signal.SIGTERM)
@@ -131,6 +137,10 @@ def test_sigterm_answers_requests_that_have_arrived():
                 raise TestFailure("a: no answer to request %d of %d: %s" % (tid, n, e))
             check(rtid == tid and pdu == bytes([4, 2, 0x4A, 0x4B]),
                   "a: %d %s, expected %d" % (rtid, pdu.hex(), tid))
+        for tid, function in ((n + 1, 5), (n + 2, 6)):
+            rtid, _, pdu = recv_adu(a)
+            check(rtid == tid and pdu == bytes([function | 0x80, 6]),
+                  "a: a write while stopping: %d %s, expected exception 06" % (rtid, pdu.hex()))
         rtid, _, pdu = recv_adu(b)
         check(rtid == 7 and pdu[:2] == bytes([2, 1]), "b: %d %s" % (rtid, pdu.hex()))
         for name, s in (("a", a), ("b", b), ("half", half), ("idle", idle)):
@@ -141,6 +151,7 @@ def test_sigterm_answers_requests_that_have_arrived():
         out = gw.stop()
         gw = None
         check("received Terminated: stopping" in out and "(no command is sent)" in out, out)
+        check("write refused: the gateway is stopping (exception 06)" in out, out)
         sim_log = sim.stop()
         sim = None
         # Queries, and the robot's own network-exception handler set on
