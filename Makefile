@@ -127,6 +127,7 @@ valgrind: all unit-tests
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_status_map.py
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_modbus_server.py
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_jakasim.py
+	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_link_faults.py soak
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_service.py
 
 # libFuzzer targets (needs clang): the robot's byte stream and Modbus

@@ -238,3 +238,151 @@ def run(tests):
             print("FAIL %s: %s: %s" % (t.__name__, type(e).__name__, e), flush=True)
     print("%d passed, %d failed" % (passed, failed))
     sys.exit(1 if failed else 0)
+
+
+# ---- the robot's side and the gateway's process, for the policy and
+# link-fault suites ----
+
+class SimAt(Sim):
+    """jakasim on given ports: a controller restarted where the gateway
+    already looks for it."""
+
+    def __init__(self, status_port, command_port, *args):
+        self.status_port = status_port
+        self.command_port = command_port
+        Process.__init__(self, "jakasim", [JAKASIM, "--status-port", str(status_port),
+                                           "--command-port", str(command_port)] + list(args))
+        wait_until(lambda: not self.alive() or (port_open(status_port)
+                                                and port_open(command_port)),
+                   30, "jakasim to listen")
+        check(self.alive(), "jakasim exited at start:\n" + self.output())
+
+
+SIM_COMMAND_MARK = "jakasim: command "
+SIM_DROP_MARK = "jakasim: dropping every connection"
+
+
+def sim_events(sim):
+    """What jakasim --log-commands saw, in order: ("command", cmdName,
+    request text, reply text or None) per command, ("drop",) each time
+    --drop-every-ms closed every connection."""
+    out = []
+    decoder = json.JSONDecoder()
+    for line in sim.output().splitlines():
+        if SIM_DROP_MARK in line:
+            out.append(("drop",))
+            continue
+        at = line.find(SIM_COMMAND_MARK)
+        if at < 0:
+            continue
+        rest = line[at + len(SIM_COMMAND_MARK):]
+        if not rest.startswith("{"):
+            continue  # "command client connected"
+        try:
+            request, end = decoder.raw_decode(rest)
+            name = request.get("cmdName") if isinstance(request, dict) else None
+        except ValueError:
+            out.append(("command", None, rest, None))
+            continue
+        reply = rest[end:]
+        out.append(("command", name, rest[:end],
+                    reply[4:] if reply.startswith(" -> ") else None))
+    return out
+
+
+def sim_commands(sim, name=None):
+    """The requests jakasim received (those named 'name'), as parsed JSON."""
+    return [json.loads(e[2]) for e in sim_events(sim)
+            if e[0] == "command" and (name is None or e[1] == name)]
+
+
+def is_housekeeping(name):
+    """What the gateway sends by itself: the handler and information fetches."""
+    return name == "set_network_exception_handle" or (name or "").startswith("get_")
+
+
+def open_fds(pid):
+    """How many descriptors process 'pid' holds open."""
+    return len(os.listdir("/proc/%d/fd" % pid))
+
+
+def rss_kb(pid):
+    """Resident memory of process 'pid', in KiB."""
+    with open("/proc/%d/status" % pid) as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    raise TestFailure("no VmRSS for pid %d" % pid)
+
+
+def log_lines(process, text):
+    """The lines of a process's log that contain 'text'."""
+    return [l for l in process.output().splitlines() if text in l]
+
+
+class ModbusPlc:
+    """A PLC through pymodbus: reads return values, writes return 0 or the
+    exception code (pymodbus never retries: nothing is sent twice)."""
+
+    def __init__(self, port, source=None, timeout=5):
+        from pymodbus.client import ModbusTcpClient
+        self.client = ModbusTcpClient("127.0.0.1", port=port, timeout=timeout, retries=0,
+                                      source_address=(source, 0) if source else None)
+        check(self.client.connect(), "Modbus connect to port %d" % port)
+
+    def close(self):
+        self.client.close()
+
+    @staticmethod
+    def _outcome(rr, what):
+        from pymodbus.pdu import ExceptionResponse
+        if isinstance(rr, ExceptionResponse):
+            return rr.exception_code
+        check(not rr.isError(), "%s: %s" % (what, rr))
+        return 0
+
+    def coil(self, address, value):
+        return self._outcome(self.client.write_coil(address, bool(value), slave=1),
+                             "write coil %d" % address)
+
+    def reg(self, address, value):
+        return self._outcome(self.client.write_register(address, value, slave=1),
+                             "write register %d" % address)
+
+    def regs(self, address, values):
+        return self._outcome(self.client.write_registers(address, values, slave=1),
+                             "write registers %d+%d" % (address, len(values)))
+
+    def pulse(self, address):
+        """A trigger coil as a PLC pulses it: 0, then 1 (0 -> 1 acts)."""
+        check(self.coil(address, 0) == 0, "re-arming coil %d" % address)
+        return self.coil(address, 1)
+
+    def ir(self, address, count=1):
+        rr = self.client.read_input_registers(address, count, slave=1)
+        check(not rr.isError(), "read input registers %d+%d: %s" % (address, count, rr))
+        return rr.registers
+
+    def u32(self, address):
+        hi, lo = self.ir(address, 2)
+        return hi << 16 | lo
+
+    def text(self, address, count):
+        raw = b"".join(struct.pack(">H", r) for r in self.ir(address, count))
+        return raw.rstrip(b"\0").decode("utf-8", "replace")
+
+    def di(self, address, count=1):
+        rr = self.client.read_discrete_inputs(address, count, slave=1)
+        check(not rr.isError(), "read discrete inputs %d: %s" % (address, rr))
+        return [int(b) for b in rr.bits[:count]]
+
+    def read_coils(self, address, count=1):
+        rr = self.client.read_coils(address, count, slave=1)
+        check(not rr.isError(), "read coils %d: %s" % (address, rr))
+        return [int(b) for b in rr.bits[:count]]
+
+
+def text_registers(text, count):
+    """'text' as NUL-padded registers, two characters each."""
+    data = text.encode().ljust(2 * count, b"\0")
+    return list(struct.unpack(">%dH" % count, data[:2 * count]))
