@@ -106,6 +106,8 @@ struct cmd_entry {
     size_t size;
     cmd_done_cb done;
     void *user;
+    bool sent;           /* written already (the head, or an urgent one) */
+    uint64_t sent_at_ms;
 };
 
 struct cmd_queue_stats {
@@ -141,6 +143,17 @@ void cmd_queue_free(struct cmd_queue *q);
  */
 int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
                      cmd_done_cb done, void *user);
+
+/*
+ * Accepts a safety action (pause_program, stop_program) and writes it at
+ * once, even while another command waits for its reply: it goes right
+ * behind the commands already written, ahead of every queued one, and its
+ * reply is matched in that order (the controller answers in order). At
+ * capacity, the last queued command is failed to make room. Returns 0,
+ * -ENOTCONN, or the send's error.
+ */
+int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
+                            cmd_done_cb done, void *user);
 
 /* The command link came up or went down. */
 void cmd_queue_set_connected(struct cmd_queue *q, bool connected);

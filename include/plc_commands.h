@@ -61,7 +61,8 @@ enum plc_handle_state {
     PLC_HANDLE_NOT_SENT = 0, /* no command link yet, or not configured */
     PLC_HANDLE_PENDING = 1,
     PLC_HANDLE_ACCEPTED = 2,
-    PLC_HANDLE_FAILED = 3, /* refused or unanswered: a fault */
+    PLC_HANDLE_FAILED = 3, /* refused or unanswered: a fault, shown until
+                              the robot accepts it on a later connection */
 };
 
 enum plc_slot_kind {

@@ -21,6 +21,7 @@
 #include <uv.h>
 
 #include "framer.h"
+#include "log.h"
 
 /* Bytes queued to a robot that does not read, before sends fail. */
 #define ROBOT_LINK_MAX_QUEUED (64 * 1024)
@@ -86,6 +87,7 @@ struct robot_link {
     bool unstable;
     uint64_t objects_on_connection;
     uint64_t quiet_reconnects; /* while unstable */
+    struct log_ratelimit loss_log;
     uint64_t connections; /* successful connects, ever */
     uint64_t last_object_ms;
 };

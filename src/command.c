@@ -169,22 +169,40 @@ static void fail_head(struct cmd_queue *q, enum cmd_outcome outcome, const char 
 }
 
 /* Sends the head entry if nothing is in flight. */
+/* Writes an entry; 0 or the send's error. */
+static int write_entry(struct cmd_queue *q, struct cmd_entry *e)
+{
+    int rc = q->ops.send(q->ops.io, e->json, e->size);
+    if (rc < 0)
+        return rc;
+    e->sent = true;
+    e->sent_at_ms = q->ops.now_ms(q->ops.io);
+    q->stats.sent++;
+    return 0;
+}
+
+/* The head is in flight: its reply's deadline runs from when it went out. */
+static void start_flight(struct cmd_queue *q)
+{
+    q->in_flight = true;
+    q->sent_at_ms = entry_at(q, 0)->sent_at_ms;
+    if (q->ops.sent)
+        q->ops.sent(q->ops.io);
+}
+
+/* Puts the head in flight, writing it unless it went out already. */
 static void send_next(struct cmd_queue *q)
 {
     while (q->count > 0 && !q->in_flight && q->connected) {
         struct cmd_entry *e = entry_at(q, 0);
-        int rc = q->ops.send(q->ops.io, e->json, e->size);
+        int rc = e->sent ? 0 : write_entry(q, e);
         if (rc < 0) {
             char why[96];
             snprintf(why, sizeof(why), "could not send: %s", strerror(-rc));
             fail_head(q, CMD_LINK_DOWN, why);
             continue;
         }
-        q->in_flight = true;
-        q->sent_at_ms = q->ops.now_ms(q->ops.io);
-        q->stats.sent++;
-        if (q->ops.sent)
-            q->ops.sent(q->ops.io);
+        start_flight(q);
     }
 }
 
@@ -199,24 +217,65 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
     if (!copy)
         return -ENOMEM;
     memcpy(copy, json, size);
-    *entry_at(q, q->count) = (struct cmd_entry){copy, size, done, user};
+    struct cmd_entry *e = entry_at(q, q->count);
+    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
     q->count++;
     /* Only an empty queue sends at once: a command submitted from a done
      * callback, while others wait, must not jump ahead of them. */
     if (!q->in_flight && q->count == 1) {
         /* Sent now: a failure here is the caller's to report. */
-        int rc = q->ops.send(q->ops.io, copy, size);
+        int rc = write_entry(q, e);
         if (rc < 0) {
             q->count--;
             free(copy);
             return rc;
         }
-        q->in_flight = true;
-        q->sent_at_ms = q->ops.now_ms(q->ops.io);
-        q->stats.sent++;
-        if (q->ops.sent)
-            q->ops.sent(q->ops.io);
+        start_flight(q);
     }
+    return 0;
+}
+
+int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
+                            cmd_done_cb done, void *user)
+{
+    if (!q->connected)
+        return -ENOTCONN;
+    if (!q->in_flight && q->count == 0)
+        return cmd_queue_submit(q, json, size, done, user);
+    if (q->count == CMD_QUEUE_CAPACITY) {
+        /* Room for safety first: the newest queued command gives way. */
+        struct cmd_entry last = *entry_at(q, q->count - 1);
+        if (last.sent)
+            return -EBUSY; /* every entry written: cannot happen at 64 */
+        q->count--;
+        struct cmd_result r = {.outcome = CMD_REFUSED};
+        snprintf(r.error_msg, sizeof(r.error_msg), "displaced by a safety action");
+        free(last.json);
+        last.done(last.user, &r);
+    }
+    char *copy = malloc(size);
+    if (!copy)
+        return -ENOMEM;
+    memcpy(copy, json, size);
+    /* Behind what is written already, ahead of what is not. */
+    unsigned at = 0;
+    while (at < q->count && entry_at(q, at)->sent)
+        at++;
+    for (unsigned i = q->count; i > at; i--)
+        *entry_at(q, i) = *entry_at(q, i - 1);
+    struct cmd_entry *e = entry_at(q, at);
+    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
+    q->count++;
+    int rc = write_entry(q, e);
+    if (rc < 0) {
+        for (unsigned i = at; i + 1 < q->count; i++)
+            *entry_at(q, i) = *entry_at(q, i + 1);
+        q->count--;
+        free(copy);
+        return rc;
+    }
+    if (!q->in_flight)
+        send_next(q); /* at == 0: it is the head now */
     return 0;
 }
 

@@ -652,7 +652,8 @@ void plc_commands_link_up(struct plc_commands *pc)
         int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, &pc->handle);
         if (rc == 0) {
             pc->handle.pending++;
-            set_handle_state(pc, PLC_HANDLE_PENDING);
+            if (pc->handle_state != PLC_HANDLE_FAILED)
+                set_handle_state(pc, PLC_HANDLE_PENDING);
         } else {
             set_handle_state(pc, PLC_HANDLE_FAILED);
         }
@@ -663,8 +664,10 @@ void plc_commands_link_up(struct plc_commands *pc)
 
 void plc_commands_link_down(struct plc_commands *pc)
 {
-    /* A new connection must set it again. */
-    set_handle_state(pc, PLC_HANDLE_NOT_SENT);
+    /* A new connection must set it again; a failure stays visible until
+     * the robot accepts it. */
+    if (pc->handle_state != PLC_HANDLE_FAILED)
+        set_handle_state(pc, PLC_HANDLE_NOT_SENT);
 }
 
 int plc_commands_send_now(struct plc_commands *pc, const char *name)
@@ -675,7 +678,8 @@ int plc_commands_send_now(struct plc_commands *pc, const char *name)
     struct plc_slot *slot = &pc->slots[def - cmd_table];
     char json[96];
     snprintf(json, sizeof(json), "{\"cmdName\":\"%s\"}", name);
-    int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+    /* Written now, ahead of whatever the PLC queued. */
+    int rc = cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot);
     if (rc == 0) {
         slot->pending++;
         if (slot->state)

@@ -72,6 +72,8 @@ int robot_link_init(uv_loop_t *loop, struct robot_link *link,
     uv_timer_init(loop, &link->watchdog);
     link->timer.data = link;
     link->watchdog.data = link;
+    /* A robot that drops connections while sending: one line per 5 s. */
+    link->loss_log.interval_ms = 5000;
     link->open_handles = 2;
     return 0;
 }
@@ -142,15 +144,22 @@ static void log_loss(struct robot_link *link, const char *what, const char *why)
 {
     if (link->state != ROBOT_LINK_CONNECTED)
         return;
-    if (link->unstable)
+    uint64_t suppressed = 0;
+    /* Becoming unstable is always said; losses of working connections are
+     * rate-limited. */
+    bool becomes_unstable = !link->unstable && link->objects_on_connection == 0;
+    if (link->unstable ||
+        (!becomes_unstable &&
+         !log_ratelimit_pass(&link->loss_log, uv_now(link->loop), &suppressed)))
         log_debug("%s link: %s %s:%u: %s", link->cfg.name, what, link->host,
                   link->cfg.port, why);
     else
-        log_warn("%s link: %s %s:%u: %s%s", link->cfg.name, what, link->host,
-                 link->cfg.port, why,
+        log_warn("%s link: %s %s:%u: %s%s (%llu more losses since the last such line)",
+                 link->cfg.name, what, link->host, link->cfg.port, why,
                  link->objects_on_connection ? ""
                                              : " (nothing arrived on it; while this "
-                                               "goes on, reconnects are not logged)");
+                                               "goes on, reconnects are not logged)",
+                 (unsigned long long)suppressed);
     if (link->objects_on_connection == 0)
         link->unstable = true;
 }

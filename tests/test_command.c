@@ -693,11 +693,60 @@ static void free_fails_everything_once(void **state)
     assert_int_equal(done_calls, 2);
 }
 
+
+/*
+ * A safety action is written at once, even while a command waits for its
+ * reply, ahead of the queued ones; replies still match in order.
+ */
+static void urgent_action_goes_out_at_once(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"joint_move\"}"};
+    struct job b = {.json = "{\"cmdName\":\"power_off\"}"};
+    struct job u = {.json = "{\"cmdName\":\"pause_program\"}"};
+    struct job v = {.json = "{\"cmdName\":\"stop_program\"}"};
+
+    assert_int_equal(test_submit(&a), 0);
+    assert_int_equal(test_submit(&b), 0);
+    assert_int_equal(link.sent_count, 1); /* b waits for a's reply */
+    link.now += 100;
+    assert_int_equal(cmd_queue_submit_urgent(&queue, u.json, strlen(u.json), on_done, &u), 0);
+    assert_string_equal(last_sent(), u.json); /* not waiting for a */
+    assert_int_equal(cmd_queue_submit_urgent(&queue, v.json, strlen(v.json), on_done, &v), 0);
+    assert_string_equal(last_sent(), v.json);
+    assert_int_equal(link.sent_count, 3);
+    reply("{\"errorCode\": \"0\", \"cmdName\": \"joint_move\"}");
+    assert_int_equal(a.calls, 1);
+    assert_int_equal(link.sent_count, 3); /* u is in flight now, already written */
+    reply("{\"errorCode\": \"0\", \"cmdName\": \"pause_program\"}");
+    assert_int_equal(u.calls, 1);
+    assert_string_equal(u.reply, "{\"errorCode\": \"0\", \"cmdName\": \"pause_program\"}");
+    reply("{\"errorCode\": \"0\", \"cmdName\": \"pause_program\"}"); /* stop's, as the manual answers */
+    assert_int_equal(v.calls, 1);
+    assert_int_equal(link.sent_count, 4);
+    assert_string_equal(last_sent(), b.json); /* b only now */
+    reply("{\"errorCode\": \"0\"}");
+    assert_int_equal(b.calls, 1);
+    assert_true(a.order < u.order && u.order < v.order && v.order < b.order);
+    /* With nothing in flight it is an ordinary send. */
+    struct job w = {.json = "{\"cmdName\":\"pause_program\"}"};
+    assert_int_equal(cmd_queue_submit_urgent(&queue, w.json, strlen(w.json), on_done, &w), 0);
+    assert_int_equal(link.sent_count, 5);
+    /* The in-flight one's deadline runs from its own send. */
+    link.now += 499;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 0);
+    link.now += 1;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 1);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(table_lookups),
         cmocka_unit_test_setup_teardown(one_at_a_time_in_order, setup, teardown),
+        cmocka_unit_test_setup_teardown(urgent_action_goes_out_at_once, setup, teardown),
         cmocka_unit_test_setup_teardown(replies_matched_by_order_not_name, setup, teardown),
         cmocka_unit_test_setup_teardown(error_codes, setup, teardown),
         cmocka_unit_test_setup_teardown(recorded_replies, setup, teardown),
