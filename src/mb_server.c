@@ -160,7 +160,8 @@ static void on_reply_written(uv_write_t *req, int status)
     free(req);
 }
 
-static void send_bytes(struct mb_client *c, const uint8_t *data, size_t size)
+/* Queues what the socket did not take at once, in a copy freed when written. */
+static void queue_bytes(struct mb_client *c, const uint8_t *data, size_t size)
 {
     struct reply *r;
     uv_buf_t buf;
@@ -182,6 +183,26 @@ static void send_bytes(struct mb_client *c, const uint8_t *data, size_t size)
         free(r);
         close_client(c, "write failed");
     }
+}
+
+/*
+ * Writes a reply at once when nothing is queued before it, as nearly every
+ * reply is: no copy, no allocation, no write callback. The rest (a client
+ * slow to read, or an error, which the queued write reports as before) goes
+ * through the queue, behind what is already there.
+ */
+static void send_bytes(struct mb_client *c, const uint8_t *data, size_t size)
+{
+    uv_buf_t buf = uv_buf_init((char *)data, (unsigned)size);
+    int n = uv_try_write((uv_stream_t *)&c->tcp, &buf, 1);
+
+    if (n > 0) {
+        data += n;
+        size -= (size_t)n;
+        if (size == 0)
+            return;
+    }
+    queue_bytes(c, data, size);
 }
 
 static void put16(uint8_t *p, unsigned v)
