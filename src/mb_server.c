@@ -17,6 +17,9 @@
 #define MAX_QUEUED_REPLY_BYTES (64 * 1024)
 /* Reads per drain, so a client that never stops sending cannot hold us. */
 #define MAX_DRAIN_READS 16
+/* A stop answers everything that has arrived: up to this many reads (about
+ * 130 KB) per client, against one that never stops sending. */
+#define MAX_SHUTDOWN_READS 256
 
 enum client_state {
     CLIENT_OPEN,     /* reading requests; counts toward max_clients */
@@ -598,13 +601,13 @@ static void client_received(struct mb_client *c, size_t n)
  * libuv reads the same socket with read(2) and keeps no data of its own,
  * so reading it here loses nothing.
  */
-static void drain_client(struct mb_client *c)
+static void drain_client_reads(struct mb_client *c, int max_reads)
 {
     uv_os_fd_t fd;
 
     if (c->state != CLIENT_OPEN || uv_fileno((uv_handle_t *)&c->tcp, &fd) != 0)
         return;
-    for (int i = 0; i < MAX_DRAIN_READS && c->state == CLIENT_OPEN; i++) {
+    for (int i = 0; i < max_reads && c->state == CLIENT_OPEN; i++) {
         ssize_t n = recv(fd, c->buf + c->used, sizeof(c->buf) - c->used, MSG_DONTWAIT);
         if (n > 0) {
             client_received(c, (size_t)n);
@@ -616,6 +619,11 @@ static void drain_client(struct mb_client *c)
             return;
         }
     }
+}
+
+static void drain_client(struct mb_client *c)
+{
+    drain_client_reads(c, MAX_DRAIN_READS);
 }
 
 static void on_client_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
@@ -924,7 +932,7 @@ static void close_server(struct mb_server *srv, void (*cb)(struct mb_server *srv
         next = c->next;
         if (graceful) {
             /* Answered with the image as it is now, before anything closes. */
-            drain_client(c);
+            drain_client_reads(c, MAX_SHUTDOWN_READS);
             release_client(c, NULL);
         } else {
             close_client(c, NULL);

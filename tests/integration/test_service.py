@@ -101,12 +101,13 @@ def stopped(pid):
 
 
 def test_sigterm_answers_requests_that_have_arrived():
-    """While the gateway is held (SIGSTOP), client a pipelines 1800 reads,
+    """While the gateway is held (SIGSTOP), client a pipelines 4000 reads,
     then writes the power_on coil and the heartbeat; b sends a read, and c
     half a request; then SIGTERM, SIGCONT. libuv reads at most 32 buffers
     (16.6 KB here) per client per loop iteration and handles signals after
-    the other events of the iteration, so the stop begins with the end of
-    a's 21.6 KB still in the kernel: the stop must read and answer it.
+    the other events of the iteration, so the stop begins with most of a's
+    48 KB still in the kernel (even when the signal lands an iteration
+    late): the stop must read and answer it.
     Every whole request is answered, in order: the reads with data, the
     writes with exception 06, not acted on. Then every connection is closed,
     and nothing but queries ever reaches the robot."""
@@ -117,7 +118,7 @@ def test_sigterm_answers_requests_that_have_arrived():
         wait_until(lambda: "command link: connected" in gw.output(), 10, "the command link")
         a, b, half, idle = (raw_client(gw.modbus_port) for _ in range(4))
         check(read_input_registers(a, 0, 1, tid=1) == [0x4A4B], "first read")
-        n = 1800
+        n = 4000
         gw.proc.send_signal(signal.SIGSTOP)
         try:
             wait_until(lambda: stopped(gw.proc.pid), 10, "jakagw to stop (SIGSTOP)")
