@@ -84,7 +84,7 @@ struct plc_slot {
     struct cmd_result failure; /* the first of them */
 };
 
-#define PLC_INFO_COMMANDS 5
+#define PLC_INFO_COMMANDS 8
 
 struct plc_commands {
     struct regmap_image *img;

@@ -718,6 +718,20 @@ static bool get_offsets(struct command_ctx *c, const char *key, double table[11]
     return true;
 }
 
+/* 4.82: the DH parameters of the simulated arm (alpha in radians, a and d
+ * in mm), as the kinematics above use them. */
+static bool cmd_get_dh_param(struct command_ctx *c)
+{
+    static const double homeoff[6] = {0, 0, 0, 0, 0, 0};
+    reply_head(c, "0", "", c->name);
+    pyjson_float_array(c->w, "alpha", dh_alpha, 6);
+    pyjson_float_array(c->w, "a", dh_a, 6);
+    pyjson_float_array(c->w, "d", dh_d, 6);
+    pyjson_float_array(c->w, "joint_homeoff", homeoff, 6);
+    pyjson_end_object(c->w);
+    return true;
+}
+
 static bool cmd_set_tool_offsets(struct command_ctx *c)
 {
     return set_offsets(c, "tooloffset", c->r->tool_offsets);
@@ -966,6 +980,7 @@ static const struct command commands[] = {
     {"set_analog_output", cmd_set_analog_output},
     {"set_tool_offsets", cmd_set_tool_offsets},
     {"get_tool_offsets", cmd_get_tool_offsets},
+    {"get_dh_param", cmd_get_dh_param},
     {"set_tool_id", cmd_set_tool_id},
     {"set_user_offsets", cmd_set_user_offsets},
     {"get_user_offsets", cmd_get_user_offsets},

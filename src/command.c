@@ -41,6 +41,12 @@ const struct cmd_def cmd_table[] = {
     {"get_payload", 0, 0, "", ""},
     {"get_clsn_sensitivity", 0, 0, "", ""},
     {"set_network_exception_handle", 0, 0, "", ""},
+    {"get_tool_offsets", 0, 0, "", ""},
+    {"get_user_offsets", 0, 0, "", ""},
+    {"get_dh_param", 0, 0, "", ""},
+    /* Through the JSON mailbox: what they change is fetched again. */
+    {"set_tool_offsets", 0, 0, "get_tool_offsets", ""},
+    {"set_user_offsets", 0, 0, "get_user_offsets", ""},
     /* Motion of any kind, recognised in the JSON mailbox. */
     {"jog", CMD_MOTION, 0, "", ""},
     {"movc", CMD_MOTION, 0, "", ""},

@@ -27,10 +27,20 @@ static const struct info_item {
     {"get_payload", "mass", "info.payload_mass"},
     {"get_payload", "centroid", "info.payload_centroid[*]"},
     {"get_clsn_sensitivity", "sensitivityLevel", "info.collision_level"},
+    /* The manual spells the reply member "tool offsets"; some send "_". */
+    {"get_tool_offsets", "tool_offsets", "info.tool_offsets[*]"},
+    {"get_tool_offsets", "tool offsets", "info.tool_offsets[*]"},
+    {"get_user_offsets", "user_offsets", "info.user_offsets[*]"},
+    {"get_user_offsets", "user offsets", "info.user_offsets[*]"},
+    {"get_dh_param", "alpha", "info.dh_alpha[*]"},
+    {"get_dh_param", "a", "info.dh_a[*]"},
+    {"get_dh_param", "d", "info.dh_d[*]"},
+    {"get_dh_param", "joint_homeoff", "info.dh_joint_homeoff[*]"},
 };
 static const char *const info_commands[PLC_INFO_COMMANDS] = {
-    "get_version", "get_loaded_program", "get_program_state", "get_payload",
-    "get_clsn_sensitivity"};
+    "get_version",          "get_loaded_program", "get_program_state",
+    "get_payload",          "get_clsn_sensitivity", "get_tool_offsets",
+    "get_user_offsets",     "get_dh_param"};
 
 /* The gateway row "<prefix>.<member>". */
 static const struct regmap_row *path_row(const struct plc_commands *pc,
@@ -510,11 +520,27 @@ static void store_info(struct plc_commands *pc, const struct info_item *item,
         return;
     }
     if (cJSON_IsArray(value)) {
-        for (unsigned i = 0; i < row->elements; i++) {
-            const cJSON *e = cJSON_GetArrayItem(value, (int)i);
-            regmap_set_number(pc->img, row, i, cJSON_IsNumber(e) ? e->valuedouble : 0,
-                              cJSON_IsNumber(e));
+        /* Nested arrays (one per frame) are read row after row. */
+        unsigned i = 0;
+        const cJSON *e;
+        cJSON_ArrayForEach(e, value) {
+            if (cJSON_IsArray(e)) {
+                const cJSON *x;
+                cJSON_ArrayForEach(x, e) {
+                    if (i < row->elements)
+                        regmap_set_number(pc->img, row, i, cJSON_IsNumber(x) ? x->valuedouble : 0,
+                                          cJSON_IsNumber(x));
+                    i++;
+                }
+            } else {
+                if (i < row->elements)
+                    regmap_set_number(pc->img, row, i, cJSON_IsNumber(e) ? e->valuedouble : 0,
+                                      cJSON_IsNumber(e));
+                i++;
+            }
         }
+        for (; i < row->elements; i++)
+            regmap_set_number(pc->img, row, i, 0, false);
         return;
     }
     double v = 0;

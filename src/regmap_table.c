@@ -555,6 +555,20 @@ const struct regmap_row regmap_table_rows[] = {
           "info.payload_centroid[*]", "Payload centroid, coordinate # (x, y, z)"),
     P_ROW(REGMAP_INPUT_REGISTER, 5060, 1, REGMAP_U16, 0, "", "collision_level",
           "info.collision_level", "Collision sensitivity level (4.45)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5100, 66, REGMAP_F32, 0, "mm, deg", "tool_offset_#",
+          "info.tool_offsets[*]",
+          "Tool frames 0-10 (4.29), six values each (x y z rx ry rz): value #"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5240, 66, REGMAP_F32, 0, "mm, deg", "user_offset_#",
+          "info.user_offsets[*]",
+          "User frames 0-10 (4.32), six values each (x y z rx ry rz): value #"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5380, 6, REGMAP_F32, 0, "", "dh_alpha_#",
+          "info.dh_alpha[*]", "DH parameter alpha of joint #, as the controller reports it (4.82)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5392, 6, REGMAP_F32, 0, "mm", "dh_a_#", "info.dh_a[*]",
+          "DH parameter a of joint # (4.82)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5404, 6, REGMAP_F32, 0, "mm", "dh_d_#", "info.dh_d[*]",
+          "DH parameter d of joint # (4.82)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5416, 6, REGMAP_F32, 0, "", "dh_joint_homeoff_#",
+          "info.dh_joint_homeoff[*]", "Home offset of joint # (4.82)"),
 };
 
 const unsigned regmap_table_row_count =

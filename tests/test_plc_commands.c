@@ -950,8 +950,23 @@ static void information_after_replies(void **state)
     robot.now = 60000;
     reply("{\"cmdName\":\"get_clsn_sensitivity\",\"errorCode\":\"0\",\"errorMsg\":\"\","
           "\"sensitivityLevel\":3}");
-    assert_int_equal(robot.sent_count, 5);
+    /* Frames as the manual spells them ("tool offsets", one array per frame). */
+    expect_last_sent("{\"cmdName\":\"get_tool_offsets\"}");
+    reply("{\"errorCode\":\"0\",\"tool offsets\":[[0,0,0,0,0,0],[1,2,3,4,5,6]]}");
+    expect_last_sent("{\"cmdName\":\"get_user_offsets\"}");
+    reply("{\"errorCode\":\"0\",\"user_offsets\":[[9,8,7,6,5,4]]}");
+    expect_last_sent("{\"cmdName\":\"get_dh_param\"}");
+    reply("{\"errorCode\":\"0\",\"alpha\":[0,1.5708,0,0,1.5708,-1.5708],"
+          "\"a\":[0,0,430,368.5,0,0],\"d\":[120.15,0,0,114.5,113.5,107],"
+          "\"joint_homeoff\":[0,0,0,0,0,0]}");
+    assert_int_equal(robot.sent_count, 8);
     assert_int_equal(cmd_queue_pending(&queue), 0);
+    assert_float_equal(gw_number_at("info.tool_offsets[*]", 6), 1, 1e-6);
+    assert_float_equal(gw_number_at("info.tool_offsets[*]", 11), 6, 1e-6);
+    assert_float_equal(gw_number_at("info.user_offsets[*]", 0), 9, 1e-6);
+    assert_true(isnan(gw_number_at("info.user_offsets[*]", 6))); /* not sent */
+    assert_float_equal(gw_number_at("info.dh_a[*]", 2), 430, 1e-4);
+    assert_float_equal(gw_number_at("info.dh_d[*]", 0), 120.15, 1e-4);
 
     assert_string_equal(gw_text("info.controller_version"), "1.7.2.16");
     assert_string_equal(gw_text("info.loaded_program"), "track/\xc3\xa9t\xc3\xa9.jks");
@@ -976,6 +991,9 @@ static void information_after_replies(void **state)
     reply_ok();
     reply("{\"errorCode\":\"0\",\"sensitivityLevel\":\"4\"}");
     assert_int_equal(gw_number("info.collision_level"), 4);
+    reply_ok();
+    reply_ok();
+    reply_ok();
     /* A reply without the member leaves the value as it was. */
     assert_string_equal(gw_text("info.loaded_program"), "track/\xc3\xa9t\xc3\xa9.jks");
 
