@@ -52,7 +52,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o)
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: all deps demo test unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz test-can
+.PHONY: all deps demo test unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -79,12 +79,22 @@ $(BUILD)/bench/%: bench/%.c $(BUILD)/libjakagw.a
 	@mkdir -p $(dir $@)
 	$(CC) $(ALL_CFLAGS) $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) -lm
 
+# The reference slave of the abuse test: plain libmodbus, no libjakagw.
+$(BUILD)/bench/ref_slave: bench/ref_slave.c
+	@mkdir -p $(dir $@)
+	$(CC) $(ALL_CFLAGS) $< -o $@ $(ALL_LDFLAGS) $(PKG_LIBS)
+
 # Prints costs as ratios to references measured in the same run: a status
-# document, a Modbus read, and a command from a Modbus write to the robot's
-# socket through the whole gateway.
-bench: $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands
+# document against cJSON alone, a command from a Modbus write to the robot's
+# socket through the whole gateway, and Modbus reads through jakagw (jakasim
+# streaming at 125 Hz) against a plain libmodbus slave, with server CPU,
+# the stream's cost and memory. About 5 minutes: the memory figure feeds a
+# million documents (BENCH_MODBUS_FLAGS="--documents N" for fewer).
+bench: all $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands \
+       $(BUILD)/bench/bench_modbus $(BUILD)/bench/ref_slave
 	@$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
 	@$(BUILD)/bench/bench_commands
+	@$(BUILD)/bench/bench_modbus --document tests/data/status-controller-a.json $(BENCH_MODBUS_FLAGS)
 
 # Installs the Debian packages the build and the tests need, if missing,
 # saying which and why. DEPS_GROUPS="build tests ..." picks groups
@@ -106,9 +116,17 @@ demo:
 	@scripts/demo.sh
 
 test: deps
-	$(MAKE) all unit-tests
+	$(MAKE) all unit-tests $(BUILD)/bench/ref_slave
 	$(MAKE) san
 	@tests/run.sh
+	@if [ "$$CI" = true ]; then $(MAKE) fuzz-ci; fi
+
+# 32 Modbus clients at 1000 requests/s in total for LOAD_SECONDS, with
+# commands, the heartbeat and the status at 125 Hz; make test runs it too
+# (tests/run.sh runs every integration test).
+LOAD_SECONDS ?= 60
+test-load: all
+	JAKAGW_BIN_DIR=$(BUILD) LOAD_SECONDS=$(LOAD_SECONDS) /usr/bin/python3 tests/integration/test_load.py
 
 # docs/register-map.md is generated from the table in src/regmap_table.c.
 docs: $(BUILD)/jakagw man
@@ -132,22 +150,43 @@ valgrind: all unit-tests
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_link_faults.py soak
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_service.py
 
-# libFuzzer targets (needs clang): the robot's byte stream and Modbus
-# requests, with ASan and UBSan. FUZZ_SECONDS per target.
+# libFuzzer targets (clang; 'make deps DEPS_GROUPS=fuzz'), with ASan and
+# UBSan: the robot's status stream, Modbus requests through the write path,
+# the configuration parser, the command queue and its reply parser, the PLC
+# mailboxes. make fuzz runs each for FUZZ_SECONDS, growing a corpus in
+# $(FUZZ_BUILD)/corpus-*; make fuzz-ci runs each from the committed seeds
+# with a 10 s hang limit, and a crash or hang fails it with one line naming
+# the target and the input that caused it (CI runs it from make test).
 FUZZ_SECONDS ?= 60
-FUZZ_SRCS := src/framer.c src/status.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c
-FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -g -O1 -Iinclude $(PKG_CFLAGS) \
-              -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all
-build-fuzz/%: fuzz/%.c $(FUZZ_SRCS)
-	@mkdir -p build-fuzz
-	clang $(FUZZ_FLAGS) $^ -o $@ $(PKG_LIBS) -lm
+FUZZ_BUILD ?= build-fuzz
+FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox
+FUZZ_SRCS := src/framer.c src/status.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c \
+             src/command.c src/plc_commands.c src/config.c src/can_map.c src/can_map_table.c
+FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' -g -O1 -Iinclude \
+              $(PKG_CFLAGS) -fno-sanitize-recover=all
+FUZZ_OBJS := $(FUZZ_SRCS:%.c=$(FUZZ_BUILD)/obj/%.o)
+.SECONDARY: $(FUZZ_OBJS)
+$(FUZZ_BUILD)/obj/%.o: %.c
+	@mkdir -p $(dir $@)
+	clang $(FUZZ_FLAGS) -fsanitize=fuzzer-no-link,address,undefined -MMD -MP -c $< -o $@
+$(FUZZ_BUILD)/%: fuzz/%.c fuzz/fuzz_robot.h $(FUZZ_OBJS)
+	clang $(FUZZ_FLAGS) -fsanitize=fuzzer,address,undefined $< $(filter %.o,$^) -o $@ $(PKG_LIBS) -lm
 
-fuzz:
-	@command -v clang >/dev/null || { echo "make fuzz needs clang: apt-get install clang" >&2; exit 1; }
-	$(MAKE) build-fuzz/fuzz_stream build-fuzz/fuzz_modbus
-	@mkdir -p build-fuzz/corpus-stream build-fuzz/corpus-modbus
-	build-fuzz/fuzz_stream -max_total_time=$(FUZZ_SECONDS) -max_len=20000 build-fuzz/corpus-stream fuzz/seeds/stream
-	build-fuzz/fuzz_modbus -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-modbus fuzz/seeds/modbus
+fuzz-check:
+	@command -v clang >/dev/null || { echo "make fuzz needs clang: make deps DEPS_GROUPS=fuzz" >&2; exit 1; }
+
+fuzz: fuzz-check
+	$(MAKE) $(FUZZ_TARGETS:%=$(FUZZ_BUILD)/%)
+	@for t in $(FUZZ_TARGETS); do \
+	    mkdir -p $(FUZZ_BUILD)/corpus-$${t#fuzz_} && \
+	    $(FUZZ_BUILD)/$$t -max_total_time=$(FUZZ_SECONDS) -timeout=10 \
+	        $$([ $$t = fuzz_stream ] && echo -max_len=20000) \
+	        $(FUZZ_BUILD)/corpus-$${t#fuzz_} fuzz/seeds/$${t#fuzz_} || exit 1; \
+	done
+
+fuzz-ci: fuzz-check
+	$(MAKE) $(FUZZ_TARGETS:%=$(FUZZ_BUILD)/%)
+	@FUZZ_SECONDS=$(FUZZ_SECONDS) fuzz/run-ci.sh $(FUZZ_BUILD) $(FUZZ_TARGETS)
 
 # The man pages: man/*.in with the options of --help, the keys of
 # --print-config-keys and their descriptions in config/jakagw.conf.
@@ -207,3 +246,4 @@ clean:
 	rm -rf build build-san build-fuzz
 
 -include $(shell find $(BUILD) -name '*.d' 2>/dev/null)
+-include $(wildcard $(FUZZ_BUILD)/obj/src/*.d)

@@ -35,7 +35,12 @@ group can "to test the CAN mirror on a real kernel CAN stack in a VM: qemu, Debi
 group package "to build the Debian package and test it and the units (make deb, make test-package): debhelper, dpkg-dev, lintian, mmdebstrap for a fresh root filesystem to install it in, man-db and groff-base to check the man pages, procps for the kill the units' ExecReload runs (systemd-analyze verify looks for it)" \
     debhelper dpkg-dev lintian mmdebstrap man-db groff-base procps
 
+group fuzz "to run the libFuzzer targets (make fuzz, make fuzz-ci): clang, and the libFuzzer and sanitizer runtimes it links, which Debian 12 ships apart in libclang-rt-14-dev" \
+    clang libclang-rt-14-dev
+
 DEFAULT_GROUPS="build tests can package"
+# CI's make test also runs the fuzz targets (make fuzz-ci).
+[ "${CI:-}" = true ] && DEFAULT_GROUPS="$DEFAULT_GROUPS fuzz"
 
 say() { echo "install-deps: $*"; }
 fail() { echo "install-deps: $*" >&2; exit 1; }

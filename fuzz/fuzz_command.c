@@ -1,0 +1,395 @@
+/*
+ * fuzz_command.c - libFuzzer target: the command port's reply parser
+ * (cmd_parse_reply) and the command queue (command.c), fed replies in any
+ * order.
+ *
+ * Every input is first parsed whole as a reply. Rules: the outcome is done
+ * (errorCode 0) or a robot error with a non-zero code; errorMsg is a
+ * terminated string; nothing is read outside the input (it carries no NUL).
+ *
+ * Then the input is a program of steps for a queue on a fake link:
+ * submitting up to 80 commands at once (past the 64-command capacity),
+ * safety actions (cmd_queue_submit_urgent), commands whose done callback
+ * submits another (plain or urgent) or drops the link; the robot answering
+ * with canned or raw bytes; stray replies with nothing in flight; time
+ * passing past the reply timeout; the link going down and up; a send
+ * failing. Rules:
+ * - a command is written at most once; an ordinary one only when nothing
+ *   written is unanswered and everything accepted before it has finished;
+ *   a safety action at once, inside its submit call;
+ * - the robot answers in order: a reply finishes the oldest unanswered
+ *   command, with the parser's outcome; a stray reply finishes nothing;
+ * - a late reply fails the command in flight (timeout), and everything
+ *   queued behind it, and restarts the link;
+ * - submitting returns -ENOTCONN while down, -EBUSY when 64 are queued; a
+ *   done callback never runs inside cmd_queue_submit, and inside
+ *   cmd_queue_submit_urgent only for the queued command it displaces
+ *   (refused); every accepted command's done callback runs exactly once,
+ *   at the latest when the queue is freed, and the queue never holds more
+ *   than its capacity.
+ */
+#include <errno.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "command.h"
+
+#define REQUIRE(cond, ...)                                                     \
+    do {                                                                       \
+        if (!(cond)) {                                                         \
+            fprintf(stderr, "fuzz: rule broken: " __VA_ARGS__);                \
+            fputc('\n', stderr);                                               \
+            abort();                                                           \
+        }                                                                      \
+    } while (0)
+
+#define MAX_JOBS 1024
+#define MAX_STEPS 128
+#define TIMEOUT_MS 2000
+
+enum { CHILD_NONE, CHILD_SUBMIT, CHILD_URGENT, CHILD_DROP_LINK };
+
+struct job {
+    unsigned id;
+    bool accepted;
+    bool urgent;
+    unsigned done_calls;
+    unsigned sends;
+    enum cmd_outcome outcome;
+    int child; /* what its done callback does */
+};
+
+static struct job jobs[MAX_JOBS];
+static unsigned job_count;
+static struct cmd_queue queue;
+static bool connected;
+/* Written and not yet answered, oldest first: the robot answers in order. */
+static unsigned wire[MAX_JOBS];
+static unsigned wire_count;
+static uint64_t now_ms;
+static int fail_next_send;
+static int in_submit;     /* 1: cmd_queue_submit, 2: cmd_queue_submit_urgent */
+static unsigned displaced; /* done callbacks inside the current urgent submit */
+static bool dropped_inside; /* a done callback dropped the link inside it */
+static int submitting = -1; /* the job inside its submit call, not queued yet */
+/* While the robot's reply is being handed over: the job it must finish. */
+static int expect_reply_for = -1;
+static enum cmd_outcome expect_outcome;
+static bool reply_finished;
+
+static int submit(int child, bool urgent);
+
+static int fake_send(void *io, const char *data, size_t size)
+{
+    unsigned id;
+    char text[32];
+    (void)io;
+    REQUIRE(connected, "sent while the link is down");
+    if (fail_next_send) {
+        int rc = fail_next_send;
+        fail_next_send = 0;
+        return rc;
+    }
+    REQUIRE(size < sizeof(text), "sent %zu bytes, never submitted", size);
+    memcpy(text, data, size);
+    text[size] = '\0';
+    REQUIRE(sscanf(text, "{\"job\":%u}", &id) == 1 && id < job_count,
+            "sent bytes that were never submitted: %s", text);
+    struct job *j = &jobs[id];
+    REQUIRE(j->accepted && j->done_calls == 0, "job %u sent after it finished", id);
+    REQUIRE(j->sends == 0, "job %u sent twice", id);
+    if (!j->urgent) {
+        REQUIRE(wire_count == 0, "job %u sent while job %u is unanswered", id, wire[0]);
+        for (unsigned k = 0; k < id; k++)
+            REQUIRE(!jobs[k].accepted || jobs[k].done_calls, "job %u sent while job %u waits",
+                    id, k);
+    } else {
+        REQUIRE(in_submit == 2, "safety action %u written after its submit", id);
+    }
+    j->sends++;
+    wire[wire_count++] = id;
+    return 0;
+}
+
+static uint64_t fake_now(void *io)
+{
+    (void)io;
+    return now_ms;
+}
+
+static void link_down(void)
+{
+    if (!connected)
+        return;
+    connected = false;
+    if (in_submit)
+        dropped_inside = true;
+    cmd_queue_set_connected(&queue, false);
+    REQUIRE(wire_count == 0, "job %u still unanswered after the link went down", wire[0]);
+    for (unsigned k = 0; k < job_count; k++)
+        REQUIRE(!jobs[k].accepted || jobs[k].done_calls || (int)k == submitting,
+                "job %u still waits after the link went down", k);
+}
+
+static void fake_restart(void *io, const char *why)
+{
+    (void)io;
+    (void)why;
+    link_down(); /* robot_link_restart() drops the connection at once */
+}
+
+static void on_done(void *user, const struct cmd_result *r)
+{
+    struct job *j = user;
+
+    REQUIRE(in_submit != 1, "done callback of job %u from inside cmd_queue_submit", j->id);
+    REQUIRE(j->accepted, "done callback of job %u, never accepted", j->id);
+    REQUIRE(++j->done_calls == 1, "done callback of job %u ran twice", j->id);
+    REQUIRE(r->outcome > CMD_PENDING && r->outcome <= CMD_REFUSED,
+            "job %u finished with outcome %d", j->id, r->outcome);
+    REQUIRE(memchr(r->error_msg, '\0', sizeof(r->error_msg)), "errorMsg not terminated");
+    if (in_submit == 2 && r->outcome == CMD_REFUSED && j->sends == 0)
+        displaced++; /* made room for the safety action */
+    else if (in_submit == 2)
+        REQUIRE(dropped_inside && r->outcome == CMD_LINK_DOWN,
+                "job %u finished (%d) inside a safety action's submit", j->id, r->outcome);
+    j->outcome = r->outcome;
+    if (j->sends) {
+        /* Written: its outcome comes in the order the robot answers. */
+        REQUIRE(wire_count && wire[0] == j->id,
+                "job %u finished before job %u, written earlier", j->id, wire[0]);
+        memmove(wire, wire + 1, --wire_count * sizeof(*wire));
+    }
+    if (expect_reply_for >= 0 && !reply_finished) {
+        REQUIRE((unsigned)expect_reply_for == j->id,
+                "the reply to job %d finished job %u", expect_reply_for, j->id);
+        REQUIRE(r->outcome == expect_outcome, "job %u: outcome %d, the reply says %d", j->id,
+                r->outcome, expect_outcome);
+        reply_finished = true;
+    }
+    if (j->child == CHILD_SUBMIT)
+        submit(CHILD_NONE, false);
+    else if (j->child == CHILD_URGENT)
+        submit(CHILD_NONE, true);
+    else if (j->child == CHILD_DROP_LINK)
+        link_down();
+}
+
+static int submit(int child, bool urgent)
+{
+    char json[32];
+    if (job_count == MAX_JOBS)
+        return -ENOSPC;
+    struct job *j = &jobs[job_count];
+    *j = (struct job){.id = job_count, .child = child, .urgent = urgent};
+    int n = snprintf(json, sizeof(json), "{\"job\":%u}", job_count);
+    unsigned before = cmd_queue_pending(&queue);
+    bool was_connected = connected;
+    int outer = in_submit;
+    unsigned outer_displaced = displaced;
+    bool outer_dropped = dropped_inside;
+    int outer_submitting = submitting;
+    job_count++;
+    j->accepted = true; /* provisionally: it is written inside */
+    in_submit = urgent ? 2 : 1;
+    displaced = 0;
+    dropped_inside = false;
+    submitting = (int)j->id;
+    int rc = urgent ? cmd_queue_submit_urgent(&queue, json, (size_t)n, on_done, j)
+                    : cmd_queue_submit(&queue, json, (size_t)n, on_done, j);
+    in_submit = outer;
+    submitting = outer_submitting;
+    j->accepted = rc == 0;
+    REQUIRE(cmd_queue_pending(&queue) <= CMD_QUEUE_CAPACITY, "%u commands in a queue of %d",
+            cmd_queue_pending(&queue), CMD_QUEUE_CAPACITY);
+    if (!was_connected)
+        REQUIRE(rc == -ENOTCONN, "submit while down returned %d", rc);
+    else if (!urgent && before >= CMD_QUEUE_CAPACITY)
+        REQUIRE(rc == -EBUSY, "submit to a full queue returned %d", rc);
+    else if (urgent && rc == -EBUSY)
+        /* Only when every queued command is written and unanswered (the
+         * robot sits on 63 safety actions): none can give way. */
+        REQUIRE(wire_count >= CMD_QUEUE_CAPACITY, "urgent submit returned -EBUSY with %u "
+                "queued, %u of them written", before, wire_count);
+    else
+        REQUIRE(rc == 0 || (rc < 0 && rc != -EBUSY && j->sends == 0),
+                "%s returned %d with %u queued", urgent ? "urgent submit" : "submit", rc,
+                before);
+    if (urgent && rc == 0)
+        REQUIRE(j->sends == 1, "safety action %u not written at once", j->id);
+    if (urgent && was_connected)
+        REQUIRE(displaced <= 1 && (displaced == 0 || before >= CMD_QUEUE_CAPACITY),
+                "a safety action displaced %u commands with %u queued", displaced, before);
+    /* Unless a done callback inside the call dropped the link (fails all). */
+    REQUIRE(j->done_calls == 0 || dropped_inside, "job %u finished inside its submit", j->id);
+    displaced = outer_displaced;
+    dropped_inside = outer_dropped || dropped_inside;
+    return rc;
+}
+
+static void check_parse(const char *data, size_t size, struct cmd_result *r)
+{
+    cmd_parse_reply(data, size, r);
+    REQUIRE(r->reply == data && r->reply_size == size, "reply not kept");
+    REQUIRE(r->outcome == CMD_DONE || r->outcome == CMD_ROBOT_ERROR, "parse outcome %d",
+            r->outcome);
+    REQUIRE((r->outcome == CMD_DONE) == (r->error_code == 0),
+            "outcome %d with errorCode %ld", r->outcome, r->error_code);
+    REQUIRE(memchr(r->error_msg, '\0', sizeof(r->error_msg)), "errorMsg not terminated");
+}
+
+/* The robot answers: the job in flight must finish, with this outcome. */
+static void reply(const char *data, size_t size)
+{
+    struct cmd_result r;
+    uint64_t unsolicited = queue.stats.unsolicited;
+
+    if (!connected)
+        return; /* nothing arrives on a link that is down */
+    check_parse(data, size, &r);
+    expect_reply_for = wire_count ? (int)wire[0] : -1;
+    expect_outcome = r.outcome;
+    reply_finished = false;
+    unsigned done_before = 0;
+    for (unsigned k = 0; k < job_count; k++)
+        done_before += jobs[k].done_calls;
+    cmd_queue_on_reply(&queue, data, size);
+    unsigned done_after = 0;
+    for (unsigned k = 0; k < job_count; k++)
+        done_after += jobs[k].done_calls;
+    if (expect_reply_for >= 0)
+        REQUIRE(reply_finished, "the reply did not finish job %d", expect_reply_for);
+    else
+        REQUIRE(done_after == done_before && queue.stats.unsolicited == unsolicited + 1,
+                "a stray reply finished a command");
+    expect_reply_for = -1;
+}
+
+static const char *const canned[] = {
+    "{\"errorCode\":\"0\",\"errorMsg\":\"\"}",
+    "{\"errorCode\":0}",
+    "{\"errorCode\":\"2\",\"errorMsg\":\"call power_on first\"}",
+    "{\"errorCode\":1e300}",
+    "{\"errorCode\":-2147483649}",
+    "{\"errorCode\":\"99999999999999999999999\"}",
+    "{\"errorCode\":\"\"}",
+    "{\"errorMsg\":\"no code\"}",
+    "{\"errorCode\":\"0\",\"errorCode\":\"1\"}",
+    "{}",
+    "[1]",
+    "",
+};
+
+struct cursor {
+    const uint8_t *p;
+    size_t left;
+};
+
+static uint8_t next(struct cursor *c)
+{
+    if (!c->left)
+        return 0;
+    c->left--;
+    return *c->p++;
+}
+
+static void step(struct cursor *c)
+{
+    uint8_t op = next(c), arg = next(c);
+
+    switch (op % 9) {
+    case 0: /* a burst of commands, 1..80 */
+        for (unsigned i = 0, n = 1 + arg % 80; i < n; i++)
+            submit(CHILD_NONE, false);
+        break;
+    case 1: /* one command whose done callback submits again or drops the link */
+        submit(CHILD_SUBMIT + arg % 3, arg & 4);
+        break;
+    case 2: { /* a canned reply */
+        const char *r = canned[arg % (sizeof(canned) / sizeof(*canned))];
+        reply(r, strlen(r));
+        break;
+    }
+    case 3: { /* a raw reply, from the input */
+        size_t take = arg < c->left ? arg : c->left;
+        /* A copy of exactly its size: any read past it is caught. */
+        char *copy = malloc(take ? take : 1);
+        if (!copy)
+            abort();
+        memcpy(copy, c->p, take);
+        reply(copy, take);
+        free(copy);
+        c->p += take;
+        c->left -= take;
+        break;
+    }
+    case 4: { /* time passes */
+        bool late = queue.in_flight && now_ms + (uint64_t)arg * 16 - queue.sent_at_ms >= TIMEOUT_MS;
+        int head = wire_count ? (int)wire[0] : -1;
+        now_ms += (uint64_t)arg * 16;
+        cmd_queue_check_timeout(&queue);
+        if (late) {
+            REQUIRE(head >= 0 && jobs[head].outcome == CMD_TIMEOUT,
+                    "job %d in flight past the timeout ended %d", head,
+                    head >= 0 ? (int)jobs[head].outcome : -1);
+            REQUIRE(!connected, "a reply timeout did not restart the link");
+        } else if (head >= 0) {
+            REQUIRE(jobs[head].done_calls == 0, "job %d timed out early", head);
+        }
+        break;
+    }
+    case 5: /* the link goes down */
+        link_down();
+        break;
+    case 6: /* the link comes up */
+        if (!connected) {
+            connected = true;
+            cmd_queue_set_connected(&queue, true);
+        }
+        break;
+    case 7: /* the next send fails */
+        fail_next_send = arg & 1 ? -ENOBUFS : -EPIPE;
+        break;
+    case 8: /* safety actions, 1..4 at once */
+        for (unsigned i = 0, n = 1 + arg % 4; i < n; i++)
+            submit(CHILD_NONE, true);
+        break;
+    }
+    REQUIRE(queue.in_flight == (wire_count != 0), "the queue thinks %s in flight, the link %s",
+            queue.in_flight ? "one is" : "none is", wire_count ? "has one" : "has none");
+}
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
+{
+    struct cmd_ops ops = {.send = fake_send, .now_ms = fake_now, .restart_link = fake_restart};
+    struct cmd_result r;
+    struct cursor c = {data, size};
+
+    /* The whole input as one reply: a copy of exactly its size. */
+    char *copy = malloc(size ? size : 1);
+    if (!copy)
+        abort();
+    memcpy(copy, data, size);
+    check_parse(copy, size, &r);
+    free(copy);
+
+    job_count = 0;
+    wire_count = 0;
+    now_ms = 5000;
+    fail_next_send = 0;
+    connected = true;
+    cmd_queue_init(&queue, &ops, TIMEOUT_MS);
+    cmd_queue_set_connected(&queue, true);
+    for (unsigned i = 0; i < MAX_STEPS && c.left; i++)
+        step(&c);
+    cmd_queue_free(&queue);
+    for (unsigned k = 0; k < job_count; k++)
+        REQUIRE(!jobs[k].accepted || jobs[k].done_calls == 1,
+                "job %u: %u done callbacks", k, jobs[k].done_calls);
+    return 0;
+}

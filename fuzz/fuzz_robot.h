@@ -1,0 +1,273 @@
+/*
+ * fuzz_robot.h - what the fuzz targets share: the robot's end of the
+ * command port, and the gateway's write path.
+ *
+ * The fake robot records what the command queue sends and judges each
+ * command as a robot reads it: one JSON object and nothing else, its
+ * cmdName the last member of that name (as Python's json module, and so
+ * the controller, reads a repeated key). A motion or shutdown command that
+ * reaches the robot while the configuration forbids it, a command sent
+ * before the ones already sent were answered (only the safety actions,
+ * pause_program and stop_program, may go out at once), or bytes that are
+ * not one JSON object abort the run: the gateway must never put them on
+ * the wire. The robot answers in order.
+ *
+ * fuzz_write() is gateway.c's on_write() without the network-exception
+ * policy: the new values go into the image, every element is checked
+ * (plc_commands_check for command rows), a refusal restores the image,
+ * otherwise every element is applied.
+ */
+#ifndef JAKAGW_FUZZ_ROBOT_H
+#define JAKAGW_FUZZ_ROBOT_H
+
+#include <cJSON.h>
+#include <errno.h>
+#include <stdbool.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "command.h"
+#include "plc_commands.h"
+#include "regmap.h"
+
+/* Aborts with one line saying which rule was broken. */
+#define FUZZ_REQUIRE(cond, ...)                                                \
+    do {                                                                       \
+        if (!(cond)) {                                                         \
+            fprintf(stderr, "fuzz: rule broken: " __VA_ARGS__);                \
+            fputc('\n', stderr);                                               \
+            abort();                                                           \
+        }                                                                      \
+    } while (0)
+
+struct fake_robot {
+    struct cmd_queue *queue;
+    struct plc_commands *pc; /* told of link changes, or NULL */
+    bool motion;             /* what the gateway's configuration allows */
+    bool allow_shutdown;
+    bool connected;
+    unsigned outstanding;    /* sent and not yet answered on this connection */
+    uint64_t now_ms;
+    int fail_next_send;      /* a negative errno for the next send, 0: none */
+    unsigned sends, restarts;
+    char last_name[64];      /* cmdName of the last command, as the robot reads it */
+};
+
+/* The robot's reading of one command: 0, or a reason it is not a command. */
+static inline const char *robot_read_command(const char *data, size_t size, char *name,
+                                      size_t name_size)
+{
+    char *text = malloc(size + 1);
+    const char *end = NULL;
+    const cJSON *m, *last = NULL;
+
+    if (!text)
+        abort();
+    memcpy(text, data, size);
+    text[size] = '\0';
+    if (strlen(text) != size) {
+        free(text);
+        return "a NUL byte inside the command";
+    }
+    cJSON *doc = cJSON_ParseWithOpts(text, &end, 1);
+    free(text);
+    if (!cJSON_IsObject(doc)) {
+        cJSON_Delete(doc);
+        return "not exactly one JSON object (or something follows it)";
+    }
+    for (m = doc->child; m; m = m->next)
+        if (m->string && strcmp(m->string, "cmdName") == 0)
+            last = m;
+    if (!cJSON_IsString(last)) {
+        cJSON_Delete(doc);
+        return "no cmdName text";
+    }
+    snprintf(name, name_size, "%s", last->valuestring);
+    cJSON_Delete(doc);
+    return NULL;
+}
+
+static inline int fake_send(void *io, const char *data, size_t size)
+{
+    struct fake_robot *r = io;
+    char name[64];
+    const char *bad;
+
+    FUZZ_REQUIRE(r->connected, "a command was sent while the link is down");
+    if (r->fail_next_send) {
+        int rc = r->fail_next_send;
+        r->fail_next_send = 0;
+        return rc;
+    }
+    bad = robot_read_command(data, size, name, sizeof(name));
+    FUZZ_REQUIRE(!bad, "sent to the robot: %s: %.*s", bad, (int)(size > 300 ? 300 : size),
+                 data);
+    FUZZ_REQUIRE(r->outstanding == 0 || strcmp(name, "pause_program") == 0 ||
+                     strcmp(name, "stop_program") == 0,
+                 "a command was sent before the robot answered the one before: %.*s",
+                 (int)(size > 200 ? 200 : size), data);
+    const struct cmd_def *def = cmd_find(name);
+    FUZZ_REQUIRE(!def || !(def->flags & CMD_MOTION) || r->motion,
+                 "motion command '%s' reached the robot with motion off: %.*s", name,
+                 (int)(size > 300 ? 300 : size), data);
+    FUZZ_REQUIRE(!def || !(def->flags & CMD_SHUTDOWN) || r->allow_shutdown,
+                 "'%s' reached the robot with allow_shutdown off: %.*s", name,
+                 (int)(size > 300 ? 300 : size), data);
+    snprintf(r->last_name, sizeof(r->last_name), "%s", name);
+    r->outstanding++;
+    r->sends++;
+    return 0;
+}
+
+static inline uint64_t fake_now(void *io)
+{
+    return ((struct fake_robot *)io)->now_ms;
+}
+
+static inline void fake_link_down(struct fake_robot *r)
+{
+    if (!r->connected)
+        return;
+    r->connected = false;
+    r->outstanding = 0;
+    /* As command_port.c: the queue first, then the PLC side. */
+    cmd_queue_set_connected(r->queue, false);
+    if (r->pc)
+        plc_commands_link_down(r->pc);
+}
+
+static inline void fake_link_up(struct fake_robot *r)
+{
+    if (r->connected)
+        return;
+    r->connected = true;
+    cmd_queue_set_connected(r->queue, true);
+    if (r->pc)
+        plc_commands_link_up(r->pc);
+}
+
+/* robot_link_restart() drops the connection at once (set_state). */
+static inline void fake_restart(void *io, const char *why)
+{
+    struct fake_robot *r = io;
+    (void)why;
+    r->restarts++;
+    fake_link_down(r);
+}
+
+static inline void fake_robot_init(struct fake_robot *r, struct cmd_queue *q,
+                            struct plc_commands *pc, uint32_t timeout_ms)
+{
+    struct cmd_ops ops = {.send = fake_send, .now_ms = fake_now,
+                          .restart_link = fake_restart, .io = r};
+    memset(r, 0, sizeof(*r));
+    r->queue = q;
+    r->pc = pc;
+    r->now_ms = 1000;
+    cmd_queue_init(q, &ops, timeout_ms);
+}
+
+/* The robot answers the command in flight, if there is one. */
+static inline bool fake_reply(struct fake_robot *r, const char *json, size_t size)
+{
+    if (!r->connected || r->outstanding == 0)
+        return false;
+    r->outstanding--;
+    cmd_queue_on_reply(r->queue, json, size);
+    return true;
+}
+
+/* Answers until nothing is in flight: every command accepted. */
+static inline void fake_drain(struct fake_robot *r)
+{
+    static const char ok[] = "{\"errorCode\":\"0\",\"errorMsg\":\"\"}";
+    for (unsigned i = 0; i < 4 * CMD_QUEUE_CAPACITY && fake_reply(r, ok, sizeof(ok) - 1); i++)
+        ;
+    FUZZ_REQUIRE(r->outstanding == 0, "the queue never empties");
+}
+
+/* ---- the gateway's write path (gateway.c: on_write) --------------------- */
+
+struct fuzz_write {
+    struct plc_commands *pc;
+    enum regmap_table table;
+    unsigned address, count;
+    unsigned next;       /* the lowest address the next element may have */
+    unsigned elements;
+};
+
+static inline int check_element(struct fuzz_write *fw, const struct regmap_written *w)
+{
+    const struct regmap_row *row = w->row;
+
+    FUZZ_REQUIRE(row && row->writable && row->table == fw->table,
+                 "decode reported a row that is not writable in the table written");
+    FUZZ_REQUIRE(w->element < row->elements, "element %u of a %u-element row", w->element,
+                 row->elements);
+    unsigned a = regmap_element_address(row, w->element);
+    unsigned width = regmap_element_width(row);
+    FUZZ_REQUIRE(a >= fw->next && a + width <= fw->address + fw->count,
+                 "element at %u (width %u) outside the write %u+%u or out of order", a,
+                 width, fw->address, fw->count);
+    FUZZ_REQUIRE(w->source_index == row->index + w->element, "source index");
+    if (row->type == REGMAP_STR)
+        FUZZ_REQUIRE(memchr(w->text, '\0', sizeof(w->text)), "text not terminated");
+    fw->next = a + width;
+    fw->elements++;
+    return 0;
+}
+
+static inline int on_check(void *user, const struct regmap_written *w)
+{
+    struct fuzz_write *fw = user;
+    check_element(fw, w);
+    if (fw->pc && (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH))
+        return plc_commands_check(fw->pc, w);
+    return 0;
+}
+
+static inline int on_apply(void *user, const struct regmap_written *w)
+{
+    struct fuzz_write *fw = user;
+    if (fw->pc && (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH))
+        plc_commands_apply(fw->pc, w);
+    return 0;
+}
+
+/*
+ * Writes 'count' bits or registers at 'address' as a PLC's write would:
+ * returns 0 (applied) or the exception that refused it (image unchanged).
+ */
+static inline int fuzz_write(struct regmap_image *img, struct plc_commands *pc,
+                      enum regmap_table table, unsigned address, unsigned count,
+                      const uint16_t *values)
+{
+    static uint16_t saved[MODBUS_MAX_WRITE_BITS], after[MODBUS_MAX_WRITE_BITS];
+    struct fuzz_write fw = {pc, table, address, count, address, 0};
+    int ex;
+
+    FUZZ_REQUIRE(count >= 1 && count <= MODBUS_MAX_WRITE_BITS, "write count %u", count);
+    regmap_save(img, table, address, count, saved);
+    regmap_load(img, table, address, count, values);
+    if (pc)
+        plc_commands_begin(pc);
+    ex = regmap_decode_write(img, table, address, count, values, saved, on_check, &fw);
+    if (ex) {
+        regmap_load(img, table, address, count, saved);
+        regmap_save(img, table, address, count, after);
+        FUZZ_REQUIRE(memcmp(saved, after, count * sizeof(*saved)) == 0,
+                     "a refused write left the image changed");
+        return ex;
+    }
+    FUZZ_REQUIRE(fw.elements > 0 && fw.next == address + count,
+                 "an accepted write of %u+%u decoded into elements up to %u only", address,
+                 count, fw.next);
+    fw.next = address;
+    ex = regmap_decode_write(img, table, address, count, values, saved, on_apply, &fw);
+    FUZZ_REQUIRE(ex == 0, "the second decode of an accepted write refused it (%d)", ex);
+    return 0;
+}
+
+#endif
