@@ -64,7 +64,8 @@ struct gateway {
     size_t last_document_bytes;
     struct policy policy;
     uv_timer_t policy_timer; /* re-evaluates the policy every check period */
-    const struct regmap_row *fault_rows[6]; /* fault, age, count, motion, owner, reset */
+    /* fault, age, count, motion enable, owner, reset, motion enabled */
+    const struct regmap_row *fault_rows[7];
     const struct mb_write *writing; /* the write being judged, for its client */
     uint64_t heartbeat_changed_ms; /* 0: never */
     double heartbeat_value;

@@ -159,6 +159,10 @@ struct regmap {
     unsigned size[REGMAP_TABLE_COUNT];
     const struct regmap_row **owner[REGMAP_TABLE_COUNT];
     uint32_t crc; /* CRC-32 of the CSV listing: changes with any layout change */
+    /* The read-only gateway-value rows, re-encoded before every request:
+     * a short list, so that refresh does not walk the whole table. */
+    const struct regmap_row **gw_rows;
+    unsigned gw_row_count;
 };
 
 /*

@@ -131,15 +131,12 @@ static void show_policy(struct gateway *gw)
 {
     struct regmap_image *img = &gw->image;
     const struct policy *p = &gw->policy;
-    const struct regmap_row *motion =
-        regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion_enabled");
 
     regmap_set_number(img, gw->fault_rows[0], 0, p->fault, true);
     regmap_set_number(img, gw->fault_rows[1], 0,
                       (double)policy_fault_age_ms(p, uv_now(gw->loop)), true);
     regmap_set_number(img, gw->fault_rows[2], 0, (double)(p->faults & 0xFFFF), true);
-    if (motion)
-        regmap_set_number(img, motion, 0, p->motion_enabled, true);
+    regmap_set_number(img, gw->fault_rows[6], 0, p->motion_enabled, true);
     regmap_set_text(img, gw->fault_rows[4], 0, p->owner_address);
 }
 
@@ -475,8 +472,9 @@ static int start_commands(struct gateway *gw)
 static int start_policy(struct gateway *gw)
 {
     const struct gw_config *cfg = &gw->cfg;
-    static const char *const paths[] = {"fault", "fault_age_ms", "faults", "motion_enable",
-                                        "write_owner", "fault_reset"};
+    static const char *const paths[] = {"fault",       "fault_age_ms", "faults",
+                                        "motion_enable", "write_owner", "fault_reset",
+                                        "motion_enabled"};
     struct policy_config pc = {
         .time_limit_ms = cfg->ne_time_limit_ms,
         .action = (enum policy_action)cfg->ne_action,
@@ -486,12 +484,11 @@ static int start_policy(struct gateway *gw)
     };
     struct policy_sink sink = {.send_action = send_policy_action, .user = gw};
 
-    for (unsigned i = 0; i < 6; i++) {
+    for (unsigned i = 0; i < 7; i++) {
         gw->fault_rows[i] = regmap_find_path(&gw->map, REGMAP_SRC_PATH, paths[i]);
         if (!gw->fault_rows[i])
             return -EINVAL;
     }
-    /* The coil's row is "motion_enable"; its read-back, "motion_enabled". */
     policy_init(&gw->policy, &pc, &sink);
     uv_timer_init(gw->loop, &gw->policy_timer);
     gw->policy_timer.data = gw;

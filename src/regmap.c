@@ -173,6 +173,18 @@ static int compute_crc(struct regmap *map)
     return rc;
 }
 
+/* Written values belong to the PLC: only read-only gateway rows refresh. */
+static int list_gw_rows(struct regmap *map)
+{
+    map->gw_rows = calloc(map->row_count, sizeof(*map->gw_rows));
+    if (!map->gw_rows)
+        return -ENOMEM;
+    for (unsigned r = 0; r < map->row_count; r++)
+        if (map->rows[r].source == REGMAP_SRC_GW && !map->rows[r].writable)
+            map->gw_rows[map->gw_row_count++] = &map->rows[r];
+    return 0;
+}
+
 int regmap_init(struct regmap *map)
 {
     unsigned max_rows = regmap_table_row_count + 2 * STATUS_FIELD_COUNT;
@@ -196,6 +208,8 @@ int regmap_init(struct regmap *map)
     rc = index_rows(map);
     if (rc == 0)
         rc = compute_crc(map);
+    if (rc == 0)
+        rc = list_gw_rows(map);
     if (rc != 0)
         regmap_free(map);
     return rc;
@@ -205,6 +219,7 @@ void regmap_free(struct regmap *map)
 {
     for (int t = 0; t < REGMAP_TABLE_COUNT; t++)
         free(map->owner[t]);
+    free(map->gw_rows);
     free(map->rows);
     memset(map, 0, sizeof(*map));
 }
@@ -590,11 +605,9 @@ void regmap_encode_status(struct regmap_image *img, const struct jaka_status *s)
 
 void regmap_encode_gw(struct regmap_image *img, const double gw[GW_VALUE_COUNT])
 {
-    for (unsigned r = 0; r < img->map->row_count; r++) {
-        const struct regmap_row *row = &img->map->rows[r];
-        /* Written values belong to the PLC; the image already holds them. */
-        if (row->source == REGMAP_SRC_GW && !row->writable)
-            encode_number(img, row, row->address, gw[row->id], true);
+    for (unsigned r = 0; r < img->map->gw_row_count; r++) {
+        const struct regmap_row *row = img->map->gw_rows[r];
+        encode_number(img, row, row->address, gw[row->id], true);
     }
 }
 
