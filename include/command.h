@@ -149,8 +149,10 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
  * once, even while another command waits for its reply: it goes right
  * behind the commands already written, ahead of every queued one, and its
  * reply is matched in that order (the controller answers in order). At
- * capacity, the last queued command is failed to make room. Returns 0,
- * -ENOTCONN, or the send's error.
+ * capacity, the last queued command that is not written yet is failed
+ * (CMD_REFUSED) to make room, once the action is written. Returns 0,
+ * -ENOTCONN, -EBUSY when every queued command is written already, -ENOMEM,
+ * or the send's error (then nothing changed).
  */
 int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
                             cmd_done_cb done, void *user);

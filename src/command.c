@@ -244,45 +244,57 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
 int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
                             cmd_done_cb done, void *user)
 {
+    struct cmd_entry displaced = {0};
+
     if (!q->connected)
         return -ENOTCONN;
     if (!q->in_flight && q->count == 0)
         return cmd_queue_submit(q, json, size, done, user);
     if (q->count == CMD_QUEUE_CAPACITY) {
-        /* Room for safety first: the newest queued command gives way. */
-        struct cmd_entry last = *entry_at(q, q->count - 1);
-        if (last.sent)
-            return -EBUSY; /* every entry written: cannot happen at 64 */
+        /* Room for safety first: the newest unwritten command gives way.
+         * It is told only at the end, once the queue is whole again, since
+         * its callback may submit or drop the link. */
+        if (entry_at(q, q->count - 1)->sent)
+            return -EBUSY; /* every entry written already */
+        displaced = *entry_at(q, q->count - 1);
         q->count--;
-        struct cmd_result r = {.outcome = CMD_REFUSED};
-        snprintf(r.error_msg, sizeof(r.error_msg), "displaced by a safety action");
-        free(last.json);
-        last.done(last.user, &r);
     }
     char *copy = malloc(size);
-    if (!copy)
-        return -ENOMEM;
-    memcpy(copy, json, size);
-    /* Behind what is written already, ahead of what is not. */
+    int rc = copy ? 0 : -ENOMEM;
     unsigned at = 0;
-    while (at < q->count && entry_at(q, at)->sent)
-        at++;
-    for (unsigned i = q->count; i > at; i--)
-        *entry_at(q, i) = *entry_at(q, i - 1);
-    struct cmd_entry *e = entry_at(q, at);
-    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
-    q->count++;
-    int rc = write_entry(q, e);
-    if (rc < 0) {
-        for (unsigned i = at; i + 1 < q->count; i++)
-            *entry_at(q, i) = *entry_at(q, i + 1);
-        q->count--;
-        free(copy);
-        return rc;
+    if (copy) {
+        memcpy(copy, json, size);
+        /* Behind what is written already, ahead of what is not. */
+        while (at < q->count && entry_at(q, at)->sent)
+            at++;
+        for (unsigned i = q->count; i > at; i--)
+            *entry_at(q, i) = *entry_at(q, i - 1);
+        struct cmd_entry *e = entry_at(q, at);
+        *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
+        q->count++;
+        rc = write_entry(q, e);
+        if (rc < 0) {
+            for (unsigned i = at; i + 1 < q->count; i++)
+                *entry_at(q, i) = *entry_at(q, i + 1);
+            q->count--;
+            free(copy);
+        }
     }
-    if (!q->in_flight)
+    if (displaced.json) {
+        if (rc < 0) {
+            /* Not sent after all: the displaced command keeps its place. */
+            *entry_at(q, q->count) = displaced;
+            q->count++;
+        } else {
+            struct cmd_result r = {.outcome = CMD_REFUSED};
+            snprintf(r.error_msg, sizeof(r.error_msg), "displaced by a safety action");
+            free(displaced.json);
+            displaced.done(displaced.user, &r);
+        }
+    }
+    if (rc == 0 && !q->in_flight)
         send_next(q); /* at == 0: it is the head now */
-    return 0;
+    return rc;
 }
 
 static void fail_all(struct cmd_queue *q, const char *why)
