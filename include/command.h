@@ -34,6 +34,9 @@ enum cmd_flags {
     CMD_MOTION = 1,   /* moves the robot: only with [commands] motion = true */
     CMD_SHUTDOWN = 2, /* only with [commands] allow_shutdown = true */
     CMD_STARTS_MOTION = 4, /* starts a program: the robot may move */
+    CMD_HALTS = 8, /* pauses or stops the robot: written at once, ahead of
+                      queued commands, and allowed before the robot has
+                      accepted its network-exception handler */
 };
 
 struct cmd_def {

@@ -60,8 +60,13 @@ struct policy_config {
 };
 
 struct policy_sink {
-    /* Sends pause_program or stop_program; never called for KEEP. */
-    void (*send_action)(void *user, enum policy_action action,
+    /*
+     * Sends pause_program or stop_program; never called for KEEP. Returns
+     * false when it could not be sent (the command link is down): the
+     * action stays owed and is tried again every check while the robot
+     * may move.
+     */
+    bool (*send_action)(void *user, enum policy_action action,
                         enum policy_fault reason);
     void *user;
 };
@@ -82,6 +87,7 @@ struct policy {
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;
+    enum policy_action owed; /* an action not sent yet; KEEP: none */
     uint64_t faults; /* latched, ever */
     /* The write owner: 0 none. */
     uint64_t owner;
@@ -106,7 +112,10 @@ void policy_client_opened(struct policy *p, uint64_t now_ms, unsigned clients);
 void policy_client_closed(struct policy *p, uint64_t now_ms, uint64_t client,
                           unsigned clients);
 
-/* A write to the motion-enable coil. Dropping it pauses at once. */
+/*
+ * A write to the motion-enable coil. Dropping it while the robot may move
+ * pauses at once, even with another fault latched (which it then keeps).
+ */
 void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
                           bool robot_moving);
 

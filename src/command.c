@@ -21,9 +21,9 @@ const struct cmd_def cmd_table[] = {
     {"shutdown", CMD_SHUTDOWN, 6, "", ""},
     {"load_program", 0, 10, "get_loaded_program", "programName$"},
     {"play_program", CMD_STARTS_MOTION, 11, "get_program_state", ""},
-    {"pause_program", 0, 12, "get_program_state", ""},
+    {"pause_program", CMD_HALTS, 12, "get_program_state", ""},
     {"resume_program", CMD_STARTS_MOTION, 13, "get_program_state", ""},
-    {"stop_program", 0, 14, "get_program_state", ""},
+    {"stop_program", CMD_HALTS, 14, "get_program_state", ""},
     {"rapid_rate", 0, 20, "", "rate_value"},
     {"set_digital_output", 0, 21, "", "type#,index#,value#"},
     {"set_analog_output", 0, 22, "", "type#,index#,value"},
@@ -338,6 +338,9 @@ void cmd_queue_check_timeout(struct cmd_queue *q)
     snprintf(why, sizeof(why), "no reply within %u ms; the outcome is unknown",
              (unsigned)q->timeout_ms);
     q->stats.timeouts++;
+    /* The connection is condemned from here: nothing a callback submits
+     * may be written to it. */
+    q->connected = false;
     fail_head(q, CMD_TIMEOUT, why);
     /* The late reply must never answer the next command: drop the
      * connection it would come on, and what was queued behind it. */

@@ -97,6 +97,8 @@ static void on_link_state(struct robot_link *link, enum robot_link_state state)
     notify_change(gw);
 }
 
+static void check_policy(struct gateway *gw);
+
 static void on_command_state(struct command_port *cp, enum robot_link_state state)
 {
     struct gateway *gw = cp->user;
@@ -105,6 +107,9 @@ static void on_command_state(struct command_port *cp, enum robot_link_state stat
         if (cp->link.connections > 1)
             gw->counters.command_reconnects++;
         plc_commands_link_up(&gw->commands);
+        /* An action still owed goes out at once, ahead of the rest. */
+        if (gw->parts & GATEWAY_PART_POLICY)
+            check_policy(gw);
     } else {
         plc_commands_link_down(&gw->commands);
     }
@@ -239,7 +244,7 @@ static void on_policy_timer(uv_timer_t *t)
 }
 
 /* The policy's action goes out as pause_program or stop_program. */
-static void send_policy_action(void *user, enum policy_action action,
+static bool send_policy_action(void *user, enum policy_action action,
                                enum policy_fault reason)
 {
     struct gateway *gw = user;
@@ -251,10 +256,11 @@ static void send_policy_action(void *user, enum policy_action action,
         log_warn("network exception: %s while the robot may move: sent %s; "
                  "commands are refused until the PLC resets the fault",
                  reasons[reason], name);
-    else
-        log_err("network exception: %s while the robot may move: could not send %s "
-                "(%s); the robot's own network-exception handler applies",
+    else if (!gw->policy.owed)
+        log_err("network exception: %s while the robot may move: cannot send %s "
+                "(%s); trying again on every check until it goes out",
                 reasons[reason], name, strerror(-rc));
+    return rc == 0;
 }
 
 /* The policy's say on a command: stop always passes. */

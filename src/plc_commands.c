@@ -436,7 +436,9 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
                       "shutdown is off: [commands] allow_shutdown = true enables it");
     if (!pc->queue->connected)
         return refuse(slot, EX_LINK_DOWN, CMD_LINK_DOWN, "the command link is down");
-    if (pc->cfg.require_robot_handle && pc->cfg.robot_handle &&
+    /* Pausing and stopping are never held back for want of the handler. */
+    bool halts = def && (def->flags & CMD_HALTS);
+    if (pc->cfg.require_robot_handle && pc->cfg.robot_handle && !halts &&
         pc->handle_state != PLC_HANDLE_ACCEPTED)
         return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
                       "the robot has not accepted its network-exception handler");
@@ -458,9 +460,13 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
 static void on_done(void *user, const struct cmd_result *r);
 static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state);
 
-static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *json)
+static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *json,
+                   const struct cmd_def *def)
 {
-    int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+    /* Pause and stop go out at once, ahead of whatever waits. */
+    int rc = def && (def->flags & CMD_HALTS)
+                 ? cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot)
+                 : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
     if (rc < 0) {
         char why[96];
         snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
@@ -496,11 +502,11 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
         /* Exactly the PLC's text goes to the robot. */
         char text[512];
         regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
-        submit(pc, slot, text);
+        submit(pc, slot, text, def);
     } else {
         char *text = cJSON_PrintUnformatted(cmd);
         if (text)
-            submit(pc, slot, text);
+            submit(pc, slot, text, def);
         free(text);
     }
     cJSON_Delete(cmd);

@@ -63,14 +63,24 @@ void policy_client_closed(struct policy *p, uint64_t now_ms, uint64_t client,
         clear_owner(p);
 }
 
+/* Sends 'action', or keeps it owed when it cannot go out now. */
+static void act(struct policy *p, enum policy_action action)
+{
+    if (action == POLICY_KEEP || !p->sink.send_action)
+        return;
+    if (p->sink.send_action(p->sink.user, action, p->fault))
+        p->owed = POLICY_KEEP;
+    else if (action > p->owed)
+        p->owed = action; /* stop outranks pause */
+}
+
 static void latch(struct policy *p, uint64_t now_ms, enum policy_fault reason,
                   enum policy_action action)
 {
     p->fault = reason;
     p->fault_since_ms = now_ms;
     p->faults++;
-    if (action != POLICY_KEEP && p->sink.send_action)
-        p->sink.send_action(p->sink.user, action, reason);
+    act(p, action);
 }
 
 void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
@@ -80,15 +90,21 @@ void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
 
     p->motion_enabled = value;
     /* Idle, nothing to pause: the coil at 0 already keeps programs and
-     * motion from starting (policy_blocks_motion). */
-    if (p->cfg.motion_enable && dropped && robot_moving && p->fault == POLICY_FAULT_NONE)
+     * motion from starting (policy_blocks_commands). Moving, it pauses at
+     * once, whatever fault is latched already. */
+    if (!p->cfg.motion_enable || !dropped || !robot_moving)
+        return;
+    if (p->fault == POLICY_FAULT_NONE)
         latch(p, now_ms, POLICY_FAULT_MOTION_ENABLE, POLICY_PAUSE);
+    else
+        act(p, POLICY_PAUSE);
 }
 
 void policy_reset(struct policy *p)
 {
     p->fault = POLICY_FAULT_NONE;
     p->fault_since_ms = 0;
+    p->owed = POLICY_KEEP;
 }
 
 /* Which watched signal is lost now, if any. */
@@ -107,8 +123,13 @@ void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving)
     /* An owner whose heartbeat expired gives the write side up. */
     if (p->owner && heartbeat_expired(p, now_ms))
         clear_owner(p);
-    if (p->fault != POLICY_FAULT_NONE)
-        return; /* latched: the action was sent once, never again */
+    if (p->fault != POLICY_FAULT_NONE) {
+        /* Latched: the action went out once and is never repeated; one
+         * that could not go out is tried again while the robot may move. */
+        if (p->owed != POLICY_KEEP && robot_moving)
+            act(p, p->owed);
+        return;
+    }
     enum policy_fault lost = lost_signal(p, now_ms);
     if (lost != POLICY_FAULT_NONE && robot_moving)
         latch(p, now_ms, lost, p->cfg.action);

@@ -34,13 +34,14 @@ struct sink_record {
 static struct policy p;
 static struct sink_record sent;
 
-static void record_action(void *user, enum policy_action action, enum policy_fault reason)
+static bool record_action(void *user, enum policy_action action, enum policy_fault reason)
 {
     struct sink_record *r = user;
     assert_true(r->calls < 8);
     r->action[r->calls] = action;
     r->reason[r->calls] = reason;
     r->calls++;
+    return true;
 }
 
 static void start(enum policy_action action, enum policy_watch watch, bool motion_enable,
@@ -413,9 +414,14 @@ static void motion_enable_drop_pauses_at_once(void **state)
     expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
     assert_int_equal(policy_fault_age_ms(&p, T0 + 20), 0);
     check_span(T0 + 20, T0 + 5 * LIMIT, MOVING);
+    /* Raised and dropped again while it moves: an explicit request to
+     * pause, like releasing a hold-to-run switch, sent each time; the
+     * latched fault stays the first one. */
     policy_motion_enable(&p, T0 + 5 * LIMIT, true, MOVING);
     policy_motion_enable(&p, T0 + 5 * LIMIT + 10, false, MOVING);
-    assert_int_equal(sent.calls, 1);
+    assert_int_equal(sent.calls, 2);
+    assert_int_equal(sent.action[1], POLICY_PAUSE);
+    assert_int_equal(p.faults, 1);
     /* Reset with the coil back at 1: commands pass again. */
     policy_motion_enable(&p, T0 + 6 * LIMIT, true, IDLE);
     policy_reset(&p);
@@ -459,9 +465,49 @@ static void motion_enable_drop_under_a_latched_fault(void **state)
     policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
     policy_check(&p, T0 + LIMIT, MOVING);
     expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    /* The coil dropped while it still moves (action keep, or a pause the
+     * robot did not carry out): pause now; the heartbeat fault stays. */
     policy_motion_enable(&p, T0 + LIMIT + 10, false, MOVING);
-    assert_int_equal(sent.calls, 1);
+    assert_int_equal(sent.calls, 2);
+    assert_int_equal(sent.action[1], POLICY_PAUSE);
     assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
+    assert_int_equal(p.faults, 1);
+    /* Idle, a drop sends nothing. */
+    policy_motion_enable(&p, T0 + LIMIT + 20, true, IDLE);
+    policy_motion_enable(&p, T0 + LIMIT + 30, false, IDLE);
+    assert_int_equal(sent.calls, 2);
+}
+
+/* An action that cannot go out (the command link is down) stays owed and
+ * goes out at the first check at which it can, while the robot may move. */
+static bool refuse_then_accept(void *user, enum policy_action action, enum policy_fault reason)
+{
+    struct sink_record *r = user;
+    r->action[r->calls] = action;
+    r->reason[r->calls] = reason;
+    r->calls++;
+    return r->calls >= 3;
+}
+
+static void an_action_that_cannot_go_out_stays_owed(void **state)
+{
+    (void)state;
+    start(POLICY_STOP, POLICY_WATCH_HEARTBEAT, false, true);
+    p.sink.send_action = refuse_then_accept;
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, MOVING);
+    assert_int_equal(sent.calls, 1); /* tried, refused */
+    assert_int_equal(p.owed, POLICY_STOP);
+    policy_check(&p, T0 + LIMIT + 10, IDLE);
+    assert_int_equal(sent.calls, 1); /* idle: nothing to stop */
+    policy_check(&p, T0 + LIMIT + 20, MOVING);
+    assert_int_equal(sent.calls, 2);
+    policy_check(&p, T0 + LIMIT + 30, MOVING);
+    assert_int_equal(sent.calls, 3); /* sent at last */
+    assert_int_equal(p.owed, POLICY_KEEP);
+    policy_check(&p, T0 + LIMIT + 40, MOVING);
+    assert_int_equal(sent.calls, 3); /* and never again while latched */
+    assert_int_equal(sent.action[2], POLICY_STOP);
     assert_int_equal(p.faults, 1);
 }
 
@@ -604,6 +650,7 @@ int main(void)
         cmocka_unit_test(motion_enable_drop_while_idle_latches_nothing),
         cmocka_unit_test(motion_enable_not_required),
         cmocka_unit_test(motion_enable_drop_under_a_latched_fault),
+        cmocka_unit_test(an_action_that_cannot_go_out_stays_owed),
         cmocka_unit_test(owner_is_the_heartbeat_writer),
         cmocka_unit_test(owner_released_when_it_disconnects),
         cmocka_unit_test(owner_released_when_its_heartbeat_expires),
