@@ -307,9 +307,9 @@ static void fail_all(struct cmd_queue *q, const char *why)
 
 void cmd_queue_set_connected(struct cmd_queue *q, bool connected)
 {
-    if (q->connected == connected)
-        return;
     q->connected = connected;
+    /* Also when already marked down (after a reply timeout): whatever is
+     * still queued then must not wait for a connection that is gone. */
     if (!connected)
         fail_all(q, "the command link went down; the outcome is unknown");
 }
