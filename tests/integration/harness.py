@@ -358,9 +358,24 @@ class ModbusPlc:
         check(self.coil(address, 0) == 0, "re-arming coil %d" % address)
         return self.coil(address, 1)
 
+    def coils(self, address, values):
+        return self._outcome(self.client.write_coils(address, [bool(v) for v in values],
+                                                     slave=1), "write coils %d" % address)
+
     def ir(self, address, count=1):
-        rr = self.client.read_input_registers(address, count, slave=1)
-        check(not rr.isError(), "read input registers %d+%d: %s" % (address, count, rr))
+        """Input registers, in reads of at most 125."""
+        out = []
+        while count > 0:
+            n = min(count, 125)
+            rr = self.client.read_input_registers(address, n, slave=1)
+            check(not rr.isError(), "read input registers %d+%d: %s" % (address, n, rr))
+            out += rr.registers
+            address, count = address + n, count - n
+        return out
+
+    def hr(self, address, count=1):
+        rr = self.client.read_holding_registers(address, count, slave=1)
+        check(not rr.isError(), "read holding registers %d: %s" % (address, rr))
         return rr.registers
 
     def u32(self, address):

@@ -16,10 +16,8 @@ import struct
 import subprocess
 import time
 
-from pymodbus.client import ModbusTcpClient
-from pymodbus.pdu import ExceptionResponse
 
-from harness import (JAKASIM, Gateway, Process, Sim, TestFailure, check, map_rows, mbap,
+from harness import (JAKASIM, Gateway, ModbusPlc, Process, Sim, TestFailure, check, map_rows, mbap,
                      port_open, raw_client, recv_adu, run, running, wait_until)
 
 # ---- the PLC interface: addresses a PLC program is written against ----
@@ -176,75 +174,19 @@ def housekeeping(name):
 
 # ---- a PLC ----
 
-class Plc:
-    """A Modbus master as a PLC uses it. Writes return 0 or the exception
-    code; pymodbus never retries, so nothing is sent twice behind our back."""
+class Plc(ModbusPlc):
+    """A Modbus master as a PLC uses it (harness.ModbusPlc), with the
+    command rows by name. Writes return 0 or the exception code; pymodbus
+    never retries, so nothing is sent twice behind our back."""
 
     def __init__(self, gw, source=None):
+        super().__init__(gw.modbus_port, source)
         self.gw = gw
-        self.client = ModbusTcpClient("127.0.0.1", port=gw.modbus_port, timeout=5, retries=0,
-                                      source_address=(source, 0) if source else None)
-        check(self.client.connect(), "Modbus connect%s" % (" from " + source if source else ""))
-
-    def close(self):
-        self.client.close()
-
-    @staticmethod
-    def _outcome(rr, what):
-        if isinstance(rr, ExceptionResponse):
-            return rr.exception_code
-        check(not rr.isError(), "%s: %s" % (what, rr))
-        return 0
-
-    def coil(self, address, value):
-        return self._outcome(self.client.write_coil(address, bool(value), slave=1),
-                             "write coil %d" % address)
-
-    def coils(self, address, values):
-        return self._outcome(self.client.write_coils(address, [bool(v) for v in values],
-                                                     slave=1), "write coils %d" % address)
-
-    def reg(self, address, value):
-        return self._outcome(self.client.write_register(address, value, slave=1),
-                             "write register %d" % address)
-
-    def regs(self, address, values):
-        return self._outcome(self.client.write_registers(address, values, slave=1),
-                             "write registers %d+%d" % (address, len(values)))
 
     def trigger(self, name):
         """A trigger coil as a PLC pulses it: 0, then 1 (0 -> 1 sends)."""
         check(self.coil(TRIGGER[name], 0) == 0, "re-arming %s" % name)
         return self.coil(TRIGGER[name], 1)
-
-    def ir(self, address, count=1):
-        out = []
-        while count > 0:
-            n = min(count, 125)
-            rr = self.client.read_input_registers(address, n, slave=1)
-            check(not rr.isError(), "read input registers %d+%d: %s" % (address, n, rr))
-            out += rr.registers
-            address, count = address + n, count - n
-        return out
-
-    def hr(self, address, count=1):
-        rr = self.client.read_holding_registers(address, count, slave=1)
-        check(not rr.isError(), "read holding registers %d: %s" % (address, rr))
-        return rr.registers
-
-    def di(self, address, count=1):
-        rr = self.client.read_discrete_inputs(address, count, slave=1)
-        check(not rr.isError(), "read discrete inputs %d: %s" % (address, rr))
-        return [int(b) for b in rr.bits[:count]]
-
-    def read_coils(self, address, count=1):
-        rr = self.client.read_coils(address, count, slave=1)
-        check(not rr.isError(), "read coils %d: %s" % (address, rr))
-        return [int(b) for b in rr.bits[:count]]
-
-    def u32(self, address):
-        hi, lo = self.ir(address, 2)
-        return hi << 16 | lo
 
     def i32(self, address):
         v = self.u32(address)
