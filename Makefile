@@ -169,7 +169,7 @@ FUZZ_OBJS := $(FUZZ_SRCS:%.c=$(FUZZ_BUILD)/obj/%.o)
 $(FUZZ_BUILD)/obj/%.o: %.c
 	@mkdir -p $(dir $@)
 	clang $(FUZZ_FLAGS) -fsanitize=fuzzer-no-link,address,undefined -MMD -MP -c $< -o $@
-$(FUZZ_BUILD)/%: fuzz/%.c fuzz/fuzz_robot.h $(FUZZ_OBJS)
+$(FUZZ_BUILD)/%: fuzz/%.c fuzz/fuzz_robot.h fuzz/fuzz_util.h $(FUZZ_OBJS)
 	clang $(FUZZ_FLAGS) -fsanitize=fuzzer,address,undefined $< $(filter %.o,$^) -o $@ $(PKG_LIBS) -lm
 
 fuzz-check:

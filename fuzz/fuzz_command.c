@@ -36,15 +36,8 @@
 #include <string.h>
 
 #include "command.h"
+#include "fuzz_util.h"
 
-#define REQUIRE(cond, ...)                                                     \
-    do {                                                                       \
-        if (!(cond)) {                                                         \
-            fprintf(stderr, "fuzz: rule broken: " __VA_ARGS__);                \
-            fputc('\n', stderr);                                               \
-            abort();                                                           \
-        }                                                                      \
-    } while (0)
 
 #define MAX_JOBS 1024
 #define MAX_STEPS 128
@@ -87,27 +80,27 @@ static int fake_send(void *io, const char *data, size_t size)
     unsigned id;
     char text[32];
     (void)io;
-    REQUIRE(connected, "sent while the link is down");
+    FUZZ_REQUIRE(connected, "sent while the link is down");
     if (fail_next_send) {
         int rc = fail_next_send;
         fail_next_send = 0;
         return rc;
     }
-    REQUIRE(size < sizeof(text), "sent %zu bytes, never submitted", size);
+    FUZZ_REQUIRE(size < sizeof(text), "sent %zu bytes, never submitted", size);
     memcpy(text, data, size);
     text[size] = '\0';
-    REQUIRE(sscanf(text, "{\"job\":%u}", &id) == 1 && id < job_count,
+    FUZZ_REQUIRE(sscanf(text, "{\"job\":%u}", &id) == 1 && id < job_count,
             "sent bytes that were never submitted: %s", text);
     struct job *j = &jobs[id];
-    REQUIRE(j->accepted && j->done_calls == 0, "job %u sent after it finished", id);
-    REQUIRE(j->sends == 0, "job %u sent twice", id);
+    FUZZ_REQUIRE(j->accepted && j->done_calls == 0, "job %u sent after it finished", id);
+    FUZZ_REQUIRE(j->sends == 0, "job %u sent twice", id);
     if (!j->urgent) {
-        REQUIRE(wire_count == 0, "job %u sent while job %u is unanswered", id, wire[0]);
+        FUZZ_REQUIRE(wire_count == 0, "job %u sent while job %u is unanswered", id, wire[0]);
         for (unsigned k = 0; k < id; k++)
-            REQUIRE(!jobs[k].accepted || jobs[k].done_calls, "job %u sent while job %u waits",
+            FUZZ_REQUIRE(!jobs[k].accepted || jobs[k].done_calls, "job %u sent while job %u waits",
                     id, k);
     } else {
-        REQUIRE(in_submit == 2, "safety action %u written after its submit", id);
+        FUZZ_REQUIRE(in_submit == 2, "safety action %u written after its submit", id);
     }
     j->sends++;
     wire[wire_count++] = id;
@@ -128,9 +121,9 @@ static void link_down(void)
     if (in_submit)
         dropped_inside = true;
     cmd_queue_set_connected(&queue, false);
-    REQUIRE(wire_count == 0, "job %u still unanswered after the link went down", wire[0]);
+    FUZZ_REQUIRE(wire_count == 0, "job %u still unanswered after the link went down", wire[0]);
     for (unsigned k = 0; k < job_count; k++)
-        REQUIRE(!jobs[k].accepted || jobs[k].done_calls || (int)k == submitting,
+        FUZZ_REQUIRE(!jobs[k].accepted || jobs[k].done_calls || (int)k == submitting,
                 "job %u still waits after the link went down", k);
 }
 
@@ -145,28 +138,28 @@ static void on_done(void *user, const struct cmd_result *r)
 {
     struct job *j = user;
 
-    REQUIRE(in_submit != 1, "done callback of job %u from inside cmd_queue_submit", j->id);
-    REQUIRE(j->accepted, "done callback of job %u, never accepted", j->id);
-    REQUIRE(++j->done_calls == 1, "done callback of job %u ran twice", j->id);
-    REQUIRE(r->outcome > CMD_PENDING && r->outcome <= CMD_REFUSED,
+    FUZZ_REQUIRE(in_submit != 1, "done callback of job %u from inside cmd_queue_submit", j->id);
+    FUZZ_REQUIRE(j->accepted, "done callback of job %u, never accepted", j->id);
+    FUZZ_REQUIRE(++j->done_calls == 1, "done callback of job %u ran twice", j->id);
+    FUZZ_REQUIRE(r->outcome > CMD_PENDING && r->outcome <= CMD_REFUSED,
             "job %u finished with outcome %d", j->id, r->outcome);
-    REQUIRE(memchr(r->error_msg, '\0', sizeof(r->error_msg)), "errorMsg not terminated");
+    FUZZ_REQUIRE(memchr(r->error_msg, '\0', sizeof(r->error_msg)), "errorMsg not terminated");
     if (in_submit == 2 && r->outcome == CMD_REFUSED && j->sends == 0)
         displaced++; /* made room for the safety action */
     else if (in_submit == 2)
-        REQUIRE(dropped_inside && r->outcome == CMD_LINK_DOWN,
+        FUZZ_REQUIRE(dropped_inside && r->outcome == CMD_LINK_DOWN,
                 "job %u finished (%d) inside a safety action's submit", j->id, r->outcome);
     j->outcome = r->outcome;
     if (j->sends) {
         /* Written: its outcome comes in the order the robot answers. */
-        REQUIRE(wire_count && wire[0] == j->id,
+        FUZZ_REQUIRE(wire_count && wire[0] == j->id,
                 "job %u finished before job %u, written earlier", j->id, wire[0]);
         memmove(wire, wire + 1, --wire_count * sizeof(*wire));
     }
     if (expect_reply_for >= 0 && !reply_finished) {
-        REQUIRE((unsigned)expect_reply_for == j->id,
+        FUZZ_REQUIRE((unsigned)expect_reply_for == j->id,
                 "the reply to job %d finished job %u", expect_reply_for, j->id);
-        REQUIRE(r->outcome == expect_outcome, "job %u: outcome %d, the reply says %d", j->id,
+        FUZZ_REQUIRE(r->outcome == expect_outcome, "job %u: outcome %d, the reply says %d", j->id,
                 r->outcome, expect_outcome);
         reply_finished = true;
     }
@@ -203,28 +196,28 @@ static int submit(int child, bool urgent)
     in_submit = outer;
     submitting = outer_submitting;
     j->accepted = rc == 0;
-    REQUIRE(cmd_queue_pending(&queue) <= CMD_QUEUE_CAPACITY, "%u commands in a queue of %d",
+    FUZZ_REQUIRE(cmd_queue_pending(&queue) <= CMD_QUEUE_CAPACITY, "%u commands in a queue of %d",
             cmd_queue_pending(&queue), CMD_QUEUE_CAPACITY);
     if (!was_connected)
-        REQUIRE(rc == -ENOTCONN, "submit while down returned %d", rc);
+        FUZZ_REQUIRE(rc == -ENOTCONN, "submit while down returned %d", rc);
     else if (!urgent && before >= CMD_QUEUE_CAPACITY)
-        REQUIRE(rc == -EBUSY, "submit to a full queue returned %d", rc);
+        FUZZ_REQUIRE(rc == -EBUSY, "submit to a full queue returned %d", rc);
     else if (urgent && rc == -EBUSY)
         /* Only when every queued command is written and unanswered (the
          * robot sits on 63 safety actions): none can give way. */
-        REQUIRE(wire_count >= CMD_QUEUE_CAPACITY, "urgent submit returned -EBUSY with %u "
+        FUZZ_REQUIRE(wire_count >= CMD_QUEUE_CAPACITY, "urgent submit returned -EBUSY with %u "
                 "queued, %u of them written", before, wire_count);
     else
-        REQUIRE(rc == 0 || (rc < 0 && rc != -EBUSY && j->sends == 0),
+        FUZZ_REQUIRE(rc == 0 || (rc < 0 && rc != -EBUSY && j->sends == 0),
                 "%s returned %d with %u queued", urgent ? "urgent submit" : "submit", rc,
                 before);
     if (urgent && rc == 0)
-        REQUIRE(j->sends == 1, "safety action %u not written at once", j->id);
+        FUZZ_REQUIRE(j->sends == 1, "safety action %u not written at once", j->id);
     if (urgent && was_connected)
-        REQUIRE(displaced <= 1 && (displaced == 0 || before >= CMD_QUEUE_CAPACITY),
+        FUZZ_REQUIRE(displaced <= 1 && (displaced == 0 || before >= CMD_QUEUE_CAPACITY),
                 "a safety action displaced %u commands with %u queued", displaced, before);
     /* Unless a done callback inside the call dropped the link (fails all). */
-    REQUIRE(j->done_calls == 0 || dropped_inside, "job %u finished inside its submit", j->id);
+    FUZZ_REQUIRE(j->done_calls == 0 || dropped_inside, "job %u finished inside its submit", j->id);
     displaced = outer_displaced;
     dropped_inside = outer_dropped || dropped_inside;
     return rc;
@@ -233,12 +226,12 @@ static int submit(int child, bool urgent)
 static void check_parse(const char *data, size_t size, struct cmd_result *r)
 {
     cmd_parse_reply(data, size, r);
-    REQUIRE(r->reply == data && r->reply_size == size, "reply not kept");
-    REQUIRE(r->outcome == CMD_DONE || r->outcome == CMD_ROBOT_ERROR, "parse outcome %d",
+    FUZZ_REQUIRE(r->reply == data && r->reply_size == size, "reply not kept");
+    FUZZ_REQUIRE(r->outcome == CMD_DONE || r->outcome == CMD_ROBOT_ERROR, "parse outcome %d",
             r->outcome);
-    REQUIRE((r->outcome == CMD_DONE) == (r->error_code == 0),
+    FUZZ_REQUIRE((r->outcome == CMD_DONE) == (r->error_code == 0),
             "outcome %d with errorCode %ld", r->outcome, r->error_code);
-    REQUIRE(memchr(r->error_msg, '\0', sizeof(r->error_msg)), "errorMsg not terminated");
+    FUZZ_REQUIRE(memchr(r->error_msg, '\0', sizeof(r->error_msg)), "errorMsg not terminated");
 }
 
 /* The robot answers: the job in flight must finish, with this outcome. */
@@ -261,9 +254,9 @@ static void reply(const char *data, size_t size)
     for (unsigned k = 0; k < job_count; k++)
         done_after += jobs[k].done_calls;
     if (expect_reply_for >= 0)
-        REQUIRE(reply_finished, "the reply did not finish job %d", expect_reply_for);
+        FUZZ_REQUIRE(reply_finished, "the reply did not finish job %d", expect_reply_for);
     else
-        REQUIRE(done_after == done_before && queue.stats.unsolicited == unsolicited + 1,
+        FUZZ_REQUIRE(done_after == done_before && queue.stats.unsolicited == unsolicited + 1,
                 "a stray reply finished a command");
     expect_reply_for = -1;
 }
@@ -282,19 +275,6 @@ static const char *const canned[] = {
     "[1]",
     "",
 };
-
-struct cursor {
-    const uint8_t *p;
-    size_t left;
-};
-
-static uint8_t next(struct cursor *c)
-{
-    if (!c->left)
-        return 0;
-    c->left--;
-    return *c->p++;
-}
 
 static void step(struct cursor *c)
 {
@@ -332,12 +312,12 @@ static void step(struct cursor *c)
         now_ms += (uint64_t)arg * 16;
         cmd_queue_check_timeout(&queue);
         if (late) {
-            REQUIRE(head >= 0 && jobs[head].outcome == CMD_TIMEOUT,
+            FUZZ_REQUIRE(head >= 0 && jobs[head].outcome == CMD_TIMEOUT,
                     "job %d in flight past the timeout ended %d", head,
                     head >= 0 ? (int)jobs[head].outcome : -1);
-            REQUIRE(!connected, "a reply timeout did not restart the link");
+            FUZZ_REQUIRE(!connected, "a reply timeout did not restart the link");
         } else if (head >= 0) {
-            REQUIRE(jobs[head].done_calls == 0, "job %d timed out early", head);
+            FUZZ_REQUIRE(jobs[head].done_calls == 0, "job %d timed out early", head);
         }
         break;
     }
@@ -358,7 +338,7 @@ static void step(struct cursor *c)
             submit(CHILD_NONE, true);
         break;
     }
-    REQUIRE(queue.in_flight == (wire_count != 0), "the queue thinks %s in flight, the link %s",
+    FUZZ_REQUIRE(queue.in_flight == (wire_count != 0), "the queue thinks %s in flight, the link %s",
             queue.in_flight ? "one is" : "none is", wire_count ? "has one" : "has none");
 }
 
@@ -389,7 +369,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         step(&c);
     cmd_queue_free(&queue);
     for (unsigned k = 0; k < job_count; k++)
-        REQUIRE(!jobs[k].accepted || jobs[k].done_calls == 1,
+        FUZZ_REQUIRE(!jobs[k].accepted || jobs[k].done_calls == 1,
                 "job %u: %u done callbacks", k, jobs[k].done_calls);
     return 0;
 }

@@ -29,16 +29,9 @@
 #include <unistd.h>
 
 #include "config.h"
+#include "fuzz_util.h"
 #include "log.h"
 
-#define REQUIRE(cond, ...)                                                     \
-    do {                                                                       \
-        if (!(cond)) {                                                         \
-            fprintf(stderr, "fuzz: rule broken: " __VA_ARGS__);                \
-            fputc('\n', stderr);                                               \
-            abort();                                                           \
-        }                                                                      \
-    } while (0)
 
 #define CAP (1024 * 1024) /* config.c's CONFIG_MAX_FILE_BYTES */
 #define TEXT_MAX (CAP + 65536) /* expansions stop here: past the cap is enough */
@@ -74,10 +67,10 @@ static void write_file(const char *data, size_t size)
 
 static void check_strings(const struct gw_config *cfg)
 {
-    REQUIRE(memchr(cfg->robot_host, '\0', sizeof(cfg->robot_host)), "robot_host");
-    REQUIRE(memchr(cfg->modbus_bind, '\0', sizeof(cfg->modbus_bind)), "modbus_bind");
-    REQUIRE(memchr(cfg->write_allow, '\0', sizeof(cfg->write_allow)), "write_allow");
-    REQUIRE(memchr(cfg->can_interface, '\0', sizeof(cfg->can_interface)), "can_interface");
+    FUZZ_REQUIRE(memchr(cfg->robot_host, '\0', sizeof(cfg->robot_host)), "robot_host");
+    FUZZ_REQUIRE(memchr(cfg->modbus_bind, '\0', sizeof(cfg->modbus_bind)), "modbus_bind");
+    FUZZ_REQUIRE(memchr(cfg->write_allow, '\0', sizeof(cfg->write_allow)), "write_allow");
+    FUZZ_REQUIRE(memchr(cfg->can_interface, '\0', sizeof(cfg->can_interface)), "can_interface");
 }
 
 static int load(struct gw_config *cfg, char *why, size_t why_size)
@@ -86,10 +79,10 @@ static int load(struct gw_config *cfg, char *why, size_t why_size)
     why[why_size - 1] = 'X';
     config_defaults(cfg);
     int rc = config_load(cfg, file_path, why, why_size);
-    REQUIRE(rc == 0 || rc == -EINVAL || rc == -EFBIG || rc == -ENOMEM,
+    FUZZ_REQUIRE(rc == 0 || rc == -EINVAL || rc == -EFBIG || rc == -ENOMEM,
             "config_load returned %d", rc);
     if (rc)
-        REQUIRE(memchr(why, '\0', why_size), "the error message is not terminated");
+        FUZZ_REQUIRE(memchr(why, '\0', why_size), "the error message is not terminated");
     check_strings(cfg);
     return rc;
 }
@@ -134,10 +127,10 @@ static void fuzz_file(uint8_t flags, uint8_t delta)
     write_file(text, text_size);
     int rc = load(&cfg, why, sizeof(why));
     if (text_size > CAP)
-        REQUIRE(rc == -EFBIG, "a %zu-byte file was not refused as too large (%d)",
+        FUZZ_REQUIRE(rc == -EFBIG, "a %zu-byte file was not refused as too large (%d)",
                 text_size, rc);
     else
-        REQUIRE(rc != -EFBIG, "a %zu-byte file was refused as too large", text_size);
+        FUZZ_REQUIRE(rc != -EFBIG, "a %zu-byte file was refused as too large", text_size);
     if (rc || config_validate(&cfg, why, sizeof(why)))
         return;
     /* The printed configuration loads back into the same one. */
@@ -145,10 +138,10 @@ static void fuzz_file(uint8_t flags, uint8_t delta)
     char *printed = print(&cfg, &printed_size);
     write_file(printed, printed_size);
     rc = load(&again, why, sizeof(why));
-    REQUIRE(rc == 0, "the printed configuration does not load: %s\n%s", why, printed);
+    FUZZ_REQUIRE(rc == 0, "the printed configuration does not load: %s\n%s", why, printed);
     size_t reprinted_size;
     char *reprinted = print(&again, &reprinted_size);
-    REQUIRE(printed_size == reprinted_size && memcmp(printed, reprinted, printed_size) == 0,
+    FUZZ_REQUIRE(printed_size == reprinted_size && memcmp(printed, reprinted, printed_size) == 0,
             "the printed configuration loads as another:\n%s\n----\n%s", printed, reprinted);
     free(printed);
     free(reprinted);
@@ -172,9 +165,9 @@ static void fuzz_set(void)
         }
         memset(why, 'X', sizeof(why));
         int rc = config_set(&cfg, field[0], field[1], field[2], why, sizeof(why));
-        REQUIRE(rc == 0 || rc == -EINVAL, "config_set returned %d", rc);
+        FUZZ_REQUIRE(rc == 0 || rc == -EINVAL, "config_set returned %d", rc);
         if (rc)
-            REQUIRE(memchr(why, '\0', sizeof(why)), "the error message is not terminated");
+            FUZZ_REQUIRE(memchr(why, '\0', sizeof(why)), "the error message is not terminated");
         check_strings(&cfg);
     }
     config_validate(&cfg, why, sizeof(why));

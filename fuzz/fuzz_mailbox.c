@@ -42,26 +42,6 @@ static struct fake_robot robot;
 static struct plc_commands pc;
 static const struct regmap_row *ack_row, *done_row, *json_length_row;
 
-/* Input bytes, read as a step program; zeros once they run out. */
-struct cursor {
-    const uint8_t *p;
-    size_t left;
-};
-
-static uint8_t next(struct cursor *c)
-{
-    if (!c->left)
-        return 0;
-    c->left--;
-    return *c->p++;
-}
-
-static uint16_t next16(struct cursor *c)
-{
-    uint16_t hi = next(c);
-    return (uint16_t)(hi << 8 | next(c));
-}
-
 static const char *const canned[] = {
     "{\"errorCode\":\"0\",\"errorMsg\":\"\"}",
     "{\"errorCode\":0}",

@@ -29,18 +29,10 @@
 #include <string.h>
 
 #include "command.h"
+#include "fuzz_util.h"
 #include "plc_commands.h"
 #include "regmap.h"
 
-/* Aborts with one line saying which rule was broken. */
-#define FUZZ_REQUIRE(cond, ...)                                                \
-    do {                                                                       \
-        if (!(cond)) {                                                         \
-            fprintf(stderr, "fuzz: rule broken: " __VA_ARGS__);                \
-            fputc('\n', stderr);                                               \
-            abort();                                                           \
-        }                                                                      \
-    } while (0)
 
 struct fake_robot {
     struct cmd_queue *queue;
