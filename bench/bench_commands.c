@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * bench_commands.c - command latency through the whole gateway: from a
  * Modbus client sending a write to the last byte of the command it causes

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * bench_modbus.c - jakagw as a Modbus TCP server, measured against a
  * reference slave built on plain libmodbus (bench/ref_slave.c) in the same

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * bench_pipeline.c - what one status document costs the gateway, as ratios
  * to a reference measured in the same run: cJSON's own parse and free of

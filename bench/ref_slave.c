@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * ref_slave.c - a reference Modbus TCP slave built the plain libmodbus way,
  * for comparison with jakagw under abuse (tests/integration/test_abuse.py).

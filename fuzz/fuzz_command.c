@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_command.c - libFuzzer target: the command port's reply parser
  * (cmd_parse_reply) and the command queue (command.c), fed replies in any

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_mailbox.c - libFuzzer target: the PLC command rows (plc_commands.c)
  * driven by arbitrary writes and robot replies, with a recording fake robot

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_modbus.c - libFuzzer target: an arbitrary Modbus TCP request, on the
  * server's path. What mb_request_check() passes goes, for a write, through

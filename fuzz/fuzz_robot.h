@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_robot.h - what the fuzz targets share: the robot's end of the
  * command port, and the gateway's write path.

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_stream.c - libFuzzer target: arbitrary bytes from the robot's status
  * port, cut into reads at arbitrary points, through the framer, the status

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * fuzz_util.h - what every libFuzzer target here shares: a rule check that
  * aborts with one line saying which rule broke, and a cursor that reads

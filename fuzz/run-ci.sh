@@ -1,4 +1,5 @@
 #!/bin/bash
+# SPDX-License-Identifier: MIT
 # Runs each libFuzzer target for FUZZ_SECONDS (default 60) from its
 # committed seeds (fuzz/seeds/NAME for fuzz_NAME), in a fresh corpus, with
 # a 10 s limit per input, FUZZ_JOBS (default 2) targets at a time. Prints

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * can_map.h - the CAN frame map: one table, the single source of truth for
  * the CAN mirror, as regmap.h is for Modbus.

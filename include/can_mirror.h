@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * can_mirror.h - key robot status on a CAN bus, every period.
  *

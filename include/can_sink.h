@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * can_sink.h - where the CAN mirror's frames go: a small table of function
  * pointers, so the mirror never branches on the transport and tests use a

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * command_port.h - everything about the robot's command port (10001): the
  * connection (robot_link.h), the command queue on it (command.h), and the

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * config.h - jakagw's settings: defaults, INI file (libinih), flags.
  *

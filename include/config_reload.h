@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * config_reload.h - what a configuration reload (SIGHUP) changes in a
  * running gateway.

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * framer.h - cut a byte stream of back-to-back JSON objects into objects.
  *

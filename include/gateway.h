@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * gateway.h - jakagw's core: robot links -> status model -> register image
  * <- Modbus server, plus the gateway's own diagnostics.

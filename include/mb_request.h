@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * mb_request.h - check a Modbus request before anything answers it.
  *

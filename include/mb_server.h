@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * mb_server.h - the Modbus TCP slave.
  *

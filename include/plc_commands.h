@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * plc_commands.h - what PLC writes do to the robot: the command rows of the
  * register map, bound to the command queue (command.h).

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * policy.h - the network-exception policy for the PLC side, enforced by the
  * gateway: when the PLC goes silent, the robot is paused or stopped as

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * regmap.h - the Modbus register map: one table, the single source of truth.
  *

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * robot_link.h - one TCP connection to the robot controller, kept open.
  *

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * status.h - the robot's status document (port 10000) as one typed struct.
  *

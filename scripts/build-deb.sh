@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: MIT
 # Builds the Debian package with dpkg-buildpackage -us -uc -b, from a copy
 # of the source files (in a git checkout: the files git knows or would add,
 # as they are in the working tree), so that the build and its clean never

@@ -1,4 +1,5 @@
 #!/bin/bash
+# SPDX-License-Identifier: MIT
 # Runs a command in a root filesystem, as root, with /proc, /sys, /dev,
 # /dev/pts and /dev/shm mounted, and exits with the command's status.
 #

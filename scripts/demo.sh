@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: MIT
 # Runs jakasim (a simulated robot running a program, so values move) and
 # jakagw in front of it. Modbus TCP on 127.0.0.1:1502 unless MODBUS_BIND /
 # MODBUS_PORT say otherwise. Ctrl-C stops both. DEMO_SECONDS=N stops after N s.

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """Writes a man page to stdout from its template in man/ and what the
 programs say about themselves, so that the page cannot drift from the code:
 

@@ -1,4 +1,5 @@
 #!/bin/sh
+# SPDX-License-Identifier: MIT
 # Installs the Debian 12 packages jakagw needs, if any is missing, and says
 # which and why. Runs apt-get as root, or through sudo.
 #

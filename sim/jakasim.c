@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * jakasim.c - a JAKA robot controller simulator: the status port pushes the
  * status document every period; the command port answers Chapter-4

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* pyjson.c - see pyjson.h. */
 #include "pyjson.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * pyjson.h - write JSON the way JAKA controllers do: Python's json.dumps
  * separators (", " and ": "), floats in Python's shortest repr ("1.0",

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * robot.h - jakasim's robot: the controller state that the status document
  * shows and the Chapter-4 commands change.

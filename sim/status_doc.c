@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* status_doc.c - see status_doc.h. */
 #include "status_doc.h"
 

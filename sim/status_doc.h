@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * status_doc.h - jakasim's port-10000 document, in the real wire format:
  * "len" first and exact (the byte length of the whole object), Python

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* can_map.c - check, encode and document the CAN frame map (can_map.h). */
 #include "can_map.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * can_map_table.c - the CAN frames, signal by signal.
  *

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* can_mirror.c - see can_mirror.h. */
 #include "can_mirror.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* can_sink.c - the SocketCAN sink (can_sink.h). */
 #include "can_sink.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* command.c - the command table and the command queue (command.h). */
 #include "command.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* command_port.c - see command_port.h. */
 #include "command_port.h"
 

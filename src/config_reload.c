@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* config_reload.c - see config_reload.h. */
 #include "config_reload.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* framer.c - see framer.h. */
 #include "framer.h"
 

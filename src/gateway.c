@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* gateway.c - see gateway.h. */
 #include "gateway.h"
 

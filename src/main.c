@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * main.c - jakagw: the service. Flags and configuration, signals as loop
  * events, systemd readiness, status and watchdog; everything else is in

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* mb_request.c - see mb_request.h. */
 #include "mb_request.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* mb_server.c - see mb_server.h. */
 #include "mb_server.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* plc_commands.c - PLC writes that command the robot (plc_commands.h). */
 #include "plc_commands.h"
 

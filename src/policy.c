@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* policy.c - the network-exception policy's state machine (policy.h). */
 #include "policy.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* regmap.c - build, check, list and encode the register map (regmap.h). */
 #include "regmap.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * regmap_table.c - the register map, row by row.
  *

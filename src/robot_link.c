@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* robot_link.c - see robot_link.h. */
 #include "robot_link.h"
 

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* status.c - parse a JAKA status document into struct jaka_status. */
 #include "status.h"
 

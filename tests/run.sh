@@ -1,4 +1,5 @@
 #!/bin/bash
+# SPDX-License-Identifier: MIT
 # Runs every test against the plain build (build/) and the ASan+UBSan build
 # (build-san/): the cmocka unit tests, then the integration tests, which
 # start the real jakasim and jakagw on free loopback ports. Ends with one

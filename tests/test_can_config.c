@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* test_can_config.c - the [can] configuration keys and their rules. */
 #include <setjmp.h>
 #include <stdarg.h>

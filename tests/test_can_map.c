@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* test_can_map.c - the CAN frame table, its encoder and the DBC it generates. */
 #include <setjmp.h>
 #include <stdarg.h>

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * test_can_mirror.c - the CAN mirror's periods and its handling of a
  * troubled bus, with a fake sink and the test's own clock; the SocketCAN

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * test_command.c - the command queue (command.h) with a fake link and a
  * fake clock: one command at a time, replies matched by order, the reply

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* test_config.c - configuration keys, files and their error messages. */
 #include <setjmp.h>
 #include <stdarg.h>

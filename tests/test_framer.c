@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* test_framer.c - cutting the robot's byte stream into documents. */
 #include <setjmp.h>
 #include <stdarg.h>

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * test_halts.c - pausing and stopping are never lost: the motion-enable
  * coil pauses under a latched fault; nothing a timed-out command's callback

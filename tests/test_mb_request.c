@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* test_mb_request.c - which requests get which exception. */
 #include <setjmp.h>
 #include <stdarg.h>

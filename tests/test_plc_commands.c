@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * test_plc_commands.c - PLC writes that command the robot (plc_commands.h),
  * against the real register map and image and a real command queue whose

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * test_policy.c - the network-exception policy's state machine (policy.h)
  * over every transition, with time given as arguments and the action

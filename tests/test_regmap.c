@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* test_regmap.c - the register map table, its encoders and its listings. */
 #include <setjmp.h>
 #include <stdarg.h>

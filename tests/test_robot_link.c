@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /*
  * test_robot_link.c - the robot link on a real libuv loop against an
  * in-process TCP server: silence detection must not mistake the time spent

@@ -1,3 +1,4 @@
+/* SPDX-License-Identifier: MIT */
 /* test_status.c - parsing status documents into struct jaka_status. */
 #include <setjmp.h>
 #include <stdarg.h>

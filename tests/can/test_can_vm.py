@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """The CAN mirror on a real kernel CAN stack.
 
 Boots Debian's kernel (linux-image-amd64) in qemu without KVM, from an

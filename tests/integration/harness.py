@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: MIT
 """Shared helpers for jakagw's integration tests.
 
 Tests start the real jakasim and the real jakagw on free loopback ports,

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """Abuse: what hostile or broken clients do to the Modbus server, while four
 well-behaved clients poll it every 20 ms.
 

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """The CAN mirror from the host: the committed DBC is current, --print-dbc
 follows the configuration, bad [can] settings exit 2, and a mirror whose
 interface does not exist leaves Modbus serving while it counts and retries.

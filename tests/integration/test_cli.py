@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """jakagw's command line: the generated docs are current, a bad flag or
 configuration gets one line naming the key and exit code 2."""
 import os
@@ -197,8 +198,42 @@ def test_systemd_notify_ready_status_watchdog():
         os.rmdir(d)
 
 
+def test_every_source_file_carries_its_licence():
+    """LICENSE is MIT; each file under src/, include/, sim/ and tests/ (and
+    the fuzz targets, the bench, the scripts) starts with its SPDX line,
+    after a #! line if it has one; a JSON file, which cannot hold a comment,
+    has it in FILE.license beside it."""
+    with open(os.path.join(ROOT, "LICENSE")) as f:
+        check(f.readline().strip() == "MIT License", "LICENSE is not the MIT licence")
+    with open(os.path.join(ROOT, "debian", "copyright")) as f:
+        copyright = f.read()
+    check("License: MIT" in copyright and "all rights reserved" not in copyright.lower(),
+          "debian/copyright does not grant the MIT licence")
+    missing = []
+    checked = 0
+    for top in ("src", "include", "sim", "tests", "fuzz", "bench", "scripts"):
+        for d, dirs, files in os.walk(os.path.join(ROOT, top)):
+            dirs[:] = [x for x in dirs if x not in ("seeds", "__pycache__")]
+            for name in files:
+                path = os.path.join(d, name)
+                if name.endswith(".license") or name.endswith(".pyc"):
+                    continue
+                checked += 1
+                if name.endswith(".json"):
+                    ok = os.path.exists(path + ".license")
+                else:
+                    with open(path, encoding="utf-8", errors="replace") as f:
+                        head = [f.readline(), f.readline()]
+                    first = head[1] if head[0].startswith("#!") else head[0]
+                    ok = "SPDX-License-Identifier: MIT" in first
+                if not ok:
+                    missing.append(os.path.relpath(path, ROOT))
+    check(checked > 90, "only %d files found" % checked)
+    check(not missing, "no SPDX line at the top of: %s" % ", ".join(sorted(missing)))
+
+
 if __name__ == "__main__":
-    run([test_committed_register_map_is_current, test_bad_flags_and_config_exit_2,
+    run([test_every_source_file_carries_its_licence, test_committed_register_map_is_current, test_bad_flags_and_config_exit_2,
          test_bad_flags_print_one_line, test_config_directory_is_refused,
          test_check_config_refuses_what_the_daemon_would,
          test_check_config_says_when_no_file_was_read,

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """Commands as a PLC gives them: trigger coils, setpoint registers, the
 exactly-once mailbox and the JSON mailbox, through pymodbus (and mbpoll
 once) to the real jakagw and on to jakasim's command port.

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """Pausing and stopping, end to end against jakasim (--log-commands shows
 what the robot got): the PLC's stop passes before the robot has accepted
 its network-exception handler and ahead of a command waiting for a slow

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """What make install and the units give an administrator: every unit passes
 systemd-analyze verify and rates low in systemd-analyze security; make
 install puts each file where its PREFIX says and never overwrites a

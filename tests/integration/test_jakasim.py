@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """jakasim behaves like a controller: the wire format of its status port,
 the command port's replies, refusals and quirks, and status that follows
 commands."""

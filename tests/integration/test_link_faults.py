@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """The robot's two links under faults, as a PLC sees them and as the robot
 receives them: a controller that restarts, a status stream that stops
 without closing, a stream of garbage, a command port that never answers or

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """Load: 32 Modbus clients poll the gateway together at 1000 requests/s in
 total for LOAD_SECONDS (default 60) while jakasim pushes its status every
 8 ms (125 Hz) and runs a program, and one more client acts as the PLC: it

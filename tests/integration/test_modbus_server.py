@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """The Modbus TCP slave as a PLC sees it: framing, pipelining, exceptions,
 writes, identification, client limits. Byte-exact requests go over raw
 sockets; mbpoll and pymodbus check that independent masters agree."""

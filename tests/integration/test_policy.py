@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """The network-exception policy end to end: the real jakagw between
 pymodbus PLCs and the real jakasim, whose command log (--log-commands) shows
 what the robot received.

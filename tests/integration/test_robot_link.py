@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """The robot side under faults: documents split, merged, garbled, cut short
 or oversize; connections dropped; a robot that falls silent; a robot that
 starts after the gateway. Each time the gateway keeps serving, counts the

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """jakagw as a service: SIGHUP reloads the configuration (a bad file keeps
 the running one), SIGTERM answers the requests that have arrived before it
 stops, and a socket passed by systemd (socket activation) is served."""

@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """Every status entry of the register map, read over Modbus by pymodbus,
 equals the value in the document jakasim sent.
 

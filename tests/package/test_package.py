@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
 """The Debian package, as an administrator meets it: built with make deb
 (dpkg-buildpackage), checked by lintian, installed with apt into a fresh
 Debian 12 root filesystem made by mmdebstrap (the mechanism CI uses, which
