@@ -41,6 +41,7 @@ struct sim_options {
     unsigned oversize_every;
     unsigned corrupt_every;
     const char *fail_command;
+    const char *fail_message; /* its errorMsg; NULL: "call NAME failed" */
     const char *ignore_command;
     unsigned reply_delay_ms;
     const char *delay_command; /* delay only this command's reply */
@@ -432,7 +433,7 @@ static int listen_on(struct sim *sim, uv_tcp_t *server, int port, uv_connection_
 
     if (uv_ip4_addr(sim->opt.bind, port, (struct sockaddr_in *)&addr) != 0 &&
         uv_ip6_addr(sim->opt.bind, port, (struct sockaddr_in6 *)&addr) != 0) {
-        fprintf(stderr, "jakasim: --bind: '%s' is not an IP address\n", sim->opt.bind);
+        log_plain("jakasim: --bind: '%s' is not an IP address", sim->opt.bind);
         return -EINVAL;
     }
     uv_tcp_init(sim->loop, server);
@@ -441,7 +442,7 @@ static int listen_on(struct sim *sim, uv_tcp_t *server, int port, uv_connection_
     if (rc == 0)
         rc = uv_listen((uv_stream_t *)server, 16, cb);
     if (rc < 0)
-        fprintf(stderr, "jakasim: cannot listen on %s port %d: %s\n", sim->opt.bind,
+        log_plain("jakasim: cannot listen on %s port %d: %s", sim->opt.bind,
                 port, uv_strerror(rc));
     return rc;
 }
@@ -474,7 +475,7 @@ static int load_replay(struct sim *sim, const char *path)
     long size;
 
     if (!f) {
-        fprintf(stderr, "jakasim: --replay: cannot open %s: %s\n", path, strerror(errno));
+        log_plain("jakasim: --replay: cannot open %s: %s", path, strerror(errno));
         return -1;
     }
     fseek(f, 0, SEEK_END);
@@ -483,7 +484,7 @@ static int load_replay(struct sim *sim, const char *path)
     sim->replay_doc = malloc((size_t)size + 1);
     if (!sim->replay_doc || fread(sim->replay_doc, 1, (size_t)size, f) != (size_t)size) {
         fclose(f);
-        fprintf(stderr, "jakasim: --replay: cannot read %s\n", path);
+        log_plain("jakasim: --replay: cannot read %s", path);
         return -1;
     }
     fclose(f);
@@ -495,7 +496,7 @@ static int load_replay(struct sim *sim, const char *path)
     bool ok = cJSON_IsObject(check);
     cJSON_Delete(check);
     if (!ok) {
-        fprintf(stderr, "jakasim: --replay: %s is not one JSON object\n", path);
+        log_plain("jakasim: --replay: %s is not one JSON object", path);
         return -1;
     }
     return 0;
@@ -526,6 +527,7 @@ static void usage(FILE *out)
         "  --oversize-every N     make every Nth document larger than 64 KiB\n"
         "  --corrupt-every N      break the JSON of every Nth document, keeping its length\n"
         "  --fail-command NAME    answer command NAME with errorCode \"2\"\n"
+        "  --fail-message TEXT    the errorMsg of --fail-command's answer (any bytes)\n"
         "  --ignore-command NAME  never answer NAME (\"all\": any command)\n"
         "  --reply-delay-ms N     answer commands after N ms\n"
         "  --delay-command NAME   delay only NAME's replies (with --reply-delay-ms)\n");
@@ -536,7 +538,7 @@ static int parse_uint(const char *flag, const char *text, unsigned max, unsigned
     char *end;
     unsigned long v = strtoul(text, &end, 10);
     if (*text < '0' || *text > '9' || *end || v > max) {
-        fprintf(stderr, "jakasim: --%s: '%s' must be a whole number 0..%u\n", flag,
+        log_plain("jakasim: --%s: '%s' must be a whole number 0..%u", flag,
                 text, max);
         return -1;
     }
@@ -566,6 +568,7 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         {"oversize-every", required_argument, NULL, 'O'},
         {"corrupt-every", required_argument, NULL, 'C'},
         {"fail-command", required_argument, NULL, 'f'},
+        {"fail-message", required_argument, NULL, 'F'},
         {"ignore-command", required_argument, NULL, 'i'},
         {"reply-delay-ms", required_argument, NULL, 'd'},
         {"delay-command", required_argument, NULL, 'e'},
@@ -575,7 +578,9 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
     unsigned v;
     int opt;
 
-    while ((opt = getopt_long(argc, argv, "h", options, NULL)) != -1) {
+    /* getopt's own message would print the flag raw: this one escapes it. */
+    opterr = 0;
+    while ((opt = getopt_long(argc, argv, ":h", options, NULL)) != -1) {
         switch (opt) {
         case 'b': o->bind = optarg; break;
         case 's': if (parse_uint("status-port", optarg, 65535, &v)) return -1;
@@ -603,15 +608,21 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         case 'O': if (parse_uint("oversize-every", optarg, 1000000, &o->oversize_every)) return -1; break;
         case 'C': if (parse_uint("corrupt-every", optarg, 1000000, &o->corrupt_every)) return -1; break;
         case 'f': o->fail_command = optarg; break;
+        case 'F': o->fail_message = optarg; break;
         case 'i': o->ignore_command = optarg; break;
         case 'd': if (parse_uint("reply-delay-ms", optarg, 600000, &o->reply_delay_ms)) return -1; break;
         case 'e': o->delay_command = optarg; break;
         case 'h': usage(stdout); exit(0);
-        default: usage(stderr); return -1;
+        case ':':
+            log_plain("jakasim: %s needs a value; see jakasim --help", argv[optind - 1]);
+            return -1;
+        default:
+            log_plain("jakasim: unknown flag '%s'; see jakasim --help", argv[optind - 1]);
+            return -1;
         }
     }
     if (optind < argc) {
-        fprintf(stderr, "jakasim: unexpected argument '%s'\n", argv[optind]);
+        log_plain("jakasim: unexpected argument '%s'", argv[optind]);
         return -1;
     }
     return 0;
@@ -629,12 +640,13 @@ int main(int argc, char **argv)
         return 2;
     sim.profile = sim_profile_find(sim.opt.profile);
     if (!sim.profile) {
-        fprintf(stderr, "jakasim: --profile: '%s' must be manual, zu5s or full\n",
+        log_plain("jakasim: --profile: '%s' must be manual, zu5s or full",
                 sim.opt.profile);
         return 2;
     }
     sim_robot_init(&sim.robot, sim.opt.test_pattern);
     sim.robot.profile = sim.profile;
+    sim.robot.fail_message = sim.opt.fail_message;
     if (sim.opt.auto_run) {
         sim.robot.powered_on = sim.robot.enabled = true;
         snprintf(sim.robot.program, sizeof(sim.robot.program), "demo.jks");

@@ -1033,7 +1033,10 @@ bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
         reply_in_order(reply, (const char *const[]){"errorCode", "1", "errorMsg", CALL_FAILED,
                                                     "cmdName", c.name, NULL});
     } else if (fail_cmd && strcmp(fail_cmd, c.name) == 0) {
-        call_failed(&c);
+        if (r->fail_message)
+            reply_refused(&c, r->fail_message);
+        else
+            call_failed(&c);
     } else {
         answered = cmd->handle(&c);
     }

@@ -70,6 +70,8 @@ struct sim_robot {
     bool test_pattern; /* distinct values in every field, for map tests */
     /* The status document's shape, for get_data (NULL: the "full" one). */
     const struct sim_profile *profile;
+    /* The errorMsg of a command failed on purpose; NULL: "call NAME failed". */
+    const char *fail_message;
 };
 
 void sim_robot_init(struct sim_robot *r, bool test_pattern);

@@ -16,6 +16,9 @@
 #include <sys/stat.h>
 #include <uv.h>
 
+/* Room for any value of a line (at most 199 bytes), every byte escaped. */
+#define CONFIG_TEXT_SHOWN (6 * 200 + 1)
+
 /*
  * KEY_HOST: an IP address or a host name, resolved when connecting.
  * KEY_IP_ADDRESS: a literal IPv4 or IPv6 address, checked with the same
@@ -664,6 +667,15 @@ int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
     return 0;
 }
 
+/* A value as text, escaped as the log escapes it: one line, no control bytes. */
+static void print_text(FILE *out, const char *text)
+{
+    char shown[CONFIG_TEXT_SHOWN];
+
+    log_escape(shown, sizeof(shown), text, strlen(text));
+    fprintf(out, "%s\n", shown);
+}
+
 void config_print(const struct gw_config *cfg, FILE *out)
 {
     const char *section = "";
@@ -680,7 +692,7 @@ void config_print(const struct gw_config *cfg, FILE *out)
         case KEY_STRING:
         case KEY_HOST:
         case KEY_IP_ADDRESS:
-            fprintf(out, "%s\n", (const char *)m);
+            print_text(out, (const char *)m);
             break;
         case KEY_UINT:
             fprintf(out, "%u\n", *(const uint32_t *)m);
@@ -704,7 +716,7 @@ void config_print(const struct gw_config *cfg, FILE *out)
             fprintf(out, "%s\n", *(const bool *)m ? "true" : "false");
             break;
         case KEY_INTERFACE:
-            fprintf(out, "%s\n", (const char *)m);
+            print_text(out, (const char *)m);
             break;
         case KEY_CAN_ID:
             fprintf(out, "0x%X\n", *(const uint32_t *)m);

@@ -68,12 +68,12 @@ static int print_map(const char *format)
     else if (strcmp(format, "md") == 0)
         f = REGMAP_FORMAT_MD;
     else {
-        fprintf(stderr, "jakagw: --print-map: '%s' must be csv or md\n", format);
+        log_plain("jakagw: --print-map: '%s' must be csv or md", format);
         return EXIT_CONFIG;
     }
     rc = regmap_init(&map);
     if (rc) {
-        fprintf(stderr, "jakagw: the built-in register map is invalid\n");
+        log_plain("jakagw: the built-in register map is invalid");
         return 1;
     }
     rc = regmap_print(&map, f, stdout);
@@ -94,7 +94,7 @@ static int print_dbc(const struct gw_config *cfg)
     };
 
     if (can_map_check() != 0) {
-        fprintf(stderr, "jakagw: the built-in CAN frame map is invalid\n");
+        log_plain("jakagw: the built-in CAN frame map is invalid");
         return 1;
     }
     if (can_map_print_dbc(&opt, stdout) != 0 || fflush(stdout) != 0)
@@ -279,15 +279,15 @@ static void report_bad_flag(int opt, char **argv, const struct option *options)
     for (const struct option *o = options; is_long && o->name; o++)
         matches += strncmp(o->name, word + 2, name_len) == 0;
     if (opt == ':')
-        fprintf(stderr, "jakagw: %s needs a value; see jakagw --help\n",
+        log_plain("jakagw: %s needs a value; see jakagw --help",
                 is_long ? word : shown);
     else if (is_long && optopt != 0)
-        fprintf(stderr, "jakagw: '%s': %.*s takes no value; see jakagw --help\n", word,
+        log_plain("jakagw: '%s': %.*s takes no value; see jakagw --help", word,
                 (int)strcspn(word, "="), word);
     else if (matches > 1)
-        fprintf(stderr, "jakagw: '%s' is ambiguous; see jakagw --help\n", word);
+        log_plain("jakagw: '%s' is ambiguous; see jakagw --help", word);
     else
-        fprintf(stderr, "jakagw: unknown flag '%s'; see jakagw --help\n",
+        log_plain("jakagw: unknown flag '%s'; see jakagw --help",
                 is_long || optopt == 0 ? word : shown);
 }
 
@@ -348,12 +348,12 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
                 flags.overrides[flags.n_overrides].flag = o->name;
         flags.overrides[flags.n_overrides++].value = optarg;
         if (flags.n_overrides == sizeof(flags.overrides) / sizeof(flags.overrides[0])) {
-            fprintf(stderr, "jakagw: too many flags\n");
+            log_plain("jakagw: too many flags");
             return -EINVAL;
         }
     }
     if (optind < argc) {
-        fprintf(stderr, "jakagw: unexpected argument '%s'; see jakagw --help\n",
+        log_plain("jakagw: unexpected argument '%s'; see jakagw --help",
                 argv[optind]);
         return -EINVAL;
     }
@@ -361,7 +361,7 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
     if (*print_format || *print_keys)
         return 0;
     if (load_config(cfg, file_read, why, sizeof(why))) {
-        fprintf(stderr, "jakagw: %s\n", why);
+        log_plain("jakagw: %s", why);
         return -EINVAL;
     }
     return 0;

@@ -72,6 +72,43 @@ def test_bad_flags_print_one_line():
         one_line_exit_2(args, message)
 
 
+def test_control_bytes_in_a_value_or_flag_are_escaped():
+    """A configuration value or a flag holding ESC, CR and VT gets exactly
+    one line, with those bytes shown as \\xNN: nothing repaints the
+    terminal, nothing starts a second line; valid UTF-8 reads as it is."""
+    with tempfile.NamedTemporaryFile("wb", suffix=".conf", delete=False) as f:
+        f.write(b"[robot]\nhost = a\x1b[31mRED\x0bX\rY\n")
+    try:
+        r = subprocess.run([JAKAGW, "-c", f.name, "--check-config"], capture_output=True,
+                           timeout=10)
+    finally:
+        os.unlink(f.name)
+    check(r.returncode == 2, "exit %d" % r.returncode)
+    check(r.stderr.count(b"\n") == 1 and not any(b in r.stderr for b in b"\x1b\x0b\r"),
+          "not one clean line: %r" % r.stderr)
+    check(b"'a\\x1b[31mRED\\x0bX\\x0dY' is not an IP address" in r.stderr,
+          "the value is not shown escaped: %r" % r.stderr)
+    r = subprocess.run([JAKAGW, "-c", "/dev/null", "--robot-host", "a\x1b[2J\rb",
+                        "--check-config"], capture_output=True, timeout=10)
+    check(r.returncode == 2 and r.stderr ==
+          b"jakagw: --robot-host: 'a\\x1b[2J\\x0db' is not an IP address or a host name\n",
+          "flag: exit %d, %r" % (r.returncode, r.stderr))
+    # A flag that is not one: its name is outside text too, in either program.
+    for prog in (JAKAGW, JAKASIM):
+        r = subprocess.run([prog, "--\x1b]0;owned\x07"], capture_output=True, timeout=10)
+        check(r.stderr.count(b"\n") == 1 and b"\x1b" not in r.stderr and
+              b"\\x1b]0;owned\\x07" in r.stderr, "%s: %r" % (prog, r.stderr))
+    # --check-config prints the effective settings escaped as well.
+    with tempfile.NamedTemporaryFile("wb", suffix=".conf", delete=False) as f:
+        f.write("[modbus]\nwrite_allow = 127.0.0.1\n".encode())
+    try:
+        r = subprocess.run([JAKAGW, "-c", f.name, "--check-config"], capture_output=True,
+                           timeout=10)
+    finally:
+        os.unlink(f.name)
+    check(r.returncode == 0 and b"write_allow = 127.0.0.1\n" in r.stdout, "%r" % r.stdout)
+
+
 def test_config_directory_is_refused():
     with tempfile.TemporaryDirectory() as d:
         one_line_exit_2(["-c", d, "--check-config"], "%s: is a directory" % d)
@@ -234,7 +271,8 @@ def test_every_source_file_carries_its_licence():
 
 if __name__ == "__main__":
     run([test_every_source_file_carries_its_licence, test_committed_register_map_is_current, test_bad_flags_and_config_exit_2,
-         test_bad_flags_print_one_line, test_config_directory_is_refused,
+         test_bad_flags_print_one_line, test_control_bytes_in_a_value_or_flag_are_escaped,
+         test_config_directory_is_refused,
          test_check_config_refuses_what_the_daemon_would,
          test_check_config_says_when_no_file_was_read,
          test_check_config_prints_the_effective_settings, test_version_and_help,

@@ -18,7 +18,7 @@ import subprocess
 import time
 
 
-from harness import (JAKASIM, Gateway, ModbusPlc, Process, Sim, TestFailure, check, map_rows, mbap,
+from harness import (JAKASIM, Gateway, ModbusPlc, Process, Sim, TestFailure, check, log_lines, map_rows, mbap,
                      port_open, raw_client, recv_adu, run, running, wait_until)
 
 # ---- the PLC interface: addresses a PLC program is written against ----
@@ -413,6 +413,31 @@ def test_robot_refusal_surfaces_its_code_and_message():
         check(plc.di(D_ENABLED)[0] == 0, "enabled despite the refusal")
         print("  enable while powered off: state %d, errorCode %d, %r" % (state, code, msg))
         plc.close()
+
+
+def test_a_robot_message_cannot_forge_a_log_line():
+    """The robot's errorMsg holds a newline, a forged "<3>jakagw:" entry,
+    a CR and an escape sequence: the PLC reads it as it came, and the
+    gateway's log gets exactly one line for it (journald splits stderr at
+    newlines, so one line is one journal entry), with the bytes escaped
+    and the Chinese text kept."""
+    message = "报警\n<3>jakagw: forged\r\x1b[2K"
+    with running(["--fail-command", "power_on", "--fail-message", message]) as (sim, gw):
+        plc = Plc(gw)
+        plc.ready()
+        check(plc.trigger("power_on") == 0, "power_on write")
+        state, code, msg = plc.wait_result("power_on")
+        check((state, code, msg) == (ROBOT_ERROR, 2, message),
+              "result (%d, %d, %r)" % (state, code, msg))
+        plc.close()
+        wait_until(lambda: log_lines(gw, "command power_on"), 5, "the log line")
+        out = gw.output()
+    lines = [l for l in out.splitlines() if "forged" in l]
+    check(len(lines) == 1 and lines[0].startswith("<5>command power_on: robot error (2) "),
+          "forged text on %d lines: %r" % (len(lines), lines))
+    check(lines[0].endswith("报警\\x0a<3>jakagw: forged\\x0d\\x1b[2K"),
+          "not escaped as expected: %r" % lines[0])
+    check("\x1b" not in out and "\r" not in out, "a control byte reached the log")
 
 
 def test_program_recipe_as_a_plc_runs_it():
@@ -1235,7 +1260,7 @@ if __name__ == "__main__":
     run([test_addresses_match_the_register_map,
          test_simulator_extension_io_get_data_and_repeated_members,
          test_power_enable_disable_clear_error_by_trigger_coils,
-         test_robot_refusal_surfaces_its_code_and_message,
+         test_robot_refusal_surfaces_its_code_and_message, test_a_robot_message_cannot_forge_a_log_line,
          test_program_recipe_as_a_plc_runs_it,
          test_setpoints_rapid_rate_tool_frame_collision_level,
          test_set_user_id_selects_the_user_frame,
