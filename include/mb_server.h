@@ -98,6 +98,7 @@ struct mb_server_stats {
     uint64_t exceptions;
     uint64_t evictions;
     uint64_t bad_frames;
+    uint64_t refused_no_memory; /* connections closed for want of memory */
     unsigned clients;
 };
 
@@ -123,6 +124,16 @@ struct mb_server {
     bool closing;
     int open_handles;
     void (*close_cb)(struct mb_server *srv);
+    /*
+     * A connection there is no memory for is accepted on this handle and
+     * closed: libuv stops polling a listener whose connection is left
+     * unaccepted. One at a time; 'refuse_waiting' marks the next.
+     */
+    uv_tcp_t refused;
+    bool refusing;
+    bool refuse_waiting;
+    /* Allocates a client: calloc, which a test may make fail. */
+    void *(*calloc_client)(size_t count, size_t size);
 };
 
 /*

@@ -745,6 +745,52 @@ static void describe_peer(struct mb_client *c)
     snprintf(c->host, sizeof(c->host), "%s", host);
 }
 
+static void on_connection(uv_stream_t *listener, int status);
+
+static void on_refused_closed(uv_handle_t *h)
+{
+    struct mb_server *srv = h->data;
+
+    srv->refusing = false;
+    srv->open_handles--;
+    if (srv->closing) {
+        maybe_finish_close(srv);
+        return;
+    }
+    /* Another connection waited while this one closed: libuv polls the
+     * listener again only once it is accepted. */
+    if (srv->refuse_waiting) {
+        srv->refuse_waiting = false;
+        on_connection((uv_stream_t *)&srv->listener, 0);
+    }
+}
+
+/*
+ * No memory for a new client: accept the connection and close it at once.
+ * Returning without uv_accept() would stop libuv from polling the listener
+ * for good, and no PLC could connect again.
+ */
+static void refuse_connection(struct mb_server *srv)
+{
+    uint64_t suppressed;
+
+    if (srv->refusing) {
+        srv->refuse_waiting = true; /* accepted when the previous one is closed */
+        return;
+    }
+    srv->stats.refused_no_memory++;
+    if (log_ratelimit_pass(&srv->refuse_log_limit, uv_now(srv->loop), &suppressed))
+        log_err("modbus: out of memory for a new client: connection closed "
+                "(%llu more since the last such line)", (unsigned long long)suppressed);
+    srv->refusing = true;
+    srv->open_handles++;
+    uv_tcp_init(srv->loop, &srv->refused);
+    srv->refused.data = srv;
+    if (uv_accept((uv_stream_t *)&srv->listener, (uv_stream_t *)&srv->refused) < 0)
+        log_err("modbus: cannot accept a connection to close it");
+    uv_close((uv_handle_t *)&srv->refused, on_refused_closed);
+}
+
 static void on_connection(uv_stream_t *listener, int status)
 {
     struct mb_server *srv = listener->data;
@@ -754,9 +800,9 @@ static void on_connection(uv_stream_t *listener, int status)
         log_warn("modbus: accept failed: %s", uv_strerror(status));
         return;
     }
-    c = calloc(1, sizeof(*c));
+    c = srv->calloc_client(1, sizeof(*c));
     if (!c) {
-        log_err("modbus: out of memory for a new client");
+        refuse_connection(srv);
         return;
     }
     c->srv = srv;
@@ -869,6 +915,7 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
     srv->cfg.bind = srv->bind;
     srv->hooks = *hooks;
     srv->img = img;
+    srv->calloc_client = calloc;
     srv->close_log_limit.interval_ms = 1000;
     srv->refuse_log_limit.interval_ms = 1000;
     snprintf(srv->device_info, sizeof(srv->device_info), "jakagw %s map %d",

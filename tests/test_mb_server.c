@@ -1,0 +1,169 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * test_mb_server.c - the Modbus server on a real loop and real sockets:
+ * a connection that cannot be given memory is closed, and the listener
+ * keeps serving the PLCs that come next.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <arpa/inet.h>
+#include <errno.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include "mb_server.h"
+#include "regmap.h"
+
+static unsigned failures_left;
+
+/* calloc, failing the first 'failures_left' calls. */
+static void *calloc_failing(size_t count, size_t size)
+{
+    if (failures_left > 0) {
+        failures_left--;
+        return NULL;
+    }
+    return calloc(count, size);
+}
+
+struct fixture {
+    uv_loop_t loop;
+    struct regmap map;
+    struct regmap_image img;
+    struct mb_server srv;
+    bool closed;
+};
+
+static int setup(void **state)
+{
+    static struct fixture f;
+    struct mb_server_config cfg = {.bind = "127.0.0.1", .port = 0, .max_clients = 8,
+                                   .frame_timeout_ms = 1000, .unit_id = -1};
+    struct mb_server_hooks hooks = {0};
+
+    memset(&f, 0, sizeof(f));
+    assert_int_equal(uv_loop_init(&f.loop), 0);
+    assert_int_equal(regmap_init(&f.map), 0);
+    assert_int_equal(regmap_image_init(&f.img, &f.map, REGMAP_HIGH_WORD_FIRST), 0);
+    hooks.user = &f;
+    assert_int_equal(mb_server_start(&f.loop, &f.srv, &cfg, &f.img, &hooks), 0);
+    f.srv.calloc_client = calloc_failing;
+    *state = &f;
+    return 0;
+}
+
+static void on_server_closed(struct mb_server *srv)
+{
+    struct fixture *f = srv->hooks.user;
+    f->closed = true;
+}
+
+static int teardown(void **state)
+{
+    struct fixture *f = *state;
+    mb_server_close(&f->srv, on_server_closed);
+    while (!f->closed)
+        uv_run(&f->loop, UV_RUN_ONCE);
+    regmap_image_free(&f->img);
+    regmap_free(&f->map);
+    /* Every handle closed: a leaked one fails here. */
+    assert_int_equal(uv_loop_close(&f->loop), 0);
+    return 0;
+}
+
+static int connect_client(struct fixture *f)
+{
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons((uint16_t)mb_server_port(&f->srv))};
+    int fd = socket(AF_INET, SOCK_STREAM | SOCK_NONBLOCK, 0);
+
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    assert_true(fd >= 0);
+    int rc = connect(fd, (struct sockaddr *)&a, sizeof(a));
+    assert_true(rc == 0 || errno == EINPROGRESS);
+    return fd;
+}
+
+/*
+ * Runs the loop until 'fd' can be read (data or end of stream) or 2 s pass.
+ * Returns what read() gave: bytes, 0 at end of stream, -1 on timeout.
+ */
+static ssize_t pump_until_readable(struct fixture *f, int fd, uint8_t *buf, size_t size)
+{
+    for (int i = 0; i < 2000; i++) {
+        uv_run(&f->loop, UV_RUN_NOWAIT);
+        struct pollfd p = {.fd = fd, .events = POLLIN};
+        if (poll(&p, 1, 1) == 1) {
+            ssize_t n = read(fd, buf, size);
+            if (n >= 0 || errno != EAGAIN)
+                return n < 0 ? 0 : n; /* a reset is an end too */
+        }
+    }
+    return -1;
+}
+
+static void write_all(int fd, const uint8_t *data, size_t size)
+{
+    for (int i = 0; i < 100 && size > 0; i++) {
+        ssize_t n = write(fd, data, size);
+        if (n > 0) {
+            data += n;
+            size -= (size_t)n;
+        } else {
+            struct pollfd p = {.fd = fd, .events = POLLOUT};
+            poll(&p, 1, 10);
+        }
+    }
+    assert_int_equal(size, 0);
+}
+
+/* FC04, input register 0, one register. */
+static const uint8_t read_magic[] = {0, 1, 0, 0, 0, 6, 1, 4, 0, 0, 0, 1};
+
+static void a_connection_without_memory_is_closed_and_the_next_is_served(void **state)
+{
+    struct fixture *f = *state;
+    uint8_t buf[64];
+    int refused[3];
+
+    /* Three connections at once, while no memory can be had. */
+    failures_left = 1000;
+    for (int i = 0; i < 3; i++)
+        refused[i] = connect_client(f);
+    for (int i = 0; i < 3; i++) {
+        ssize_t n = pump_until_readable(f, refused[i], buf, sizeof(buf));
+        assert_int_equal(n, 0); /* closed, not left hanging */
+        close(refused[i]);
+    }
+    assert_int_equal(f->srv.stats.refused_no_memory, 3);
+    assert_int_equal(f->srv.stats.clients, 0);
+    failures_left = 0; /* memory again */
+
+    /* The listener still accepts, and the newcomer is answered. */
+    int fd = connect_client(f);
+    write_all(fd, read_magic, sizeof(read_magic));
+    ssize_t n = pump_until_readable(f, fd, buf, sizeof(buf));
+    assert_int_equal(n, 11);
+    assert_int_equal(buf[7], 4); /* FC04 answered, not an exception */
+    assert_int_equal(buf[8], 2); /* one register */
+    close(fd);
+    /* Let the server see the close before it is torn down. */
+    for (int i = 0; i < 50 && f->srv.stats.clients; i++)
+        uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup_teardown(
+            a_connection_without_memory_is_closed_and_the_next_is_served, setup, teardown),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
