@@ -41,6 +41,7 @@ static struct regmap_image img;
 static struct cmd_queue queue;
 static struct fake_robot robot;
 static struct plc_commands pc;
+static struct fuzz_gateway gw;
 static const struct regmap_row *ack_row, *done_row, *json_length_row;
 
 static const char *const canned[] = {
@@ -73,7 +74,7 @@ static const char *const json_commands[] = {
 static void write_registers(unsigned address, unsigned count, const uint16_t *values)
 {
     uint16_t done_before = (uint16_t)regmap_get_number(&img, done_row, 0);
-    fuzz_write(&img, &pc, REGMAP_HOLDING_REGISTER, address, count, values);
+    fuzz_write(&gw, REGMAP_HOLDING_REGISTER, address, count, values, true);
     uint16_t done_after = (uint16_t)regmap_get_number(&img, done_row, 0);
     FUZZ_REQUIRE(done_after == done_before ||
                      done_after == (uint16_t)regmap_get_number(&img, ack_row, 0),
@@ -91,7 +92,7 @@ static void write_text(const uint8_t *text, size_t len, unsigned regs)
 static void write_coil(unsigned address, bool on)
 {
     uint16_t v = on;
-    fuzz_write(&img, &pc, REGMAP_COIL, address, 1, &v);
+    fuzz_write(&gw, REGMAP_COIL, address, 1, &v, true);
 }
 
 static void reply(const char *json, size_t size)
@@ -262,6 +263,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     if (plc_commands_init(&pc, &img, &queue, &cfg, fake_now, &robot))
         abort();
     robot.pc = &pc;
+    fuzz_gateway_init(&gw, &img, &pc, &robot, conf & 32);
     ack_row = pc.mailbox_ack;
     done_row = pc.mailbox_done;
     json_length_row = pc.json_length;
@@ -271,6 +273,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         step(&c);
     /* Whatever is left fails once, through the done callbacks. */
     cmd_queue_free(&queue);
+    fuzz_gateway_free(&gw);
     plc_commands_free(&pc);
     regmap_image_free(&img);
     return 0;

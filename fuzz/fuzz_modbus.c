@@ -39,6 +39,8 @@ static int pair[2];
 static struct cmd_queue queue;
 static struct fake_robot robot;
 static struct plc_commands pc, pc_initial;
+static struct fuzz_gateway gw;
+static struct policy policy_initial;
 static modbus_mapping_t initial;
 
 static uint16_t *copy_of(const void *p, size_t n)
@@ -65,7 +67,9 @@ static void setup(void)
     if (plc_commands_init(&pc, &img, &queue, &cfg, fake_now, &robot))
         abort();
     robot.pc = &pc;
+    fuzz_gateway_init(&gw, &img, &pc, &robot, false);
     pc_initial = pc;
+    policy_initial = gw.policy;
     /* The image as the gateway starts with it. */
     initial = *img.mb;
     initial.tab_bits = (uint8_t *)copy_of(img.mb->tab_bits, (size_t)img.mb->nb_bits);
@@ -85,6 +89,7 @@ static void reset(void)
     memcpy(mb->tab_input_registers, initial.tab_input_registers,
            (size_t)mb->nb_input_registers * 2);
     pc = pc_initial;
+    gw.policy = policy_initial;
     robot.connected = true;
     robot.outstanding = 0;
     cmd_queue_set_connected(&queue, true);
@@ -123,7 +128,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     unsigned address = 0;
     int count = mb_request_written_values(&img, req + 7, size, &table, &address, values);
     FUZZ_REQUIRE(count != 0, "a checked write sets nothing");
-    if (count > 0 && fuzz_write(&img, &pc, table, address, (unsigned)count, values) != 0) {
+    if (count > 0 && fuzz_write(&gw, table, address, (unsigned)count, values, false) != 0) {
         fake_drain(&robot);
         return 0; /* refused: answered with an exception, nothing applied */
     }
@@ -136,6 +141,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         regmap_save(&img, table, address, (unsigned)count, image_after);
         FUZZ_REQUIRE(memcmp(values, image_after, (size_t)count * 2) == 0,
                      "libmodbus wrote other values than the write path judged");
+        plc_write_after(&gw.writes); /* as the server does once libmodbus answered */
     }
     fake_drain(&robot);
     return 0;

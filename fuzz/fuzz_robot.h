@@ -13,10 +13,9 @@
  * not one JSON object abort the run: the gateway must never put them on
  * the wire. The robot answers in order.
  *
- * fuzz_write() is gateway.c's on_write() without the network-exception
- * policy: the new values go into the image, every element is checked
- * (plc_commands_check for command rows), a refusal restores the image,
- * otherwise every element is applied.
+ * fuzz_write() runs a write through plc_write_judge(), the transaction the
+ * Modbus server calls, with a real network-exception policy behind it,
+ * and checks what it left.
  */
 #ifndef JAKAGW_FUZZ_ROBOT_H
 #define JAKAGW_FUZZ_ROBOT_H
@@ -31,7 +30,10 @@
 
 #include "command.h"
 #include "fuzz_util.h"
+#include "ip_allow.h"
 #include "plc_commands.h"
+#include "plc_write.h"
+#include "policy.h"
 #include "regmap.h"
 
 
@@ -181,85 +183,123 @@ static inline void fake_drain(struct fake_robot *r)
     FUZZ_REQUIRE(r->outstanding == 0, "the queue never empties");
 }
 
-/* ---- the gateway's write path (gateway.c: on_write) --------------------- */
+/* ---- the gateway's write transaction (plc_write.h), as the server calls it -- */
 
-struct fuzz_write {
+/* The write side of a gateway: the transaction with a real policy. */
+struct fuzz_gateway {
+    struct policy policy;
+    struct plc_write writes;
     struct plc_commands *pc;
-    enum regmap_table table;
-    unsigned address, count;
-    unsigned next;       /* the lowest address the next element may have */
-    unsigned elements;
+    struct fake_robot *robot;
+    bool moving; /* what the robot's status would say */
 };
 
-static inline int check_element(struct fuzz_write *fw, const struct regmap_written *w)
+static inline uint64_t fuzz_gateway_now(void *user)
 {
-    const struct regmap_row *row = w->row;
-
-    FUZZ_REQUIRE(row && row->writable && row->table == fw->table,
-                 "decode reported a row that is not writable in the table written");
-    FUZZ_REQUIRE(w->element < row->elements, "element %u of a %u-element row", w->element,
-                 row->elements);
-    unsigned a = regmap_element_address(row, w->element);
-    unsigned width = regmap_element_width(row);
-    FUZZ_REQUIRE(a >= fw->next && a + width <= fw->address + fw->count,
-                 "element at %u (width %u) outside the write %u+%u or out of order", a,
-                 width, fw->address, fw->count);
-    FUZZ_REQUIRE(w->source_index == row->index + w->element, "source index");
-    if (row->type == REGMAP_STR)
-        FUZZ_REQUIRE(memchr(w->text, '\0', sizeof(w->text)), "text not terminated");
-    fw->next = a + width;
-    fw->elements++;
-    return 0;
+    return ((struct fuzz_gateway *)user)->robot->now_ms;
 }
 
-static inline int on_check(void *user, const struct regmap_written *w)
+static inline bool fuzz_gateway_moving(void *user)
 {
-    struct fuzz_write *fw = user;
-    check_element(fw, w);
-    if (fw->pc && (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH))
-        return plc_commands_check(fw->pc, w);
-    return 0;
+    return ((struct fuzz_gateway *)user)->moving;
 }
 
-static inline int on_apply(void *user, const struct regmap_written *w)
+/* The policy's action goes out as the gateway sends it. */
+static inline bool fuzz_gateway_send_action(void *user, enum policy_action action,
+                                            enum policy_fault reason)
 {
-    struct fuzz_write *fw = user;
-    if (fw->pc && (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH))
-        plc_commands_apply(fw->pc, w);
-    return 0;
+    struct fuzz_gateway *g = user;
+    (void)reason;
+    return plc_commands_send_now(g->pc, action == POLICY_STOP ? "stop_program"
+                                                               : "pause_program") == 0;
+}
+
+static inline int fuzz_gateway_gate(void *user, const struct cmd_def *def, char *why,
+                                    size_t size)
+{
+    return policy_gate_command(&((struct fuzz_gateway *)user)->policy, def, why, size);
+}
+
+static inline void fuzz_gateway_init(struct fuzz_gateway *g, struct regmap_image *img,
+                                     struct plc_commands *pc, struct fake_robot *robot,
+                                     bool motion_enable)
+{
+    struct policy_config pcfg = {.time_limit_ms = 300, .action = POLICY_PAUSE,
+                                 .watch = POLICY_WATCH_HEARTBEAT,
+                                 .motion_enable = motion_enable};
+    struct policy_sink sink = {.send_action = fuzz_gateway_send_action, .user = g};
+    struct plc_write_config wcfg = {0};
+    struct plc_write_hooks hooks = {.now_ms = fuzz_gateway_now,
+                                    .robot_may_move = fuzz_gateway_moving, .user = g};
+
+    g->pc = pc;
+    g->robot = robot;
+    g->moving = false;
+    policy_init(&g->policy, &pcfg, &sink);
+    FUZZ_REQUIRE(plc_write_init(&g->writes, img, pc, &g->policy, &wcfg, &hooks) == 0,
+                 "plc_write_init");
+    /* The command gate is the policy's, as in the gateway. */
+    pc->cfg.gate = fuzz_gateway_gate;
+    pc->cfg.gate_user = g;
+}
+
+static inline void fuzz_gateway_free(struct fuzz_gateway *g)
+{
+    plc_write_free(&g->writes);
 }
 
 /*
- * Writes 'count' bits or registers at 'address' as a PLC's write would:
- * returns 0 (applied) or the exception that refused it (image unchanged).
+ * Judges write 'count' bits or registers at 'address' through the same
+ * transaction as the server (plc_write_judge), then checks what it left:
+ * a refused write leaves the image as it was; an accepted one was decoded
+ * into elements, in address order, that cover it exactly. With 'apply',
+ * the values are applied as libmodbus would and the after-write step runs;
+ * otherwise the caller does both (plc_write_after) around modbus_reply.
+ * Returns 0 or the exception that refused it.
  */
-static inline int fuzz_write(struct regmap_image *img, struct plc_commands *pc,
-                      enum regmap_table table, unsigned address, unsigned count,
-                      const uint16_t *values)
+static inline int fuzz_write(struct fuzz_gateway *g, enum regmap_table table,
+                             unsigned address, unsigned count, const uint16_t *values,
+                             bool apply)
 {
     static uint16_t saved[MODBUS_MAX_WRITE_BITS], after[MODBUS_MAX_WRITE_BITS];
-    struct fuzz_write fw = {pc, table, address, count, address, 0};
+    struct regmap_image *img = g->writes.img;
+    struct mb_write w = {.table = table, .address = address, .count = count,
+                         .values = values, .client = "192.0.2.1", .client_id = 1};
     int ex;
 
     FUZZ_REQUIRE(count >= 1 && count <= MODBUS_MAX_WRITE_BITS, "write count %u", count);
+    ip_addr_parse(w.client, &w.client_addr);
     regmap_save(img, table, address, count, saved);
-    regmap_load(img, table, address, count, values);
-    if (pc)
-        plc_commands_begin(pc);
-    ex = regmap_decode_write(img, table, address, count, values, saved, on_check, &fw);
+    ex = plc_write_judge(&g->writes, &w);
     if (ex) {
-        regmap_load(img, table, address, count, saved);
         regmap_save(img, table, address, count, after);
         FUZZ_REQUIRE(memcmp(saved, after, count * sizeof(*saved)) == 0,
                      "a refused write left the image changed");
         return ex;
     }
-    FUZZ_REQUIRE(fw.elements > 0 && fw.next == address + count,
+    unsigned next = address;
+    for (unsigned k = 0; k < g->writes.element_count; k++) {
+        const struct regmap_written *e = &g->writes.elements[k];
+        const struct regmap_row *row = e->row;
+        FUZZ_REQUIRE(row && row->writable && row->table == table,
+                     "decode reported a row that is not writable in the table written");
+        FUZZ_REQUIRE(e->element < row->elements, "element %u of a %u-element row",
+                     e->element, row->elements);
+        unsigned a = regmap_element_address(row, e->element);
+        unsigned width = regmap_element_width(row);
+        FUZZ_REQUIRE(a == next && a + width <= address + count,
+                     "element at %u (width %u) outside the write %u+%u or out of order", a,
+                     width, address, count);
+        FUZZ_REQUIRE(e->source_index == row->index + e->element, "source index");
+        next = a + width;
+    }
+    FUZZ_REQUIRE(g->writes.element_count > 0 && next == address + count,
                  "an accepted write of %u+%u decoded into elements up to %u only", address,
-                 count, fw.next);
-    fw.next = address;
-    ex = regmap_decode_write(img, table, address, count, values, saved, on_apply, &fw);
-    FUZZ_REQUIRE(ex == 0, "the second decode of an accepted write refused it (%d)", ex);
+                 count, next);
+    if (apply) {
+        regmap_load(img, table, address, count, values);
+        plc_write_after(&g->writes);
+    }
     return 0;
 }
 

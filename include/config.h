@@ -15,10 +15,11 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "ip_allow.h"
 #include "regmap.h"
 
 #define CONFIG_DEFAULT_PATH "/etc/jakagw/jakagw.conf"
-#define CONFIG_MAX_WRITE_ALLOW 8
+#define CONFIG_MAX_WRITE_ALLOW IP_ALLOW_MAX
 
 struct gw_config {
     /* [robot] */
@@ -41,7 +42,8 @@ struct gw_config {
     /* Not a key: a listening socket passed by systemd, 0: bind and port. */
     int modbus_listen_fd;
     bool read_only;        /* no Modbus write at all */
-    char write_allow[400]; /* client addresses that may write, comma-separated; "" any */
+    char write_allow[400]; /* client addresses that may write, as written; "" any */
+    struct ip_allow write_allow_addrs; /* the same, parsed once when set */
     /* [commands] */
     bool motion;             /* motion commands allowed */
     bool allow_shutdown;     /* the shutdown command allowed */

@@ -19,6 +19,7 @@
 #include "log.h"
 #include "mb_server.h"
 #include "plc_commands.h"
+#include "plc_write.h"
 #include "policy.h"
 #include "regmap.h"
 #include "robot_link.h"
@@ -41,6 +42,12 @@ enum {
     GATEWAY_PART_COMMAND_LINK = 4,
     GATEWAY_PART_CAN = 8,
     GATEWAY_PART_POLICY = 16,
+    GATEWAY_PART_WRITES = 32,
+};
+
+/* The policy's rows, as PLCs read its state. */
+struct gateway_policy_rows {
+    const struct regmap_row *fault, *fault_age_ms, *faults, *write_owner, *motion_enabled;
 };
 
 struct gateway {
@@ -54,7 +61,7 @@ struct gateway {
     struct robot_link status_link;
     struct command_port command;
     struct plc_commands commands;
-    uint16_t saved_values[MODBUS_MAX_WRITE_BITS]; /* a write's range, before it */
+    struct plc_write writes; /* every Modbus write, judged before it is answered */
     struct mb_server modbus;
     struct can_mirror can; /* running when [can] enabled */
     struct gateway_counters counters;
@@ -65,11 +72,7 @@ struct gateway {
     size_t last_document_bytes;
     struct policy policy;
     uv_timer_t policy_timer; /* re-evaluates the policy every check period */
-    /* fault, age, count, motion enable, owner, reset, motion enabled */
-    const struct regmap_row *fault_rows[7];
-    const struct mb_write *writing; /* the write being judged, for its client */
-    uint64_t heartbeat_changed_ms; /* 0: never */
-    double heartbeat_value;
+    struct gateway_policy_rows policy_rows;
     struct log_ratelimit parse_log_limit;
     struct log_ratelimit command_log_limit;
 

@@ -39,6 +39,7 @@
 #define JAKAGW_MB_SERVER_H
 
 #include <stdbool.h>
+#include <netinet/in.h>
 #include <stdint.h>
 #include <uv.h>
 
@@ -70,7 +71,8 @@ struct mb_write {
     unsigned address;
     unsigned count;
     const uint16_t *values; /* one per bit (0 or 1) or register */
-    const char *client;     /* the client's IP address, as text */
+    const char *client;     /* the client's IP address, as text (for logs) */
+    struct in6_addr client_addr; /* the same, IPv4 mapped (ip_allow.h) */
     uint64_t client_id;     /* unique for each connection */
 };
 

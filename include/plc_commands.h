@@ -33,17 +33,14 @@
 #include <stdint.h>
 
 #include "command.h"
+#include "log.h"
 #include "regmap.h"
 
-#define PLC_MAX_COMMANDS 48
-#define PLC_MAX_ALLOWED 8
+#define PLC_MAX_COMMANDS 96
 
 struct plc_commands_config {
     bool motion;         /* motion commands allowed */
     bool allow_shutdown; /* the shutdown command allowed */
-    bool read_only;      /* no write at all */
-    unsigned allowed_count;         /* 0: any client may write */
-    char allowed[PLC_MAX_ALLOWED][48]; /* client addresses that may write */
     /* The robot's own network-exception handler, set on every connect. */
     bool robot_handle;          /* send set_network_exception_handle */
     uint32_t robot_time_limit_ms;
@@ -51,7 +48,9 @@ struct plc_commands_config {
     bool require_robot_handle;  /* commands refused until it is accepted */
     /*
      * Another say on every command (the network-exception policy): 0, or
-     * the exception that refuses it, with the reason in 'why'.
+     * the exception that refuses it, with the reason in 'why'. 'def' is
+     * NULL for a JSON mailbox command the table does not know (let through
+     * only with motion on), which must be judged as motion.
      */
     int (*gate)(void *user, const struct cmd_def *def, char *why, size_t size);
     void *gate_user;
@@ -98,7 +97,14 @@ struct plc_commands {
     struct plc_slot handle;
     enum plc_handle_state handle_state;
     const struct regmap_row *handle_row;
-    unsigned staged; /* commands the write being checked would queue */
+    /* The commands the write being judged would send, built by the check
+     * and sent, in order, by the apply: each is built once. */
+    struct plc_staged {
+        char *json;
+        const struct cmd_def *def;
+    } staged_cmds[CMD_QUEUE_CAPACITY];
+    unsigned staged, applied;
+    struct log_ratelimit refuse_log_limit;
     const struct regmap_row *mailbox_ack, *mailbox_done, *mailbox_code,
         *mailbox_arg;
     const struct regmap_row *json_request, *json_reply, *json_truncated,
@@ -119,19 +125,22 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
                       uint64_t (*now_ms)(void *clock), void *clock);
 void plc_commands_free(struct plc_commands *pc);
 
-/* May 'client' write at all? 0, or exception 01 (read-only, not allowed). */
-int plc_commands_may_write(const struct plc_commands *pc, const char *client);
-
 /* Starts checking a new write (phase 1 below). */
 void plc_commands_begin(struct plc_commands *pc);
 
 /*
  * Phase 1 of a write, for each element it sets, with the new values already
- * in the image: returns 0 or the exception code that refuses the write.
+ * in the image: returns 0 or the exception code that refuses the write (04
+ * when memory ran out: nothing is sent then either). The command is built
+ * here, once, and kept for phase 2.
  */
 int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w);
-/* Phase 2, once every element passed: sends what the write asks for. */
+/* Phase 2, once every element passed, for the same elements in the same
+ * order: sends what phase 1 built. */
 void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w);
+/* Ends a write: frees what phase 1 built and phase 2 did not send (all of
+ * it when the write was refused). */
+void plc_commands_discard(struct plc_commands *pc);
 
 /*
  * The command link came up: set the robot's network-exception handler

@@ -34,7 +34,11 @@
 #define JAKAGW_POLICY_H
 
 #include <stdbool.h>
+#include <stddef.h>
 #include <stdint.h>
+
+#include "command.h"
+#include "status.h"
 
 enum policy_action { POLICY_KEEP = 0, POLICY_PAUSE = 1, POLICY_STOP = 2 };
 
@@ -136,6 +140,24 @@ void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving);
  * by a latched fault, and stop_program never.)
  */
 bool policy_blocks_commands(const struct policy *p);
+
+/*
+ * Does the robot move or run a program, as far as the gateway can tell?
+ * True while a program loads or runs (interp_state 1 or 3), while the arm
+ * reports it is not in position (inpos 0), and whenever the status is
+ * stale ('status_fresh' false) or absent: blind, the worst is assumed.
+ */
+bool policy_robot_may_move(bool status_fresh, const struct jaka_status *status);
+
+/*
+ * The policy's say on a command about to be sent for a PLC: 0, or
+ * exception 01 with the reason in 'why'. stop_program always passes; a
+ * latched fault refuses everything else; with the motion-enable coil
+ * required and at 0, motion and program starts are refused. 'def' NULL (a
+ * name the command table does not know) is judged as motion.
+ */
+int policy_gate_command(const struct policy *p, const struct cmd_def *def, char *why,
+                        size_t size);
 
 /* Milliseconds since the fault latched; 0 when none. */
 uint64_t policy_fault_age_ms(const struct policy *p, uint64_t now_ms);

@@ -238,7 +238,9 @@ struct regmap_written {
     unsigned source_index; /* row->index + element */
     double value;          /* numbers and bits: the value the row means */
     double previous;       /* what the image held before this write */
-    char text[256];        /* REGMAP_STR: the text, NUL-terminated */
+    /* REGMAP_STR: the text is in the image (regmap_get_text), checked to
+     * be clean UTF-8; this struct stays small enough to keep a whole
+     * write's elements. */
 };
 
 typedef int (*regmap_written_cb)(void *user, const struct regmap_written *w);

@@ -3,6 +3,7 @@
 #include "config.h"
 
 #include "can_map.h"
+#include "ip_allow.h"
 #include "log.h"
 
 #include <ctype.h>
@@ -37,7 +38,9 @@ enum key_type {
     KEY_BOOL,
     KEY_INTERFACE, /* a network interface name, or "" for none */
     KEY_CAN_ID,    /* decimal or 0x hex, up to 'max' */
-    KEY_CAN_GROUPS /* a frame group list (can_map_parse_groups) */
+    KEY_CAN_GROUPS, /* a frame group list (can_map_parse_groups) */
+    KEY_IP_LIST     /* write_allow: literal addresses, parsed once here into
+                       write_allow_addrs (ip_allow.h) */
 };
 
 struct key_info {
@@ -86,7 +89,7 @@ static const struct key_info keys[] = {
     KEY("modbus", "unit_id", KEY_UNIT_ID, unit_id, 0, 255, "any"),
     KEY("modbus", "word_order", KEY_WORD_ORDER, word_order, 0, 1, "high_first"),
     KEY("modbus", "read_only", KEY_BOOL, read_only, 0, 1, "false"),
-    KEY("modbus", "write_allow", KEY_STRING, write_allow, 0, 0, ""),
+    KEY("modbus", "write_allow", KEY_IP_LIST, write_allow, 0, 0, ""),
     KEY("commands", "motion", KEY_BOOL, motion, 0, 1, "false"),
     KEY("commands", "allow_shutdown", KEY_BOOL, allow_shutdown, 0, 1, "false"),
     KEY("commands", "reply_timeout_ms", KEY_UINT, reply_timeout_ms, 100, 60000, "2000"),
@@ -240,6 +243,21 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
     uint32_t v;
 
     switch (k->type) {
+    case KEY_IP_LIST: {
+        struct ip_allow parsed;
+        char reason[96];
+        if (strlen(value) >= k->size) {
+            snprintf(why, why_size, "must be at most %zu characters", k->size - 1);
+            return -EINVAL;
+        }
+        if (ip_allow_parse(value, &parsed, reason, sizeof(reason)) != 0) {
+            snprintf(why, why_size, "%s", reason);
+            return -EINVAL;
+        }
+        cfg->write_allow_addrs = parsed;
+        memcpy(member, value, strlen(value) + 1);
+        return 0;
+    }
     case KEY_STRING:
     case KEY_HOST:
     case KEY_IP_ADDRESS:
@@ -630,25 +648,6 @@ int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
                  cfg->reconnect_min_ms, cfg->reconnect_max_ms);
         return -EINVAL;
     }
-    if (cfg->write_allow[0]) {
-        char list[sizeof(cfg->write_allow)];
-        unsigned n = 0;
-        snprintf(list, sizeof(list), "%s", cfg->write_allow);
-        for (char *save = NULL, *a = strtok_r(list, ", ", &save); a;
-             a = strtok_r(NULL, ", ", &save)) {
-            struct sockaddr_in6 a6;
-            struct sockaddr_in a4;
-            if (uv_ip4_addr(a, 0, &a4) != 0 && uv_ip6_addr(a, 0, &a6) != 0) {
-                snprintf(why, why_size, "[modbus] write_allow: '%.60s' is not an IP address", a);
-                return -EINVAL;
-            }
-            if (++n > CONFIG_MAX_WRITE_ALLOW) {
-                snprintf(why, why_size, "[modbus] write_allow: more than %d addresses",
-                         CONFIG_MAX_WRITE_ALLOW);
-                return -EINVAL;
-            }
-        }
-    }
     if (cfg->can_enabled) {
         uint32_t max_id = cfg->can_extended_ids ? CAN_MAX_EXT_ID : CAN_MAX_STD_ID;
         if (cfg->can_interface[0] == '\0') {
@@ -692,6 +691,7 @@ void config_print(const struct gw_config *cfg, FILE *out)
         case KEY_STRING:
         case KEY_HOST:
         case KEY_IP_ADDRESS:
+        case KEY_IP_LIST:
             print_text(out, (const char *)m);
             break;
         case KEY_UINT:

@@ -137,13 +137,14 @@ static void show_policy(struct gateway *gw)
 {
     struct regmap_image *img = &gw->image;
     const struct policy *p = &gw->policy;
+    const struct gateway_policy_rows *rows = &gw->policy_rows;
 
-    regmap_set_number(img, gw->fault_rows[0], 0, p->fault, true);
-    regmap_set_number(img, gw->fault_rows[1], 0,
+    regmap_set_number(img, rows->fault, 0, p->fault, true);
+    regmap_set_number(img, rows->fault_age_ms, 0,
                       (double)policy_fault_age_ms(p, uv_now(gw->loop)), true);
-    regmap_set_number(img, gw->fault_rows[2], 0, (double)(p->faults & 0xFFFF), true);
-    regmap_set_number(img, gw->fault_rows[6], 0, p->motion_enabled, true);
-    regmap_set_text(img, gw->fault_rows[4], 0, p->owner_address);
+    regmap_set_number(img, rows->faults, 0, (double)(p->faults & 0xFFFF), true);
+    regmap_set_number(img, rows->motion_enabled, 0, p->motion_enabled, true);
+    regmap_set_text(img, rows->write_owner, 0, p->owner_address);
 }
 
 void gateway_refresh_values(struct gateway *gw)
@@ -176,7 +177,8 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_modbus_evictions] = (double)mb->evictions;
     v[GW_uptime_s] = (double)((uv_now(gw->loop) - gw->started_ms) / 1000);
     v[GW_last_document_bytes] = (double)gw->last_document_bytes;
-    v[GW_plc_heartbeat_age_ms] = age_ms(gw, gw->heartbeat_changed_ms);
+    v[GW_plc_heartbeat_age_ms] =
+        age_ms(gw, gw->policy.heartbeat_armed ? gw->policy.heartbeat_ms : 0);
     v[GW_can_state] = gw->can.state;
     v[GW_can_frames_sent] = (double)gw->can.stats.frames_sent;
     v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
@@ -187,8 +189,10 @@ void gateway_refresh_values(struct gateway *gw)
         show_policy(gw);
 }
 
-static void clear_counters(struct gateway *gw)
+static void clear_counters(void *user)
 {
+    struct gateway *gw = user;
+
     memset(&gw->counters, 0, sizeof(gw->counters));
     gw->modbus.stats.requests = 0;
     gw->modbus.stats.exceptions = 0;
@@ -207,31 +211,14 @@ static void after_write(void *user, enum regmap_table table, unsigned address,
                         unsigned count)
 {
     struct gateway *gw = user;
-
-    for (unsigned a = address; a < address + count; a++) {
-        const struct regmap_row *row = regmap_find(&gw->map, table, a);
-        if (row && row == gw->fault_rows[5])
-            gw->image.mb->tab_bits[row->address] = 0; /* a command coil: reads 0 */
-        if (!row || row->source != REGMAP_SRC_GW)
-            continue;
-        double value = regmap_read_written(&gw->image, row);
-        if (row->id == GW_clear_counters && value != 0) {
-            clear_counters(gw);
-            /* A command coil: it reads 0 once done. */
-            gw->image.mb->tab_bits[row->address] = 0;
-        }
-    }
+    (void)table, (void)address, (void)count; /* the transaction knows them */
+    plc_write_after(&gw->writes);
 }
 
-/* Does the robot move or run a program, as far as the gateway can tell? */
-static bool robot_may_move(const struct gateway *gw)
+static bool robot_may_move(void *user)
 {
-    if (!gateway_status_fresh(gw))
-        return true; /* blind: assume the worst */
-    const struct status_num *inpos = status_num_at(gw->status, STATUS_F_inpos, 0);
-    const struct status_num *interp = status_num_at(gw->status, STATUS_F_interp_state, 0);
-    bool running = interp->present && (interp->value == 1 || interp->value == 3);
-    return running || (inpos->present && inpos->value == 0);
+    struct gateway *gw = user;
+    return policy_robot_may_move(gateway_status_fresh(gw), gw->status);
 }
 
 static void check_policy(struct gateway *gw)
@@ -264,88 +251,17 @@ static bool send_policy_action(void *user, enum policy_action action,
     return rc == 0;
 }
 
-/* The policy's say on a command: stop always passes. */
+/* The policy's say on every command the PLC side sends. */
 static int gate_command(void *user, const struct cmd_def *def, char *why, size_t size)
 {
     struct gateway *gw = user;
-    bool stop = def && strcmp(def->name, "stop_program") == 0;
-
-    if (stop)
-        return 0;
-    if (gw->policy.fault != POLICY_FAULT_NONE) {
-        snprintf(why, size, "network-exception fault %d latched: reset it first",
-                 gw->policy.fault);
-        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
-    }
-    if (def && (def->flags & (CMD_MOTION | CMD_STARTS_MOTION)) &&
-        policy_blocks_commands(&gw->policy)) {
-        snprintf(why, size, "motion enable is 0");
-        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
-    }
-    return 0;
+    return policy_gate_command(&gw->policy, def, why, size);
 }
 
-static int check_written(void *user, const struct regmap_written *w)
-{
-    struct gateway *gw = user;
-    if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH)
-        return plc_commands_check(&gw->commands, w);
-    return 0;
-}
-
-static int apply_written(void *user, const struct regmap_written *w)
-{
-    struct gateway *gw = user;
-    uint64_t now = uv_now(gw->loop);
-
-    if (w->row->source == REGMAP_SRC_GW && w->row->id == GW_plc_heartbeat) {
-        if (gw->heartbeat_changed_ms == 0 || w->value != gw->heartbeat_value)
-            gw->heartbeat_changed_ms = now;
-        gw->heartbeat_value = w->value;
-        policy_heartbeat(&gw->policy, now, gw->writing->client_id, gw->writing->client,
-                         w->value);
-    } else if (w->row == gw->fault_rows[5] && w->value != 0) {
-        if (gw->policy.fault != POLICY_FAULT_NONE)
-            log_notice("network-exception fault %d reset by %s", gw->policy.fault,
-                       gw->writing->client);
-        policy_reset(&gw->policy);
-    } else if (w->row == gw->fault_rows[3]) {
-        policy_motion_enable(&gw->policy, now, w->value != 0, robot_may_move(gw));
-    } else if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH) {
-        plc_commands_apply(&gw->commands, w);
-    }
-    return 0;
-}
-
-/*
- * A write, before it is answered. Its handlers judge it with the new
- * values in place (a command sees the parameters written with it); one
- * refusal refuses the whole write and restores what it changed.
- */
 static int on_write(void *user, const struct mb_write *w)
 {
     struct gateway *gw = user;
-    struct regmap_image *img = &gw->image;
-    int ex = policy_may_write(&gw->policy, w->client_id);
-
-    if (!ex)
-        ex = plc_commands_may_write(&gw->commands, w->client);
-    if (ex)
-        return ex;
-    gw->writing = w;
-    regmap_save(img, w->table, w->address, w->count, gw->saved_values);
-    regmap_load(img, w->table, w->address, w->count, w->values);
-    plc_commands_begin(&gw->commands);
-    ex = regmap_decode_write(img, w->table, w->address, w->count, w->values,
-                             gw->saved_values, check_written, gw);
-    if (ex) {
-        regmap_load(img, w->table, w->address, w->count, gw->saved_values);
-        return ex;
-    }
-    ex = regmap_decode_write(img, w->table, w->address, w->count, w->values,
-                             gw->saved_values, apply_written, gw);
-    check_policy(gw);
-    return ex;
+    return plc_write_judge(&gw->writes, w);
 }
 
 static void on_client(void *user, uint64_t client, bool open, unsigned clients)
@@ -450,6 +366,11 @@ static uint64_t loop_now_ms(void *clock)
     return uv_now(clock);
 }
 
+static uint64_t loop_now_ms_of_gateway(void *user)
+{
+    return uv_now(((struct gateway *)user)->loop);
+}
+
 /* Binds the command rows to the command port's queue. */
 static int start_commands(struct gateway *gw)
 {
@@ -457,7 +378,6 @@ static int start_commands(struct gateway *gw)
     struct plc_commands_config pcc = {
         .motion = cfg->motion,
         .allow_shutdown = cfg->allow_shutdown,
-        .read_only = cfg->read_only,
         .robot_handle = cfg->ne_robot_time_limit_ms > 0,
         .robot_time_limit_ms = cfg->ne_robot_time_limit_ms,
         .robot_mot_type = cfg->ne_robot_action,
@@ -465,12 +385,6 @@ static int start_commands(struct gateway *gw)
         .gate = gate_command,
         .gate_user = gw,
     };
-    char list[sizeof(cfg->write_allow)];
-
-    snprintf(list, sizeof(list), "%s", cfg->write_allow);
-    for (char *save = NULL, *a = strtok_r(list, ", ", &save);
-         a && pcc.allowed_count < PLC_MAX_ALLOWED; a = strtok_r(NULL, ", ", &save))
-        snprintf(pcc.allowed[pcc.allowed_count++], sizeof(pcc.allowed[0]), "%s", a);
     return plc_commands_init(&gw->commands, &gw->image, &gw->command.queue, &pcc,
                              loop_now_ms, gw->loop);
 }
@@ -479,9 +393,7 @@ static int start_commands(struct gateway *gw)
 static int start_policy(struct gateway *gw)
 {
     const struct gw_config *cfg = &gw->cfg;
-    static const char *const paths[] = {"fault",       "fault_age_ms", "faults",
-                                        "motion_enable", "write_owner", "fault_reset",
-                                        "motion_enabled"};
+    struct gateway_policy_rows *rows = &gw->policy_rows;
     struct policy_config pc = {
         .time_limit_ms = cfg->ne_time_limit_ms,
         .action = (enum policy_action)cfg->ne_action,
@@ -491,11 +403,14 @@ static int start_policy(struct gateway *gw)
     };
     struct policy_sink sink = {.send_action = send_policy_action, .user = gw};
 
-    for (unsigned i = 0; i < 7; i++) {
-        gw->fault_rows[i] = regmap_find_path(&gw->map, REGMAP_SRC_PATH, paths[i]);
-        if (!gw->fault_rows[i])
-            return -EINVAL;
-    }
+    rows->fault = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault");
+    rows->fault_age_ms = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault_age_ms");
+    rows->faults = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "faults");
+    rows->write_owner = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "write_owner");
+    rows->motion_enabled = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion_enabled");
+    if (!rows->fault || !rows->fault_age_ms || !rows->faults || !rows->write_owner ||
+        !rows->motion_enabled)
+        return -EINVAL;
     policy_init(&gw->policy, &pc, &sink);
     uv_timer_init(gw->loop, &gw->policy_timer);
     gw->policy_timer.data = gw;
@@ -507,6 +422,25 @@ static int start_policy(struct gateway *gw)
     return 0;
 }
 
+
+/* The write transaction: every Modbus write, judged before it is answered. */
+static int start_writes(struct gateway *gw)
+{
+    struct plc_write_config wc = {
+        .read_only = gw->cfg.read_only,
+        .write_allow = gw->cfg.write_allow_addrs,
+    };
+    struct plc_write_hooks hooks = {
+        .now_ms = loop_now_ms_of_gateway,
+        .robot_may_move = robot_may_move,
+        .clear_counters = clear_counters,
+        .user = gw,
+    };
+    int rc = plc_write_init(&gw->writes, &gw->image, &gw->commands, &gw->policy, &wc, &hooks);
+    if (rc == 0)
+        gw->parts |= GATEWAY_PART_WRITES;
+    return rc;
+}
 
 /* The self-description values, which never change while running. */
 static void set_constant_values(struct gateway *gw)
@@ -554,6 +488,9 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = start_policy(gw);
     if (rc)
         return rc;
+    rc = start_writes(gw);
+    if (rc)
+        return rc;
     gateway_refresh_values(gw);
 
     struct mb_server_config mc = {
@@ -587,6 +524,9 @@ static void part_closed(struct gateway *gw)
 {
     if (--gw->closing_parts > 0)
         return;
+    if (gw->parts & GATEWAY_PART_WRITES)
+        plc_write_free(&gw->writes);
+    plc_commands_free(&gw->commands);
     regmap_image_free(&gw->image);
     regmap_free(&gw->map);
     if (gw->close_cb)

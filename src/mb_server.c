@@ -2,6 +2,8 @@
 /* mb_server.c - see mb_server.h. */
 #include "mb_server.h"
 
+#include "ip_allow.h"
+
 #include "log.h"
 #include "mb_request.h"
 
@@ -48,6 +50,7 @@ struct mb_client {
     uint64_t request_seq;      /* 0: no request completed yet */
     char peer[64];
     char host[48]; /* the peer's address alone */
+    struct in6_addr addr; /* the same, for comparing (ip_allow.h) */
     enum client_state state;
     int open_handles;          /* tcp and timer */
 };
@@ -479,12 +482,15 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
     if (mb_request_is_write(pdu[0]) && srv->hooks.on_write) {
         /* Act before answering, so that a write can be refused. */
         static uint16_t values[MODBUS_MAX_WRITE_BITS];
-        struct mb_write w = {.client = c->host, .client_id = c->accept_seq,
-                             .values = values};
+        struct mb_write w = {.client = c->host, .client_addr = c->addr,
+                             .client_id = c->accept_seq, .values = values};
         int n = mb_request_written_values(srv->img, pdu, pdu_size, &w.table,
                                           &w.address, values);
         w.count = n > 0 ? (unsigned)n : 0;
-        ex = n > 0 ? srv->hooks.on_write(srv->hooks.user, &w) : 0;
+        /* A checked write always has values; if none came out, libmodbus
+         * must not apply it unjudged: 04. */
+        ex = n > 0 ? srv->hooks.on_write(srv->hooks.user, &w)
+                   : MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE;
         if (ex) {
             log_refused(c, req, size, ex);
             reply_exception(c, req, ex);
@@ -733,6 +739,7 @@ static void describe_peer(struct mb_client *c)
     unsigned port = 0;
 
     if (uv_tcp_getpeername(&c->tcp, (struct sockaddr *)&sa, &len) == 0) {
+        ip_addr_from_sockaddr((struct sockaddr *)&sa, &c->addr);
         if (sa.ss_family == AF_INET) {
             uv_ip4_name((struct sockaddr_in *)&sa, host, sizeof(host));
             port = ntohs(((struct sockaddr_in *)&sa)->sin_port);

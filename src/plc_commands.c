@@ -15,6 +15,7 @@
 #define EX_INVALID MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
 #define EX_BUSY MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY
 #define EX_LINK_DOWN MODBUS_EXCEPTION_GATEWAY_TARGET
+#define EX_FAILURE MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
 
 /* Robot information the status stream lacks: command, reply member, row. */
 static const struct info_item {
@@ -79,6 +80,7 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
     pc->cfg = *cfg;
     pc->now_ms = now_ms;
     pc->clock = clock;
+    pc->refuse_log_limit.interval_ms = 5000;
     if (cmd_table_count > PLC_MAX_COMMANDS)
         return -EINVAL;
     for (unsigned i = 0; i < cmd_table_count; i++) {
@@ -125,7 +127,8 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
 
 void plc_commands_free(struct plc_commands *pc)
 {
-    (void)pc; /* nothing allocated: queued commands belong to the queue */
+    /* Only a write's staged commands; queued ones belong to the queue. */
+    plc_commands_discard(pc);
 }
 
 static void set_result(struct plc_slot *slot, enum cmd_outcome outcome, long code,
@@ -150,48 +153,91 @@ static cJSON *number_item(double v, bool from_float)
     return cJSON_CreateNumber(v);
 }
 
-/* Sets obj.key, where key may be "name[i]" (the array grows with nulls). */
-static void set_member(cJSON *obj, const char *key, cJSON *item)
+/* Why a command could not be built from what the PLC wrote. */
+enum build_result {
+    BUILT = 0,
+    BUILD_INVALID,   /* the PLC's values do not make a command: 03 */
+    BUILD_NO_MEMORY, /* cJSON could not allocate: 04, nothing sent */
+};
+
+/*
+ * Sets obj.key, where key may be "name[i]" (the array grows with nulls).
+ * Takes 'item', which may be NULL (its allocation failed). Returns false
+ * when an allocation failed: 'item' is freed then, and 'obj' stays valid.
+ */
+static bool set_member(cJSON *obj, const char *key, cJSON *item)
 {
     char name[64];
     const char *bracket = strchr(key, '[');
 
+    if (!item)
+        return false;
     if (!bracket) {
         cJSON_DeleteItemFromObjectCaseSensitive(obj, key);
-        cJSON_AddItemToObject(obj, key, item);
-        return;
+        if (!cJSON_AddItemToObject(obj, key, item)) {
+            cJSON_Delete(item);
+            return false;
+        }
+        return true;
     }
     snprintf(name, sizeof(name), "%.*s", (int)(bracket - key), key);
     int index = atoi(bracket + 1);
     cJSON *array = cJSON_GetObjectItemCaseSensitive(obj, name);
     if (!cJSON_IsArray(array)) {
         array = cJSON_CreateArray();
-        cJSON_AddItemToObject(obj, name, array);
+        if (!array || !cJSON_AddItemToObject(obj, name, array)) {
+            cJSON_Delete(array);
+            cJSON_Delete(item);
+            return false;
+        }
     }
-    while (cJSON_GetArraySize(array) <= index)
-        cJSON_AddItemToArray(array, cJSON_CreateNull());
-    cJSON_ReplaceItemInArray(array, index, item);
+    /* Every create is checked: an unchecked one left the array short and
+     * this loop spinning for ever. */
+    while (cJSON_GetArraySize(array) <= index) {
+        cJSON *filler = cJSON_CreateNull();
+        if (!filler || !cJSON_AddItemToArray(array, filler)) {
+            cJSON_Delete(filler);
+            cJSON_Delete(item);
+            return false;
+        }
+    }
+    if (!cJSON_ReplaceItemInArray(array, index, item)) {
+        cJSON_Delete(item);
+        return false;
+    }
+    return true;
 }
 
 /* Adds the value of element 'i' of a parameter row under its JSON path. */
-static bool add_param(const struct plc_commands *pc, cJSON *obj,
-                      const struct regmap_row *row, unsigned i)
+static enum build_result add_param(const struct plc_commands *pc, cJSON *obj,
+                                   const struct regmap_row *row, unsigned i)
 {
     char path[96];
     regmap_expand(path, sizeof(path), row->path, row->index + i, i);
     const char *key = strchr(path, '.') + 1;
+    cJSON *item;
 
     if (row->type == REGMAP_STR) {
         char text[256];
         regmap_get_text(pc->img, row, i, text, sizeof(text));
         if (!text[0])
-            return false; /* a text parameter must be given */
-        set_member(obj, key, cJSON_CreateString(text));
+            return BUILD_INVALID; /* a text parameter must be given */
+        item = cJSON_CreateString(text);
     } else {
-        set_member(obj, key, number_item(regmap_get_number(pc->img, row, i),
-                                         row->type == REGMAP_F32));
+        item = number_item(regmap_get_number(pc->img, row, i), row->type == REGMAP_F32);
     }
-    return true;
+    return set_member(obj, key, item) ? BUILT : BUILD_NO_MEMORY;
+}
+
+/* A new object with cmdName first, as the manual writes commands. */
+static cJSON *new_command(const char *name)
+{
+    cJSON *obj = cJSON_CreateObject();
+    if (obj && !cJSON_AddStringToObject(obj, "cmdName", name)) {
+        cJSON_Delete(obj);
+        return NULL;
+    }
+    return obj;
 }
 
 static bool is_param_of(const struct regmap_row *row, const char *name)
@@ -202,58 +248,76 @@ static bool is_param_of(const struct regmap_row *row, const char *name)
 }
 
 /* The command 'def' with the parameters in its holding registers. */
-static cJSON *build_triggered(const struct plc_commands *pc, const struct cmd_def *def)
+static cJSON *build_triggered(const struct plc_commands *pc, const struct cmd_def *def,
+                              enum build_result *result)
 {
-    cJSON *obj = cJSON_CreateObject();
-    cJSON_AddStringToObject(obj, "cmdName", def->name);
-    for (unsigned r = 0; r < pc->img->map->row_count; r++) {
+    cJSON *obj = new_command(def->name);
+
+    *result = obj ? BUILT : BUILD_NO_MEMORY;
+    for (unsigned r = 0; obj && r < pc->img->map->row_count; r++) {
         const struct regmap_row *row = &pc->img->map->rows[r];
         if (!is_param_of(row, def->name))
             continue;
-        for (unsigned i = 0; i < row->elements; i++)
-            if (!add_param(pc, obj, row, i)) {
+        for (unsigned i = 0; i < row->elements; i++) {
+            *result = add_param(pc, obj, row, i);
+            if (*result != BUILT) {
                 cJSON_Delete(obj);
                 return NULL;
             }
+        }
     }
     return obj;
 }
 
 /* A setpoint row's command: its fixed members and the value written. */
-static cJSON *build_setpoint(const struct regmap_written *w, const struct cmd_def *def)
+static cJSON *build_setpoint(const struct regmap_written *w, const struct cmd_def *def,
+                             enum build_result *result)
 {
     const struct regmap_row *row = w->row;
     char fixed[160], text[176], path[96];
 
+    *result = BUILD_NO_MEMORY;
     regmap_expand(fixed, sizeof(fixed), row->fixed, w->source_index, w->element);
     snprintf(text, sizeof(text), "{%s}", fixed);
+    /* The members come from the register table, so only a failed
+     * allocation keeps them from parsing. */
     cJSON *members = cJSON_Parse(text);
-    if (!cJSON_IsObject(members)) {
+    cJSON *obj = cJSON_IsObject(members) ? new_command(def->name) : NULL;
+    if (!obj) {
         cJSON_Delete(members);
         return NULL;
     }
-    /* cmdName first, as the manual writes commands. */
-    cJSON *obj = cJSON_CreateObject();
-    cJSON_AddStringToObject(obj, "cmdName", def->name);
     while (members->child) {
-        cJSON *m = members->child;
-        cJSON_AddItemToObject(obj, m->string, cJSON_DetachItemViaPointer(members, m));
+        cJSON *m = cJSON_DetachItemViaPointer(members, members->child);
+        if (!cJSON_AddItemToObject(obj, m->string, m)) {
+            cJSON_Delete(m);
+            cJSON_Delete(members);
+            cJSON_Delete(obj);
+            return NULL;
+        }
     }
     cJSON_Delete(members);
     regmap_expand(path, sizeof(path), row->path, w->source_index, w->element);
-    set_member(obj, strchr(path, '.') + 1,
-               number_item(w->value, row->type == REGMAP_F32));
+    if (!set_member(obj, strchr(path, '.') + 1,
+                    number_item(w->value, row->type == REGMAP_F32))) {
+        cJSON_Delete(obj);
+        return NULL;
+    }
+    *result = BUILT;
     return obj;
 }
 
 /* The mailbox's command, from its code and arguments (cmd_def.mailbox_args). */
-static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def *def)
+static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def *def,
+                            enum build_result *result)
 {
     char args[128], name[64];
     unsigned next = 0;
-    cJSON *obj = cJSON_CreateObject();
+    cJSON *obj = new_command(def->name);
 
-    cJSON_AddStringToObject(obj, "cmdName", def->name);
+    *result = BUILD_NO_MEMORY;
+    if (!obj)
+        return NULL;
     snprintf(args, sizeof(args), "%s", def->mailbox_args);
     for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
          tok = strtok_r(NULL, ",", &save)) {
@@ -265,8 +329,9 @@ static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def 
             snprintf(path, sizeof(path), "%s.%s", def->name, tok);
             const struct regmap_row *row =
                 regmap_find_path(pc->img->map, REGMAP_SRC_CMD, path);
-            if (!row || !add_param(pc, obj, row, 0))
-                goto invalid;
+            *result = row ? add_param(pc, obj, row, 0) : BUILD_INVALID;
+            if (*result != BUILT)
+                goto fail;
             continue;
         }
         unsigned count = 1;
@@ -285,11 +350,17 @@ static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def 
                 snprintf(name, sizeof(name), "%s[%u]", tok, k);
             else
                 snprintf(name, sizeof(name), "%s", tok);
-            set_member(obj, name, number_item(v, mark != '#'));
+            if (!set_member(obj, name, number_item(v, mark != '#'))) {
+                *result = BUILD_NO_MEMORY;
+                goto fail;
+            }
         }
     }
+    *result = BUILT;
     return obj;
 invalid:
+    *result = BUILD_INVALID;
+fail:
     cJSON_Delete(obj);
     return NULL;
 }
@@ -309,7 +380,8 @@ static bool has_repeated_member(const cJSON *obj)
 }
 
 /* The JSON mailbox's command: the PLC's text, if it is a command. */
-static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd_def **def)
+static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd_def **def,
+                                 enum build_result *result)
 {
     char text[512];
     const char *end = NULL;
@@ -321,9 +393,11 @@ static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd
     if (!cJSON_IsObject(obj) || !cJSON_IsString(name) || !name->valuestring[0] ||
         has_repeated_member(obj)) {
         cJSON_Delete(obj);
+        *result = BUILD_INVALID;
         return NULL;
     }
     *def = cmd_find(name->valuestring);
+    *result = BUILT;
     return obj;
 }
 
@@ -372,38 +446,35 @@ static enum action action_of(struct plc_commands *pc, const struct regmap_writte
 }
 
 static cJSON *build(struct plc_commands *pc, enum action act, const struct regmap_written *w,
-                    const struct cmd_def **def)
+                    const struct cmd_def **def, enum build_result *result)
 {
+    *result = BUILD_INVALID;
     switch (act) {
     case ACT_TRIGGER:
-        return build_triggered(pc, *def);
+        return build_triggered(pc, *def, result);
     case ACT_SETPOINT:
-        return build_setpoint(w, *def);
+        return build_setpoint(w, *def, result);
     case ACT_MAILBOX:
-        return *def ? build_mailbox(pc, *def) : NULL;
+        return *def ? build_mailbox(pc, *def, result) : NULL;
     case ACT_JSON:
-        return parse_json_request(pc, def);
+        return parse_json_request(pc, def, result);
     case ACT_NONE:
         break;
     }
     return NULL;
 }
 
-int plc_commands_may_write(const struct plc_commands *pc, const char *client)
-{
-    if (pc->cfg.read_only)
-        return EX_NOT_PERMITTED;
-    if (pc->cfg.allowed_count == 0)
-        return 0;
-    for (unsigned i = 0; i < pc->cfg.allowed_count; i++)
-        if (strcmp(pc->cfg.allowed[i], client) == 0)
-            return 0;
-    return EX_NOT_PERMITTED;
-}
-
 void plc_commands_begin(struct plc_commands *pc)
 {
+    plc_commands_discard(pc);
+}
+
+void plc_commands_discard(struct plc_commands *pc)
+{
+    for (unsigned i = pc->applied; i < pc->staged; i++)
+        free(pc->staged_cmds[i].json);
     pc->staged = 0;
+    pc->applied = 0;
 }
 
 /* Refuses with 'ex', showing why in the slot's result registers. */
@@ -414,31 +485,42 @@ static int refuse(struct plc_slot *slot, int ex, enum cmd_outcome outcome, const
     return ex;
 }
 
-int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
+/*
+ * A name the command table does not know could be anything, motion
+ * included (a controller may read "Joint_Move" as joint_move): only with
+ * motion allowed may it go out, and then it is judged as motion.
+ */
+static int refuse_unknown_json_command(struct plc_commands *pc, const cJSON *cmd)
 {
-    const struct cmd_def *def;
-    struct plc_slot *slot;
-    enum action act = action_of(pc, w, &def, &slot);
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(cmd, "cmdName");
+    uint64_t suppressed;
 
-    if (act == ACT_NONE)
-        return 0;
-    cJSON *cmd = build(pc, act, w, &def);
-    cJSON_Delete(cmd);
-    if (!cmd)
-        return refuse(slot, EX_INVALID, CMD_INVALID,
-                      act == ACT_MAILBOX && !def ? "unknown command code"
-                      : act == ACT_JSON          ? "not a JSON command with a cmdName"
-                                                 : "invalid parameters");
-    if (def && (def->flags & CMD_MOTION) && !pc->cfg.motion)
+    if (log_ratelimit_pass(&pc->refuse_log_limit, pc->now_ms(pc->clock), &suppressed))
+        log_notice("JSON mailbox: refused cmdName \"%s\": not in the command table, and "
+                   "only [commands] motion = true lets other commands through "
+                   "(%llu more refusals since the last such line)",
+                   cJSON_IsString(name) ? name->valuestring : "", (unsigned long long)suppressed);
+    return refuse(&pc->json, EX_NOT_PERMITTED, CMD_REFUSED,
+                  "not in the command table: motion is off");
+}
+
+/* The gates, in order, for a command that passed validation. */
+static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *def,
+                struct plc_slot *slot)
+{
+    /* Unknown (JSON mailbox only, with motion on): judged as motion. */
+    unsigned flags = def ? def->flags : CMD_MOTION;
+
+    if ((flags & CMD_MOTION) && !pc->cfg.motion)
         return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
                       "motion is off: [commands] motion = true enables it");
-    if (def && (def->flags & CMD_SHUTDOWN) && !pc->cfg.allow_shutdown)
+    if ((flags & CMD_SHUTDOWN) && !pc->cfg.allow_shutdown)
         return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
                       "shutdown is off: [commands] allow_shutdown = true enables it");
     if (!pc->queue->connected)
         return refuse(slot, EX_LINK_DOWN, CMD_LINK_DOWN, "the command link is down");
     /* Pausing and stopping are never held back for want of the handler. */
-    bool halts = def && (def->flags & CMD_HALTS);
+    bool halts = flags & CMD_HALTS;
     if (pc->cfg.require_robot_handle && pc->cfg.robot_handle && !halts &&
         pc->handle_state != PLC_HANDLE_ACCEPTED)
         return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
@@ -454,6 +536,50 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
         return EX_BUSY;
     if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY)
         return EX_BUSY;
+    return 0;
+}
+
+int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
+{
+    const struct cmd_def *def;
+    struct plc_slot *slot;
+    enum action act = action_of(pc, w, &def, &slot);
+    enum build_result built;
+    int ex;
+
+    if (act == ACT_NONE)
+        return 0;
+    cJSON *cmd = build(pc, act, w, &def, &built);
+    if (!cmd)
+        return built == BUILD_NO_MEMORY
+                   ? refuse(slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent")
+                   : refuse(slot, EX_INVALID, CMD_INVALID,
+                            act == ACT_MAILBOX && !def ? "unknown command code"
+                            : act == ACT_JSON          ? "not a JSON command with a cmdName"
+                                                       : "invalid parameters");
+    if (act == ACT_JSON && !def && !pc->cfg.motion)
+        ex = refuse_unknown_json_command(pc, cmd);
+    else
+        ex = gate(pc, act, def, slot);
+    if (ex) {
+        cJSON_Delete(cmd);
+        return ex;
+    }
+    /* Built once, here: applying sends exactly what was judged. */
+    char *json;
+    if (act == ACT_JSON) {
+        /* Exactly the PLC's text goes to the robot. */
+        char text[512];
+        regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
+        json = strdup(text);
+    } else {
+        json = cJSON_PrintUnformatted(cmd);
+    }
+    cJSON_Delete(cmd);
+    if (!json)
+        return refuse(slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent");
+    pc->staged_cmds[pc->staged].json = json;
+    pc->staged_cmds[pc->staged].def = def;
     pc->staged++;
     return 0;
 }
@@ -490,27 +616,17 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
     struct plc_slot *slot;
     enum action act = action_of(pc, w, &def, &slot);
 
-    if (act == ACT_NONE)
-        return;
-    cJSON *cmd = build(pc, act, w, &def);
-    if (!cmd)
-        return; /* the check refused it; not reached */
+    if (act == ACT_NONE || pc->applied == pc->staged)
+        return; /* the second: not checked, so not staged (not reached) */
+    struct plc_staged *st = &pc->staged_cmds[pc->applied++];
+    def = st->def;
     if (act == ACT_MAILBOX || act == ACT_JSON)
         slot->def = def; /* one pending at a time: its refresh, its log line */
     if (act == ACT_MAILBOX)
         regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
-    if (act == ACT_JSON) {
-        /* Exactly the PLC's text goes to the robot. */
-        char text[512];
-        regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
-        submit(pc, slot, text, def);
-    } else {
-        char *text = cJSON_PrintUnformatted(cmd);
-        if (text)
-            submit(pc, slot, text, def);
-        free(text);
-    }
-    cJSON_Delete(cmd);
+    submit(pc, slot, st->json, def);
+    free(st->json);
+    st->json = NULL;
 }
 
 /* Maps a reply member onto an info row. */

@@ -64,12 +64,12 @@ void policy_client_closed(struct policy *p, uint64_t now_ms, uint64_t client,
         clear_owner(p);
 }
 
-/* Sends 'action', or keeps it owed when it cannot go out now. */
-static void act(struct policy *p, enum policy_action action)
+/* Sends 'action' for 'reason', or keeps it owed when it cannot go out now. */
+static void act(struct policy *p, enum policy_action action, enum policy_fault reason)
 {
     if (action == POLICY_KEEP || !p->sink.send_action)
         return;
-    if (p->sink.send_action(p->sink.user, action, p->fault))
+    if (p->sink.send_action(p->sink.user, action, reason))
         p->owed = POLICY_KEEP;
     else if (action > p->owed)
         p->owed = action; /* stop outranks pause */
@@ -81,7 +81,7 @@ static void latch(struct policy *p, uint64_t now_ms, enum policy_fault reason,
     p->fault = reason;
     p->fault_since_ms = now_ms;
     p->faults++;
-    act(p, action);
+    act(p, action, reason);
 }
 
 void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
@@ -98,7 +98,7 @@ void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
     if (p->fault == POLICY_FAULT_NONE)
         latch(p, now_ms, POLICY_FAULT_MOTION_ENABLE, POLICY_PAUSE);
     else
-        act(p, POLICY_PAUSE);
+        act(p, POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE); /* its own reason, not the old one's */
 }
 
 void policy_reset(struct policy *p)
@@ -128,7 +128,7 @@ void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving)
         /* Latched: the action went out once and is never repeated; one
          * that could not go out is tried again while the robot may move. */
         if (p->owed != POLICY_KEEP && robot_moving)
-            act(p, p->owed);
+            act(p, p->owed, p->fault);
         return;
     }
     enum policy_fault lost = lost_signal(p, now_ms);
@@ -145,4 +145,34 @@ bool policy_blocks_commands(const struct policy *p)
 uint64_t policy_fault_age_ms(const struct policy *p, uint64_t now_ms)
 {
     return p->fault == POLICY_FAULT_NONE ? 0 : now_ms - p->fault_since_ms;
+}
+
+bool policy_robot_may_move(bool status_fresh, const struct jaka_status *status)
+{
+    if (!status_fresh || !status)
+        return true; /* blind: assume the worst */
+    const struct status_num *inpos = status_num_at(status, STATUS_F_inpos, 0);
+    const struct status_num *interp = status_num_at(status, STATUS_F_interp_state, 0);
+    /* interp_state 1 loading, 3 running: a program may move the arm. */
+    bool running = interp->present && (interp->value == 1 || interp->value == 3);
+    return running || (inpos->present && inpos->value == 0);
+}
+
+int policy_gate_command(const struct policy *p, const struct cmd_def *def, char *why,
+                        size_t size)
+{
+    /* Unknown to the table: judged as motion. */
+    unsigned flags = def ? def->flags : CMD_MOTION;
+
+    if (def && strcmp(def->name, "stop_program") == 0)
+        return 0; /* stopping is never refused */
+    if (p->fault != POLICY_FAULT_NONE) {
+        snprintf(why, size, "network-exception fault %d latched: reset it first", p->fault);
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    if ((flags & (CMD_MOTION | CMD_STARTS_MOTION)) && policy_blocks_commands(p)) {
+        snprintf(why, size, "motion enable is 0");
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    return 0;
 }

@@ -825,8 +825,9 @@ int regmap_decode_write(const struct regmap_image *img, enum regmap_table table,
         struct regmap_written w = {.row = row, .element = i,
                                    .source_index = row->index + i};
         if (row->type == REGMAP_STR) {
-            decode_text(regs, width, w.text, sizeof(w.text));
-            if (!is_clean_utf8(w.text))
+            char text[256]; /* the image holds it; only its validity matters here */
+            decode_text(regs, width, text, sizeof(text));
+            if (!is_clean_utf8(text))
                 return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
         } else {
             double raw = raw_number(row, regs, img->word_order);

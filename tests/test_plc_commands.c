@@ -17,10 +17,15 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
+
+#include <cJSON.h>
 
 #include "command.h"
 #include "log.h"
 #include "plc_commands.h"
+#include "plc_write.h"
+#include "policy.h"
 #include "regmap.h"
 
 #define MAX_SENT 128
@@ -37,6 +42,8 @@ struct fake_robot {
     uint64_t now;
 };
 
+#define EX_FAILURE MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
+
 static struct regmap map;
 static struct regmap_image img;
 static struct cmd_queue queue;
@@ -44,6 +51,10 @@ static struct plc_commands pc;
 static struct fake_robot robot;
 static struct plc_commands_config cfg;
 static const char *client = "192.0.2.10";
+/* The write transaction the server uses, with a policy that watches nothing. */
+static struct policy policy;
+static struct plc_write writes;
+static struct plc_write_config write_cfg; /* for the next start(), then cleared */
 
 static int fake_send(void *io, const char *data, size_t size)
 {
@@ -72,11 +83,27 @@ static void fake_restart(void *io, const char *why)
     cmd_queue_set_connected(&queue, false);
 }
 
-/* (Re)creates the module with 'config'; the map and queue stay. */
+static bool never_moves(void *user)
+{
+    (void)user;
+    return false;
+}
+
+/* (Re)creates the module with 'config' (and write_cfg); the map and queue stay. */
 static void start(const struct plc_commands_config *config)
 {
+    struct policy_config quiet = {.time_limit_ms = 1000};
+    struct policy_sink no_sink = {0};
+    struct plc_write_hooks hooks = {.now_ms = fake_now, .robot_may_move = never_moves,
+                                    .user = &robot};
+
     cfg = *config;
+    plc_commands_free(&pc);
     assert_int_equal(plc_commands_init(&pc, &img, &queue, &cfg, fake_now, &robot), 0);
+    policy_init(&policy, &quiet, &no_sink);
+    plc_write_free(&writes);
+    assert_int_equal(plc_write_init(&writes, &img, &pc, &policy, &write_cfg, &hooks), 0);
+    memset(&write_cfg, 0, sizeof(write_cfg));
 }
 
 static int setup(void **state)
@@ -101,6 +128,7 @@ static int teardown(void **state)
 {
     (void)state;
     cmd_queue_free(&queue);
+    plc_write_free(&writes);
     plc_commands_free(&pc);
     regmap_image_free(&img);
     regmap_free(&map);
@@ -142,42 +170,21 @@ static const char *gw_text(const char *path)
     return text;
 }
 
-/* ---- writes, as gateway.c's on_write makes them ---- */
-
-static int checked(void *user, const struct regmap_written *w)
-{
-    (void)user;
-    if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH)
-        return plc_commands_check(&pc, w);
-    return 0;
-}
-
-static int applied(void *user, const struct regmap_written *w)
-{
-    (void)user;
-    if (w->row->source == REGMAP_SRC_CMD || w->row->source == REGMAP_SRC_PATH)
-        plc_commands_apply(&pc, w);
-    return 0;
-}
+/* ---- writes, through the transaction the Modbus server uses ---- */
 
 static int write_from(const char *who, enum regmap_table table, unsigned address,
                       unsigned count, const uint16_t *values)
 {
-    uint16_t saved[1024];
-    int ex = plc_commands_may_write(&pc, who);
+    struct mb_write w = {.table = table, .address = address, .count = count,
+                         .values = values, .client = who, .client_id = 1};
 
-    assert_true(count <= 1024);
-    if (ex)
-        return ex;
-    regmap_save(&img, table, address, count, saved);
-    regmap_load(&img, table, address, count, values);
-    plc_commands_begin(&pc);
-    ex = regmap_decode_write(&img, table, address, count, values, saved, checked, NULL);
-    if (ex) {
-        regmap_load(&img, table, address, count, saved);
-        return ex;
+    assert_int_equal(ip_addr_parse(who, &w.client_addr), 0);
+    int ex = plc_write_judge(&writes, &w);
+    if (ex == 0) {
+        regmap_load(&img, table, address, count, values); /* as libmodbus does */
+        plc_write_after(&writes);
     }
-    return regmap_decode_write(&img, table, address, count, values, saved, applied, NULL);
+    return ex;
 }
 
 static int write_raw(enum regmap_table table, unsigned address, unsigned count,
@@ -812,16 +819,18 @@ static void not_permitted(void **state)
     assert_int_equal(robot.sent_count, 0);
 
     /* Read-only: nothing at all may be written. */
-    struct plc_commands_config ro = {.read_only = true, .motion = true};
+    struct plc_commands_config ro = {.motion = true};
+    write_cfg.read_only = true;
     start(&ro);
     assert_int_equal(trigger("power_on"), EX_NOT_PERMITTED);
     assert_int_equal(write_u16(cmd_row("rapid_rate.rate_value"), 0, 300), EX_NOT_PERMITTED);
     assert_int_equal(regmap_get_number(&img, cmd_row("rapid_rate.rate_value"), 0), 0);
 
     /* write_allow: only the clients named. */
-    struct plc_commands_config allow = {.allowed_count = 2};
-    snprintf(allow.allowed[0], sizeof(allow.allowed[0]), "192.0.2.7");
-    snprintf(allow.allowed[1], sizeof(allow.allowed[1]), "2001:db8::7");
+    struct plc_commands_config allow = {0};
+    char why[96];
+    assert_int_equal(ip_allow_parse("192.0.2.7, 2001:db8::7", &write_cfg.write_allow, why,
+                                    sizeof(why)), 0);
     start(&allow);
     uint16_t one = 1;
     assert_int_equal(write_from("192.0.2.70", REGMAP_COIL, first->address, 1, &one),
@@ -833,7 +842,14 @@ static void not_permitted(void **state)
                      EX_NONE);
     expect_last_sent("{\"cmdName\":\"power_on\"}");
     reply_ok();
-    assert_int_equal(plc_commands_may_write(&pc, "192.0.2.7"), 0);
+    /* Compared as addresses: an IPv4 client of a dual-stack listener, and
+     * another spelling of the IPv6 address, are the same clients. */
+    assert_int_equal(write_from("::ffff:192.0.2.7", REGMAP_COIL, first->address, 1, &one),
+                     EX_NONE); /* 1 -> 1: no command, but allowed */
+    assert_int_equal(write_from("2001:0db8:0:0::0:7", REGMAP_COIL, first->address, 1, &one),
+                     EX_NONE);
+    assert_int_equal(write_from("::ffff:192.0.2.70", REGMAP_COIL, first->address, 1, &one),
+                     EX_NOT_PERMITTED);
     /* Shutdown when allowed. */
     struct plc_commands_config down = {.allow_shutdown = true};
     start(&down);
@@ -1131,7 +1147,7 @@ static void gate_has_a_say_on_every_command(void **state)
     assert_int_equal(mailbox(1, NULL, 0, 1), EX_NOT_PERMITTED);
     assert_int_equal(gw_number("mailbox.ack_seq"), 0);
     assert_int_equal(json_mailbox("{\"cmdName\":\"get_data\"}"), EX_NOT_PERMITTED);
-    assert_string_equal(gate_seen, "(none)");
+    assert_string_equal(gate_seen, "get_data");
     assert_int_equal(robot.sent_count, 0);
     /* Writes that send nothing are not the gate's business. */
     gate_seen[0] = '\0';
@@ -1141,10 +1157,105 @@ static void gate_has_a_say_on_every_command(void **state)
     expect_last_sent("{\"cmdName\":\"stop_program\"}");
 }
 
+/*
+ * A name the command table does not know went to the robot unchecked:
+ * "Joint_Move" reached the controller with motion off while joint_move was
+ * refused. Now it is refused (01) unless motion is on, and with motion on
+ * the gates judge it as motion.
+ */
+static void json_mailbox_refuses_names_outside_the_table(void **state)
+{
+    (void)state;
+    static const char *const smuggled[] = {
+        "{\"cmdName\":\"Joint_Move\",\"jointPosition\":[20,0,0,0,0,0],\"speed\":10,"
+        "\"accel\":10,\"relFlag\":1}",
+        "{\"cmdName\":\"JOINT_MOVE\"}",
+        "{\"cmdName\":\"joint_move \"}",
+        "{\"cmdName\":\"a_motion_command_from_a_newer_controller\"}",
+    };
+    for (unsigned i = 0; i < sizeof(smuggled) / sizeof(smuggled[0]); i++) {
+        assert_int_equal(json_mailbox(smuggled[i]), EX_NOT_PERMITTED);
+        assert_int_equal(robot.sent_count, 0);
+        assert_int_equal(gw_number("json.state"), CMD_REFUSED);
+    }
+    /* Chapter 4's queries stay reachable with motion off. */
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_joint_pos\"}"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"get_joint_pos\"}");
+    reply_ok();
+    /* Motion on: the gate sees it, as motion (def NULL), and may refuse it. */
+    struct plc_commands_config gated = {.motion = true, .gate = gate_all_but_stop};
+    start(&gated);
+    unsigned sent = robot.sent_count;
+    gate_seen[0] = '\0';
+    assert_int_equal(json_mailbox(smuggled[0]), EX_NOT_PERMITTED);
+    assert_string_equal(gate_seen, "(none)");
+    assert_int_equal(robot.sent_count, sent);
+    /* Motion on and nothing against it: it goes out as written. */
+    struct plc_commands_config open = {.motion = true};
+    start(&open);
+    assert_int_equal(json_mailbox(smuggled[0]), EX_NONE);
+    expect_last_sent(smuggled[0]);
+}
+
+/* A malloc for cJSON that fails once 'alloc_budget' allocations are spent. */
+static long alloc_budget = -1;
+static unsigned failed_allocs;
+
+static void *budget_malloc(size_t size)
+{
+    if (alloc_budget == 0) {
+        failed_allocs++;
+        return NULL;
+    }
+    if (alloc_budget > 0)
+        alloc_budget--;
+    return malloc(size);
+}
+
+/*
+ * Every cJSON allocation of building a command may fail: the write is then
+ * refused with 04 and nothing is sent; it never loops (an unchecked
+ * cJSON_CreateNull() while growing an array spun the event loop for ever).
+ */
+static void allocation_failures_refuse_with_04_and_never_hang(void **state)
+{
+    (void)state;
+    cJSON_Hooks hooks = {.malloc_fn = budget_malloc, .free_fn = free};
+    struct plc_commands_config motion = {.motion = true};
+    const double args[] = {10, 20, 30, 40, 50, 60, 5, 5, 0};
+    unsigned refused = 0, accepted = 0;
+
+    start(&motion);
+    alarm(20); /* a hang fails the test instead of stalling the suite */
+    for (long budget = 0; budget < 60; budget++) {
+        unsigned sent = robot.sent_count;
+        cJSON_InitHooks(&hooks);
+        alloc_budget = budget;
+        int ex = mailbox(30, args, 9, (uint16_t)(budget + 1)); /* joint_move */
+        alloc_budget = -1;
+        cJSON_InitHooks(NULL);
+        if (ex == EX_FAILURE) {
+            refused++;
+            assert_int_equal(robot.sent_count, sent);
+        } else {
+            assert_int_equal(ex, EX_NONE);
+            accepted++;
+            while (cmd_queue_pending(&queue))
+                reply_ok();
+        }
+    }
+    alarm(0);
+    printf("joint_move through the mailbox with 0..59 allocations allowed: %u refused "
+           "with 04, %u sent, %u allocations failed\n", refused, accepted, failed_allocs);
+    assert_true(refused > 5);
+    assert_true(accepted > 10);
+}
+
 static void send_now_passes_every_gate(void **state)
 {
     (void)state;
-    struct plc_commands_config c = {.gate = gate_all_but_stop, .read_only = true};
+    struct plc_commands_config c = {.gate = gate_all_but_stop};
+    write_cfg.read_only = true;
     start(&c);
     assert_int_equal(plc_commands_send_now(&pc, "pause_program"), 0);
     expect_last_sent("{\"cmdName\":\"pause_program\"}");
@@ -1193,6 +1304,8 @@ int main(void)
         T(robot_handler_first_on_every_connect),
         T(gate_has_a_say_on_every_command),
         T(send_now_passes_every_gate),
+        T(json_mailbox_refuses_names_outside_the_table),
+        T(allocation_failures_refuse_with_04_and_never_hang),
     };
 #undef T
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -1155,9 +1155,11 @@ def test_json_mailbox_round_trips():
         r = plc.json_result()
         check((r["state"], r["code"], r["msg"]) == (ROBOT_ERROR, 2, "call kine inverse failed"),
               "unreachable pose %r" % r)
-        check(plc.json_request('{"cmdName":"no_such_command"}') == 0, "unknown command")
-        r = plc.json_result()
-        check((r["state"], r["code"]) == (ROBOT_ERROR, 1), "unknown command %r" % r)
+        # A name the command table does not know could be motion: refused
+        # with motion off, and never sent.
+        check(plc.json_request('{"cmdName":"no_such_command"}') == EX_NOT_PERMITTED,
+              "unknown command accepted with motion off")
+        check(not sent(sim, "no_such_command"), "the unknown command reached the robot")
         print("  get_data reply of %d bytes: the first %d readable, truncated flag set"
               % (length, 2 * JSON_REPLY_REGS))
         plc.close()
@@ -1197,6 +1199,35 @@ def test_json_mailbox_refuses_a_second_object_in_the_text():
 def test_json_mailbox_refuses_a_repeated_cmdName():
     smuggle('{"cmdName":"get_version","cmdName":"joint_move","relFlag":1,'
             '"jointPosition":[20,0,0,0,0,0],"speed":100,"accel":100}', "joint_move")
+
+
+def test_json_mailbox_refuses_a_motion_name_the_table_does_not_know():
+    """Joint_Move is not joint_move to the command table: it reached the
+    robot with motion off. Now it is refused (01) and nothing is sent."""
+    smuggle('{"cmdName":"Joint_Move","relFlag":1,"jointPosition":[20,0,0,0,0,0],'
+            '"speed":100,"accel":100}', "Joint_Move")
+
+
+def test_a_plc_text_cannot_forge_a_log_line():
+    """The JSON mailbox's cmdName is the PLC's text: with a newline, a
+    forged "<3>jakagw:" entry and escape sequences in it, the refusal's log
+    line is still one line, with the bytes escaped and the Chinese kept."""
+    name = "程序\n<3>jakagw: forged\r\u001b[2J\u009b"
+    with running(["--log-commands"]) as (sim, gw):
+        plc = Plc(gw)
+        plc.ready()
+        ex = plc.json_request(json.dumps({"cmdName": name}, ensure_ascii=False))
+        check(ex == EX_NOT_PERMITTED, "exception %r" % ex)
+        plc.close()
+        wait_until(lambda: log_lines(gw, "JSON mailbox: refused"), 5, "the log line")
+        out = gw.output()
+    lines = [l for l in out.splitlines() if "forged" in l]
+    check(len(lines) == 1 and lines[0].startswith("<5>JSON mailbox: refused cmdName"),
+          "forged text on %d lines: %r" % (len(lines), lines))
+    check('"程序\\x0a<3>jakagw: forged\\x0d\\x1b[2J\\u009b"' in lines[0],
+          "not escaped as expected: %r" % lines[0])
+    check("\x1b" not in out and "\r" not in out and "\u009b" not in out,
+          "a control character reached the log")
 
 
 def test_json_mailbox_treats_payload_identification_as_motion():
@@ -1261,6 +1292,8 @@ if __name__ == "__main__":
          test_simulator_extension_io_get_data_and_repeated_members,
          test_power_enable_disable_clear_error_by_trigger_coils,
          test_robot_refusal_surfaces_its_code_and_message, test_a_robot_message_cannot_forge_a_log_line,
+         test_a_plc_text_cannot_forge_a_log_line,
+         test_json_mailbox_refuses_a_motion_name_the_table_does_not_know,
          test_program_recipe_as_a_plc_runs_it,
          test_setpoints_rapid_rate_tool_frame_collision_level,
          test_set_user_id_selects_the_user_frame,

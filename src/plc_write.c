@@ -1,0 +1,149 @@
+/* SPDX-License-Identifier: MIT */
+/* plc_write.c - a PLC's write as one transaction (plc_write.h). */
+#include "plc_write.h"
+
+#include "log.h"
+
+#include <errno.h>
+#include <stdlib.h>
+#include <string.h>
+
+static const struct regmap_row *find_gw_row(const struct regmap *map, int id)
+{
+    for (unsigned r = 0; r < map->row_count; r++)
+        if (map->rows[r].source == REGMAP_SRC_GW && map->rows[r].id == id &&
+            map->rows[r].writable)
+            return &map->rows[r];
+    return NULL;
+}
+
+int plc_write_init(struct plc_write *pw, struct regmap_image *img,
+                   struct plc_commands *commands, struct policy *policy,
+                   const struct plc_write_config *cfg, const struct plc_write_hooks *hooks)
+{
+    memset(pw, 0, sizeof(*pw));
+    pw->img = img;
+    pw->commands = commands;
+    pw->policy = policy;
+    pw->cfg = *cfg;
+    pw->hooks = *hooks;
+    pw->rows.heartbeat = find_gw_row(img->map, GW_plc_heartbeat);
+    pw->rows.clear_counters = find_gw_row(img->map, GW_clear_counters);
+    pw->rows.fault_reset = regmap_find_path(img->map, REGMAP_SRC_PATH, "fault_reset");
+    pw->rows.motion_enable = regmap_find_path(img->map, REGMAP_SRC_PATH, "motion_enable");
+    if (!pw->rows.heartbeat || !pw->rows.clear_counters || !pw->rows.fault_reset ||
+        !pw->rows.motion_enable)
+        return -EINVAL;
+    /* One element per bit at most: the largest write there is. */
+    pw->elements = calloc(MODBUS_MAX_WRITE_BITS, sizeof(*pw->elements));
+    return pw->elements ? 0 : -ENOMEM;
+}
+
+void plc_write_free(struct plc_write *pw)
+{
+    free(pw->elements);
+    pw->elements = NULL;
+}
+
+int plc_write_authorize(const struct plc_write *pw, const struct mb_write *w)
+{
+    if (pw->cfg.read_only)
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    if (pw->cfg.write_allow.count > 0 &&
+        !ip_allow_contains(&pw->cfg.write_allow, &w->client_addr))
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    return policy_may_write(pw->policy, w->client_id);
+}
+
+static bool is_command_row(const struct regmap_row *row)
+{
+    return row->source == REGMAP_SRC_CMD || row->source == REGMAP_SRC_PATH;
+}
+
+/* Step 2 and 3 at once: keep the element, then check it. */
+static int keep_and_check(void *user, const struct regmap_written *w)
+{
+    struct plc_write *pw = user;
+
+    if (pw->element_count == MODBUS_MAX_WRITE_BITS)
+        return MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE; /* not reached */
+    pw->elements[pw->element_count++] = *w;
+    if (is_command_row(w->row))
+        return plc_commands_check(pw->commands, w);
+    return 0;
+}
+
+/* Step 4 for one element. */
+static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_t now)
+{
+    const struct plc_write_rows *rows = &pw->rows;
+
+    if (e->row == rows->heartbeat) {
+        policy_heartbeat(pw->policy, now, pw->w->client_id, pw->w->client, e->value);
+    } else if (e->row == rows->fault_reset) {
+        if (e->value != 0) {
+            if (pw->policy->fault != POLICY_FAULT_NONE)
+                log_notice("network-exception fault %d reset by %s", pw->policy->fault,
+                           pw->w->client);
+            policy_reset(pw->policy);
+        }
+    } else if (e->row == rows->motion_enable) {
+        policy_motion_enable(pw->policy, now, e->value != 0,
+                             pw->hooks.robot_may_move(pw->hooks.user));
+    } else if (is_command_row(e->row)) {
+        plc_commands_apply(pw->commands, e);
+    }
+}
+
+int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
+{
+    struct regmap_image *img = pw->img;
+    int ex = plc_write_authorize(pw, w);
+
+    pw->awaiting_after = false;
+    pw->element_count = 0;
+    if (ex)
+        return ex;
+    if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS)
+        return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+    pw->w = w;
+    regmap_save(img, w->table, w->address, w->count, pw->saved);
+    regmap_load(img, w->table, w->address, w->count, w->values);
+    plc_commands_begin(pw->commands);
+    ex = regmap_decode_write(img, w->table, w->address, w->count, w->values, pw->saved,
+                             keep_and_check, pw);
+    if (ex) {
+        regmap_load(img, w->table, w->address, w->count, pw->saved);
+        plc_commands_discard(pw->commands);
+        pw->w = NULL;
+        return ex;
+    }
+    uint64_t now = pw->hooks.now_ms(pw->hooks.user);
+    for (unsigned i = 0; i < pw->element_count; i++)
+        act_on(pw, &pw->elements[i], now);
+    plc_commands_discard(pw->commands);
+    policy_check(pw->policy, now, pw->hooks.robot_may_move(pw->hooks.user));
+    /* 'w' is the server's and lives only for this call. */
+    pw->w = NULL;
+    pw->awaiting_after = true;
+    return 0;
+}
+
+void plc_write_after(struct plc_write *pw)
+{
+    if (!pw->awaiting_after)
+        return;
+    pw->awaiting_after = false;
+    for (unsigned i = 0; i < pw->element_count; i++) {
+        const struct regmap_written *e = &pw->elements[i];
+        /* Command coils: done once written, they read 0. */
+        if (e->row == pw->rows.fault_reset) {
+            pw->img->mb->tab_bits[e->row->address] = 0;
+        } else if (e->row == pw->rows.clear_counters) {
+            if (e->value != 0 && pw->hooks.clear_counters)
+                pw->hooks.clear_counters(pw->hooks.user);
+            pw->img->mb->tab_bits[e->row->address] = 0;
+        }
+    }
+    pw->element_count = 0;
+}
