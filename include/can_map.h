@@ -171,9 +171,10 @@ struct can_dbc_options {
 int can_map_print_dbc(const struct can_dbc_options *opt, FILE *out);
 
 /*
- * Parses a group list: "all", "none", or names separated by commas and/or
- * spaces ("state, health, joints"). Returns 0, or -EINVAL with the reason
- * written to 'why'.
+ * Parses a group list: "all", or names separated by commas and/or spaces
+ * ("state, health, joints"); at least one group (to send nothing, leave
+ * [can] enabled = false). Returns 0, or -EINVAL with the reason written to
+ * 'why'.
  */
 int can_map_parse_groups(const char *text, uint32_t *groups, char *why,
                          size_t why_size);

@@ -471,6 +471,8 @@ static void motion_enable_drop_under_a_latched_fault(void **state)
     policy_motion_enable(&p, T0 + LIMIT + 10, false, MOVING);
     assert_int_equal(sent.calls, 2);
     assert_int_equal(sent.action[1], POLICY_PAUSE);
+    /* Its own reason, not the latched heartbeat's (the log says why). */
+    assert_int_equal(sent.reason[1], POLICY_FAULT_MOTION_ENABLE);
     assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
     assert_int_equal(p.faults, 1);
     /* Idle, a drop sends nothing. */
@@ -612,6 +614,68 @@ static void no_owner_without_single_owner(void **state)
     expect_nothing();
 }
 
+/* ---- the decisions gateway.c used to take ---- */
+
+static void set_num(struct jaka_status *st, enum status_field f, double v)
+{
+    struct status_num *n = (struct status_num *)status_num_at(st, f, 0);
+    n->value = v;
+    n->present = true;
+}
+
+static void robot_may_move_assumes_the_worst_when_blind(void **state)
+{
+    (void)state;
+    static struct jaka_status st;
+
+    memset(&st, 0, sizeof(st));
+    /* Stale or absent status: it may move. */
+    assert_true(policy_robot_may_move(false, &st));
+    assert_true(policy_robot_may_move(true, NULL));
+    /* Fresh, idle and in position: it does not. */
+    set_num(&st, STATUS_F_interp_state, 0);
+    set_num(&st, STATUS_F_inpos, 1);
+    assert_false(policy_robot_may_move(true, &st));
+    /* A program loading or running, or not in position: it may. */
+    set_num(&st, STATUS_F_interp_state, 1);
+    assert_true(policy_robot_may_move(true, &st));
+    set_num(&st, STATUS_F_interp_state, 3);
+    assert_true(policy_robot_may_move(true, &st));
+    set_num(&st, STATUS_F_interp_state, 2); /* paused */
+    assert_false(policy_robot_may_move(true, &st));
+    set_num(&st, STATUS_F_inpos, 0);
+    assert_true(policy_robot_may_move(true, &st));
+}
+
+static void gate_refuses_under_a_fault_and_without_motion_enable(void **state)
+{
+    (void)state;
+    char why[96];
+    const struct cmd_def *power_on = cmd_find("power_on");
+    const struct cmd_def *play = cmd_find("play_program");
+    const struct cmd_def *joint_move = cmd_find("joint_move");
+    const struct cmd_def *stop = cmd_find("stop_program");
+
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
+    /* Motion enable required and at 0: motion, program starts and unknown
+     * names (judged as motion) are refused; the rest passes. */
+    assert_int_equal(policy_gate_command(&p, power_on, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, play, why, sizeof(why)), 1);
+    assert_string_equal(why, "motion enable is 0");
+    assert_int_equal(policy_gate_command(&p, joint_move, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 1);
+    policy_motion_enable(&p, T0, true, IDLE);
+    assert_int_equal(policy_gate_command(&p, play, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 0);
+    /* A latched fault refuses everything but stop_program. */
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, MOVING);
+    assert_int_equal(policy_gate_command(&p, power_on, why, sizeof(why)), 1);
+    assert_string_equal(why, "network-exception fault 1 latched: reset it first");
+    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, stop, why, sizeof(why)), 0);
+}
+
 static void sink_without_a_callback(void **state)
 {
     (void)state;
@@ -628,6 +692,8 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(heartbeat_not_armed_before_a_first_change),
+        cmocka_unit_test(robot_may_move_assumes_the_worst_when_blind),
+        cmocka_unit_test(gate_refuses_under_a_fault_and_without_motion_enable),
         cmocka_unit_test(heartbeat_armed_on_first_write),
         cmocka_unit_test(heartbeat_changes_keep_it_alive),
         cmocka_unit_test(same_value_is_not_a_change),

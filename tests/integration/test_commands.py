@@ -1084,6 +1084,36 @@ def test_write_allow_refuses_other_clients_and_still_serves_their_reads():
         plc.close()
 
 
+def test_write_allow_on_a_dual_stack_bind():
+    """bind = :: serves IPv4 clients as ::ffff:127.0.0.1; write_allow =
+    127.0.0.1 must still let them write (it refused every write before),
+    and 127.0.0.2 must still be refused."""
+    config = "[modbus]\nwrite_allow = 127.0.0.1\n"
+    sim = Sim("--log-commands")
+    gw = None
+    try:
+        gw = Gateway(sim, config, extra=["--modbus-bind", "::"])
+        allowed = Plc(gw)
+        allowed.ready()
+        check(allowed.trigger("power_on") == 0, "127.0.0.1 refused on a dual-stack bind")
+        allowed.expect_done("power_on")
+        other = Plc(gw, source="127.0.0.2")
+        check(other.coil(TRIGGER["power_off"], 1) == EX_NOT_PERMITTED,
+              "127.0.0.2 not refused on a dual-stack bind")
+        check(other.ir(I_MAGIC)[0] == 0x4A4B, "reads refused to the other client")
+        fence(allowed, sim)
+        check(len(sent(sim, "power_on")) == 1 and sent(sim, "power_off") == [],
+              "robot got %s" % [c[1] for c in robot_commands(sim)])
+        other.close()
+        allowed.close()
+    finally:
+        try:
+            if gw:
+                gw.stop()
+        finally:
+            sim.stop()
+
+
 def test_mbpoll_commands_the_robot():
     with running(["--log-commands"]) as (sim, gw):
         plc = Plc(gw)
@@ -1292,7 +1322,7 @@ if __name__ == "__main__":
          test_simulator_extension_io_get_data_and_repeated_members,
          test_power_enable_disable_clear_error_by_trigger_coils,
          test_robot_refusal_surfaces_its_code_and_message, test_a_robot_message_cannot_forge_a_log_line,
-         test_a_plc_text_cannot_forge_a_log_line,
+         test_a_plc_text_cannot_forge_a_log_line, test_write_allow_on_a_dual_stack_bind,
          test_json_mailbox_refuses_a_motion_name_the_table_does_not_know,
          test_program_recipe_as_a_plc_runs_it,
          test_setpoints_rapid_rate_tool_frame_collision_level,
