@@ -68,6 +68,100 @@ static int bind_slot(struct plc_commands *pc, struct plc_slot *slot,
     return 0;
 }
 
+static const struct cmd_def *command_of(const char *path);
+static bool is_param_of(const struct regmap_row *row, const char *name);
+
+/*
+ * Finds 'member' among a command's mailbox arguments ("name[N]" takes N,
+ * a '#' or '$' suffix marks the kind). Returns how many values it takes,
+ * or 0 when it is not one of them.
+ */
+static unsigned mailbox_arg_count(const struct cmd_def *def, const char *member)
+{
+    char args[128];
+
+    snprintf(args, sizeof(args), "%s", def->mailbox_args);
+    for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        size_t n = strcspn(tok, "[#$");
+        if (strlen(member) == n && strncmp(tok, member, n) == 0)
+            return tok[n] == '[' ? (unsigned)atoi(tok + n + 1) : 1;
+    }
+    return 0;
+}
+
+/* Does a parameter row of 'def' give mailbox argument 'arg'? */
+static bool has_param_row(const struct regmap *map, const struct cmd_def *def,
+                          const char *arg, size_t arg_len)
+{
+    size_t n = strlen(def->name);
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const char *path = map->rows[r].path;
+        if (map->rows[r].source == REGMAP_SRC_CMD && !map->rows[r].fixed &&
+            strncmp(path, def->name, n) == 0 && path[n] == '.' &&
+            strncmp(path + n + 1, arg, arg_len) == 0 &&
+            (path[n + 1 + arg_len] == '\0' || path[n + 1 + arg_len] == '['))
+            return true;
+    }
+    return false;
+}
+
+/*
+ * The command table (cmd_def.mailbox_args) and the register table's
+ * parameter and setpoint rows ("<cmdName>.<member>") describe the same
+ * parameters twice: checked against each other at start, so that they
+ * cannot drift apart. Returns 0, or -EINVAL having logged the difference.
+ */
+static int check_parameter_rows(const struct regmap *map)
+{
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const struct regmap_row *row = &map->rows[r];
+        const char *dot = row->source == REGMAP_SRC_CMD ? strchr(row->path, '.') : NULL;
+        if (!dot)
+            continue;
+        const struct cmd_def *def = command_of(row->path);
+        if (!def) {
+            log_err("register map: row %s belongs to no command of the command table",
+                    row->name);
+            return -EINVAL;
+        }
+        if (!def->code)
+            continue; /* not in the mailbox: nothing to compare with */
+        char member[64];
+        snprintf(member, sizeof(member), "%.*s", (int)strcspn(dot + 1, "["), dot + 1);
+        unsigned count = mailbox_arg_count(def, member);
+        /* A parameter row gives the whole argument; a setpoint row one
+         * element of it, the others fixed by the row. */
+        if (count == 0 || (!row->fixed && count != row->elements)) {
+            log_err("register map: row %s (%s, %u values) does not match %s's arguments "
+                    "in the command table (%s)",
+                    row->name, row->path, row->elements, def->name, def->mailbox_args);
+            return -EINVAL;
+        }
+    }
+    /* The other way: a triggered command's every argument has its row. */
+    for (unsigned i = 0; i < cmd_table_count; i++) {
+        const struct cmd_def *def = &cmd_table[i];
+        char args[128];
+        bool triggered = false;
+        for (unsigned r = 0; r < map->row_count && !triggered; r++)
+            triggered = is_param_of(&map->rows[r], def->name);
+        if (!triggered || !def->code)
+            continue;
+        snprintf(args, sizeof(args), "%s", def->mailbox_args);
+        for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
+             tok = strtok_r(NULL, ",", &save)) {
+            size_t n = strcspn(tok, "[#$");
+            if (!has_param_row(map, def, tok, n)) {
+                log_err("register map: %s's argument %.*s has no parameter row", def->name,
+                        (int)n, tok);
+                return -EINVAL;
+            }
+        }
+    }
+    return 0;
+}
+
 int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
                       struct cmd_queue *queue, const struct plc_commands_config *cfg,
                       uint64_t (*now_ms)(void *clock), void *clock)
@@ -81,7 +175,7 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
     pc->now_ms = now_ms;
     pc->clock = clock;
     pc->refuse_log_limit.interval_ms = 5000;
-    if (cmd_table_count > PLC_MAX_COMMANDS)
+    if (cmd_table_count > PLC_MAX_COMMANDS || check_parameter_rows(img->map) != 0)
         return -EINVAL;
     for (unsigned i = 0; i < cmd_table_count; i++) {
         struct plc_slot *slot = &pc->slots[i];

@@ -1251,6 +1251,38 @@ static void allocation_failures_refuse_with_04_and_never_hang(void **state)
     assert_true(accepted > 10);
 }
 
+/* The parameter rows and the command table cannot drift apart: a row the
+ * table does not know, or of another length, stops the start. */
+static void parameter_rows_are_checked_against_the_command_table(void **state)
+{
+    (void)state;
+    struct regmap doctored = map;
+    struct regmap_image doctored_img = img;
+    struct regmap_row *rows = malloc(map.row_count * sizeof(*rows));
+    struct plc_commands other;
+    struct plc_commands_config none = {0};
+
+    assert_non_null(rows);
+    doctored.rows = rows;
+    doctored_img.map = &doctored;
+    for (int change = 0; change < 3; change++) {
+        memcpy(rows, map.rows, map.row_count * sizeof(*rows));
+        struct regmap_row *speed =
+            (struct regmap_row *)&rows[cmd_row("joint_move.speed") - map.rows];
+        struct regmap_row *joints =
+            (struct regmap_row *)&rows[cmd_row("joint_move.jointPosition[*]") - map.rows];
+        if (change == 0)
+            speed->path = "joint_move.sped";   /* not an argument of joint_move */
+        else if (change == 1)
+            joints->elements = 5;              /* jointPosition[6] in the table */
+        else
+            speed->path = "jog_move.speed";    /* no such command */
+        assert_int_equal(plc_commands_init(&other, &doctored_img, &queue, &none, fake_now,
+                                           &robot), -EINVAL);
+    }
+    free(rows);
+}
+
 static void send_now_passes_every_gate(void **state)
 {
     (void)state;
@@ -1305,6 +1337,7 @@ int main(void)
         T(gate_has_a_say_on_every_command),
         T(send_now_passes_every_gate),
         T(json_mailbox_refuses_names_outside_the_table),
+        T(parameter_rows_are_checked_against_the_command_table),
         T(allocation_failures_refuse_with_04_and_never_hang),
     };
 #undef T
