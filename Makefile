@@ -22,7 +22,7 @@ BUILD     ?= build
 CC        ?= cc
 SAMPLES_DIR ?= $(abspath tests/data)
 
-PKGS      := libuv libmodbus libcjson inih libsystemd
+PKGS      := libuv libmodbus libcjson inih libsystemd openssl
 # deps, demo, test and clean work on a bare machine (demo and test install
 # the packages first); any other goal needs the compiler and the .pc files,
 # and says how to get them instead of failing with compiler errors.
