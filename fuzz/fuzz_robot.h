@@ -264,7 +264,8 @@ static inline int fuzz_write(struct fuzz_gateway *g, enum regmap_table table,
     static uint16_t saved[MODBUS_MAX_WRITE_BITS], after[MODBUS_MAX_WRITE_BITS];
     struct regmap_image *img = g->writes.img;
     struct mb_write w = {.table = table, .address = address, .count = count,
-                         .values = values, .client = "192.0.2.1", .client_id = 1};
+                         .values = values, .client = "192.0.2.1", .client_id = 1,
+                         .rights = REGMAP_RIGHTS_ALL};
     int ex;
 
     FUZZ_REQUIRE(count >= 1 && count <= MODBUS_MAX_WRITE_BITS, "write count %u", count);

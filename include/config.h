@@ -20,6 +20,14 @@
 
 #define CONFIG_DEFAULT_PATH "/etc/jakagw/jakagw.conf"
 #define CONFIG_MAX_WRITE_ALLOW IP_ALLOW_MAX
+#define CONFIG_MAX_ROLES 32
+
+/* One line of [roles]: a certificate role and what it may write. */
+struct config_role {
+    char name[64];
+    char text[160];  /* as written: read, write, or classes */
+    uint32_t rights; /* the same, parsed (regmap_parse_rights) */
+};
 
 struct gw_config {
     /* [robot] */
@@ -31,7 +39,11 @@ struct gw_config {
     uint32_t reconnect_max_ms;
     uint32_t status_timeout_ms;
     uint32_t max_document_bytes;
+    bool robot_tls;              /* both robot ports over TLS */
+    char robot_tls_ca[256];      /* the controller's CA, PEM */
+    char robot_tls_fingerprint[100]; /* or its certificate's SHA-256 */
     /* [modbus] */
+    bool modbus_enabled;   /* the plain listener */
     char modbus_bind[64];
     uint32_t modbus_port;
     uint32_t max_clients;
@@ -66,6 +78,24 @@ struct gw_config {
     bool can_extended_ids;
     uint32_t can_period_ms;
     uint32_t can_groups; /* bit per enum can_group */
+    /* [tls]: the Modbus/TCP Security listener */
+    bool tls_enabled;
+    char tls_bind[64]; /* "": [modbus] bind */
+    uint32_t tls_port;
+    char tls_certificate[256];
+    char tls_private_key[256]; /* a path, or a systemd credential's name */
+    char tls_client_ca[256];
+    char tls_crl[256];
+    uint32_t tls_min_version; /* 0: 1.2, 1: 1.3 */
+    uint32_t tls_handshake_timeout_ms;
+    uint32_t tls_max_handshakes;
+    char tls_default_rights[160]; /* as written */
+    uint32_t tls_default_rights_mask;
+    /* Not a key: a listening socket for [tls] passed by systemd, 0: none. */
+    int tls_listen_fd;
+    /* [roles] */
+    struct config_role roles[CONFIG_MAX_ROLES];
+    unsigned role_count;
 };
 
 /* Fills 'cfg' with the defaults. */
@@ -96,6 +126,13 @@ int config_load(struct gw_config *cfg, const char *path, char *why,
 
 /* Checks rules between keys. Returns 0 or -EINVAL with the reason. */
 int config_validate(const struct gw_config *cfg, char *why, size_t why_size);
+
+/*
+ * The rights of a certificate role: its [roles] line (*listed set), or
+ * default_rights for "" (no role), a role no line names, or !valid.
+ */
+uint32_t config_role_rights(const struct gw_config *cfg, const char *role, bool valid,
+                            bool *listed);
 
 /* Writes the effective configuration as INI (for --check-config). */
 void config_print(const struct gw_config *cfg, FILE *out);

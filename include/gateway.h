@@ -18,6 +18,7 @@
 #include "config.h"
 #include "log.h"
 #include "mb_server.h"
+#include "mb_tls.h"
 #include "plc_commands.h"
 #include "plc_write.h"
 #include "policy.h"
@@ -63,6 +64,7 @@ struct gateway {
     struct plc_commands commands;
     struct plc_write writes; /* every Modbus write, judged before it is answered */
     struct mb_server modbus;
+    struct mb_tls *mbaps; /* the Modbus/TCP Security transport, [tls] enabled */
     struct can_mirror can; /* running when [can] enabled */
     struct gateway_counters counters;
     double gw_values[GW_VALUE_COUNT];

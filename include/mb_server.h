@@ -34,6 +34,16 @@
  * Function codes 17 (report server id) and 43/14 (device identification)
  * are answered here, because libmodbus 3.1.6 reports its own name for 17
  * and does not know 43.
+ *
+ * One server, several transports. How a connection's bytes arrive and
+ * leave is a small table of functions (struct mb_transport), as libmodbus
+ * keeps its backends: plain TCP (the listener of mb_server_start) and
+ * Modbus/TCP Security (mb_tls.h, on a second listener of the same server).
+ * Framing, limits, deadlines, eviction, the clients counted and the write
+ * checks are the server's, the same for every transport. A transport may
+ * hold a new connection back (a TLS handshake): it is then pending, does
+ * not count toward max_clients, is never a client the hooks hear of, and
+ * is admitted (mb_client_admit) or closed by its transport.
  */
 #ifndef JAKAGW_MB_SERVER_H
 #define JAKAGW_MB_SERVER_H
@@ -63,6 +73,9 @@ struct mb_server_config {
      * the one systemd passes (fd 3 and up); 0: bind and listen here.
      */
     int listen_fd;
+    /* No plain Modbus TCP listener ([modbus] enabled = false): only the
+     * listeners added with mb_server_listen(). */
+    bool no_plain;
 };
 
 /* A write request, checked, before anything is applied. */
@@ -74,6 +87,9 @@ struct mb_write {
     const char *client;     /* the client's IP address, as text (for logs) */
     struct in6_addr client_addr; /* the same, IPv4 mapped (ip_allow.h) */
     uint64_t client_id;     /* unique for each connection */
+    /* What the connection may write: a bit per enum regmap_write_class
+     * (regmap_write_allowed); REGMAP_RIGHTS_ALL on plain Modbus TCP. */
+    uint32_t rights;
 };
 
 struct mb_server_hooks {
@@ -106,6 +122,45 @@ struct mb_server_stats {
 
 struct mb_client;
 
+/*
+ * A transport. Every function gets the transport's own state (the 'state'
+ * given to mb_server_listen) and the connection. The server calls them
+ * from its loop callbacks; a transport calls back into the server only
+ * through the mb_client_* functions below, and must not touch a
+ * connection again once mb_client_is_open() says false.
+ */
+struct mb_transport {
+    const char *name; /* "modbus", "mbaps": for logs */
+    /*
+     * A connection was accepted. Returns 0 to have it served at once,
+     * MB_TRANSPORT_PENDING to hold it until the transport calls
+     * mb_client_admit() (the server closes it when
+     * mb_client_set_deadline()'s time passes, calling 'expired' first),
+     * or < 0 to close it now (the transport has said why).
+     */
+    int (*open)(void *state, struct mb_client *c);
+    /* Where the next read from the socket goes (libuv's alloc_cb). */
+    void (*alloc)(void *state, struct mb_client *c, uv_buf_t *buf);
+    /* 'size' bytes arrived at 'data', the buffer 'alloc' gave. */
+    void (*input)(void *state, struct mb_client *c, const uint8_t *data, size_t size);
+    /* A reply to send. */
+    void (*output)(void *state, struct mb_client *c, const uint8_t *data, size_t size);
+    /* The server stops reading the connection and flushes it: last words
+     * (TLS close_notify) go out through mb_client_send_raw(). */
+    void (*finish)(void *state, struct mb_client *c);
+    /* A pending connection's deadline passed; it is closed after this. */
+    void (*expired)(void *state, struct mb_client *c);
+    /* The connection is being closed (it was pending or not). */
+    void (*closed)(void *state, struct mb_client *c, bool was_pending);
+    /* Its memory goes: free what 'open' made (mb_client_data). */
+    void (*free)(void *state, struct mb_client *c);
+};
+
+#define MB_TRANSPORT_PENDING 1
+
+/* Plain Modbus TCP: the bytes as they are. */
+extern const struct mb_transport mb_transport_plain;
+
 struct mb_server {
     uv_loop_t *loop;
     struct mb_server_config cfg;
@@ -136,6 +191,13 @@ struct mb_server {
     bool refuse_waiting;
     /* Allocates a client: calloc, which a test may make fail. */
     void *(*calloc_client)(size_t count, size_t size);
+    /* A second listener (mb_server_listen), with its transport. */
+    uv_tcp_t extra_listener;
+    bool extra_listening;
+    const struct mb_transport *extra_transport;
+    void *extra_state;
+    bool plain_listening;
+    bool extra_refuse_waiting; /* refuse_waiting, for the second listener */
 };
 
 /*
@@ -146,8 +208,38 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
                     const struct mb_server_config *cfg, struct regmap_image *img,
                     const struct mb_server_hooks *hooks);
 
-/* The port actually bound (useful with port 0). */
+/* The port actually bound (useful with port 0); -1 without a plain listener. */
 int mb_server_port(const struct mb_server *srv);
+
+/*
+ * Adds a listener whose connections go through 'transport' (with its
+ * 'state'): bind:port, or 'listen_fd' (> 0) already listening. One at
+ * most. Returns 0 or a negative errno / libuv error, having logged it.
+ */
+int mb_server_listen(struct mb_server *srv, const char *bind, uint16_t port, int listen_fd,
+                     const struct mb_transport *transport, void *state);
+/* The port of that listener; -1 if none. */
+int mb_server_listen_port(const struct mb_server *srv);
+
+/* For transports: their connection. */
+void **mb_client_data(struct mb_client *c);
+const char *mb_client_peer(const struct mb_client *c);
+uv_loop_t *mb_client_loop(const struct mb_client *c);
+bool mb_client_is_open(const struct mb_client *c); /* pending or served */
+/* Where plaintext goes, and how much room is left there. */
+uint8_t *mb_client_space(struct mb_client *c, size_t *room);
+/* 'n' bytes of plaintext were put there: frame and answer them. */
+void mb_client_received(struct mb_client *c, size_t n);
+/* Writes bytes to the socket as they are (queued when it is full). */
+void mb_client_send_raw(struct mb_client *c, const uint8_t *data, size_t size);
+/* A pending connection is closed this many ms from now unless admitted. */
+void mb_client_set_deadline(struct mb_client *c, uint64_t ms);
+/* A pending connection becomes a client, with what it may write. */
+void mb_client_admit(struct mb_client *c, uint32_t rights);
+/* Closes at once ('why' logged, rate-limited; NULL: not logged). */
+void mb_client_close(struct mb_client *c, const char *why);
+/* The peer has finished (end of stream): replies already built still go. */
+void mb_client_release(struct mb_client *c, const char *why);
 
 /* Closes the listener and every client; 'cb' runs when all are closed. */
 void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv));

@@ -5,6 +5,9 @@
  *
  * The Modbus server (mb_server.h) calls plc_write_judge() before it answers
  * a write, and plc_write_after() once libmodbus has applied it. In order:
+ * 0. the connection's rights (regmap_write_allowed): a Modbus/TCP
+ *    Security client writes only rows of the write classes its role has;
+ *    exception 01, nothing changes;
  * 1. authorization, before anything is looked at: [modbus] read_only,
  *    write_allow (the client's address, compared as an address), and the
  *    policy's write owner: exception 01, nothing changes;

@@ -99,7 +99,18 @@ enum regmap_word_order {
     X(can_state)                                                               \
     X(can_frames_sent)                                                         \
     X(can_frames_dropped)                                                      \
-    X(can_errors)
+    X(can_errors)                                                              \
+    X(tls_clients)                                                             \
+    X(tls_handshakes_running)                                                  \
+    X(tls_handshakes_ok)                                                       \
+    X(tls_failed_total)                                                        \
+    X(tls_failed_no_certificate)                                               \
+    X(tls_failed_untrusted)                                                    \
+    X(tls_failed_expired)                                                      \
+    X(tls_failed_revoked)                                                      \
+    X(tls_failed_protocol)                                                     \
+    X(tls_failed_timeout)                                                      \
+    X(tls_failed_over_limit)
 
 enum gw_value {
 #define GW_ENUM(name) GW_##name,
@@ -109,6 +120,40 @@ enum gw_value {
 };
 
 extern const char *const gw_value_names[GW_VALUE_COUNT];
+
+/*
+ * Write classes: every writable row belongs to exactly one (checked by
+ * regmap_init), named after what the map groups. A connection's rights are
+ * a bit per class (REGMAP_RIGHT); Modbus/TCP Security roles map to them
+ * ([roles], regmap_parse_rights).
+ */
+#define REGMAP_WRITE_CLASSES(X)                                                \
+    X(HEARTBEAT, heartbeat)                                                    \
+    X(FAULTS, faults)                                                          \
+    X(SETPOINTS, setpoints)                                                    \
+    X(OUTPUTS, outputs)                                                        \
+    X(POWER, power)                                                            \
+    X(PROGRAMS, programs)                                                      \
+    X(PAYLOAD, payload)                                                        \
+    X(MOTION, motion)                                                          \
+    X(SHUTDOWN, shutdown)                                                      \
+    X(MAILBOXES, mailboxes)                                                    \
+    X(COUNTERS, counters)
+
+enum regmap_write_class {
+    REGMAP_CLASS_NONE = 0, /* a row that is not writable */
+#define REGMAP_CLASS_ENUM(id, name) REGMAP_CLASS_##id,
+    REGMAP_WRITE_CLASSES(REGMAP_CLASS_ENUM)
+#undef REGMAP_CLASS_ENUM
+    REGMAP_CLASS_COUNT
+};
+
+#define REGMAP_RIGHT(cls) (1u << (cls))
+#define REGMAP_RIGHTS_NONE 0u            /* "read": nothing writable */
+#define REGMAP_RIGHTS_ALL 0xFFFFFFFFu    /* "write": every class */
+
+/* "heartbeat", "faults", ...; "" for REGMAP_CLASS_NONE. */
+extern const char *const regmap_write_class_names[REGMAP_CLASS_COUNT];
 
 enum regmap_source {
     REGMAP_SRC_STATUS,  /* element of a status field */
@@ -147,6 +192,8 @@ struct regmap_row {
     /* REGMAP_SRC_CMD rows that send when written: JSON members sent along
      * with the value, as a template ("\"type\": 0, \"index\": *"). */
     const char *fixed;
+    /* Writable rows: the class a role needs to write it. */
+    enum regmap_write_class write_class;
 };
 
 /* The built-in table, in src/regmap_table.c. */
@@ -277,6 +324,25 @@ void regmap_load(struct regmap_image *img, enum regmap_table table,
  */
 int regmap_check_write(const struct regmap *map, enum regmap_table table,
                        unsigned address, uint16_t value);
+
+/*
+ * Rights as [roles] and default_rights write them: "read" (nothing),
+ * "write" (everything), or a comma-separated list of write classes.
+ * Returns 0, or -EINVAL with the reason in 'why'.
+ */
+int regmap_parse_rights(const char *text, uint32_t *rights, char *why, size_t why_size);
+/* The same, back to text ("read", "write", "heartbeat,outputs"). */
+void regmap_format_rights(uint32_t rights, char *out, size_t size);
+
+/*
+ * May a connection with 'rights' write 'count' bits or registers at
+ * 'address' of 'table'? 0, or MODBUS_EXCEPTION_ILLEGAL_FUNCTION (01) when
+ * any address of the range belongs to a writable row of a class outside
+ * them. Addresses no writable row owns are left to the write's own checks
+ * (exception 02).
+ */
+int regmap_write_allowed(const struct regmap *map, enum regmap_table table,
+                         unsigned address, unsigned count, uint32_t rights);
 
 /* Reads back a written element as a number (u16/i16/bool rows). */
 double regmap_read_written(const struct regmap_image *img,

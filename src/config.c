@@ -5,6 +5,7 @@
 #include "can_map.h"
 #include "ip_allow.h"
 #include "log.h"
+#include "tls.h"
 
 #include <ctype.h>
 #include <errno.h>
@@ -39,8 +40,12 @@ enum key_type {
     KEY_INTERFACE, /* a network interface name, or "" for none */
     KEY_CAN_ID,    /* decimal or 0x hex, up to 'max' */
     KEY_CAN_GROUPS, /* a frame group list (can_map_parse_groups) */
-    KEY_IP_LIST     /* write_allow: literal addresses, parsed once here into
+    KEY_IP_LIST,    /* write_allow: literal addresses, parsed once here into
                        write_allow_addrs (ip_allow.h) */
+    KEY_PATH,       /* a file name, loaded where it is used (gw_tls.h) */
+    KEY_RIGHTS,     /* default_rights: read, write or write classes, parsed
+                       into tls_default_rights_mask */
+    KEY_FINGERPRINT /* a SHA-256 fingerprint, or "" */
 };
 
 struct key_info {
@@ -65,6 +70,8 @@ struct key_info {
 static const char *const action_names[] = {"keep", "pause", "stop", NULL};
 /* [network_exception] watch: index + 1 is enum policy_watch. */
 static const char *const watch_names[] = {"heartbeat", "connection", "both", NULL};
+/* [tls] min_version. */
+static const char *const tls_version_names[] = {"1.2", "1.3", NULL};
 
 static const struct key_info keys[] = {
     KEY("robot", "host", KEY_HOST, robot_host, 1, 0, "127.0.0.1"),
@@ -81,6 +88,10 @@ static const struct key_info keys[] = {
      * systemd watchdog) for 1.2-1.6 s.
      */
     KEY("robot", "max_document_bytes", KEY_UINT, max_document_bytes, 65536, 262144, "65536"),
+    KEY("robot", "tls", KEY_BOOL, robot_tls, 0, 1, "false"),
+    KEY("robot", "tls_ca", KEY_PATH, robot_tls_ca, 0, 0, ""),
+    KEY("robot", "tls_fingerprint", KEY_FINGERPRINT, robot_tls_fingerprint, 0, 0, ""),
+    KEY("modbus", "enabled", KEY_BOOL, modbus_enabled, 0, 1, "true"),
     KEY("modbus", "bind", KEY_IP_ADDRESS, modbus_bind, 1, 0, "0.0.0.0"),
     KEY("modbus", "port", KEY_UINT, modbus_port, 1, 65535, "502"),
     KEY("modbus", "max_clients", KEY_UINT, max_clients, 1, 1024, "32"),
@@ -108,6 +119,17 @@ static const struct key_info keys[] = {
     KEY("can", "extended_ids", KEY_BOOL, can_extended_ids, 0, 1, "false"),
     KEY("can", "period_ms", KEY_UINT, can_period_ms, 5, 10000, "100"),
     KEY("can", "frames", KEY_CAN_GROUPS, can_groups, 0, 0, "all"),
+    KEY("tls", "enabled", KEY_BOOL, tls_enabled, 0, 1, "false"),
+    KEY("tls", "bind", KEY_IP_ADDRESS, tls_bind, 0, 0, ""),
+    KEY("tls", "port", KEY_UINT, tls_port, 1, 65535, "802"),
+    KEY("tls", "certificate", KEY_PATH, tls_certificate, 0, 0, ""),
+    KEY("tls", "private_key", KEY_PATH, tls_private_key, 0, 0, ""),
+    KEY("tls", "client_ca", KEY_PATH, tls_client_ca, 0, 0, ""),
+    KEY("tls", "crl", KEY_PATH, tls_crl, 0, 0, ""),
+    KEY_C("tls", "min_version", tls_min_version, tls_version_names, "1.2"),
+    KEY("tls", "handshake_timeout_ms", KEY_UINT, tls_handshake_timeout_ms, 100, 60000, "3000"),
+    KEY("tls", "max_handshakes", KEY_UINT, tls_max_handshakes, 1, 1024, "16"),
+    KEY("tls", "default_rights", KEY_RIGHTS, tls_default_rights, 0, 0, "read"),
 };
 
 #define N_KEYS (sizeof(keys) / sizeof(keys[0]))
@@ -258,6 +280,36 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
         memcpy(member, value, strlen(value) + 1);
         return 0;
     }
+    case KEY_PATH:
+        if (strlen(value) >= k->size) {
+            snprintf(why, why_size, "must be at most %zu characters", k->size - 1);
+            return -EINVAL;
+        }
+        memcpy(member, value, strlen(value) + 1);
+        return 0;
+    case KEY_RIGHTS: {
+        uint32_t rights;
+        if (strlen(value) >= k->size) {
+            snprintf(why, why_size, "must be at most %zu characters", k->size - 1);
+            return -EINVAL;
+        }
+        if (regmap_parse_rights(value, &rights, why, why_size) != 0)
+            return -EINVAL;
+        cfg->tls_default_rights_mask = rights;
+        memcpy(member, value, strlen(value) + 1);
+        return 0;
+    }
+    case KEY_FINGERPRINT: {
+        uint8_t fp[32];
+        if (strlen(value) >= k->size ||
+            (value[0] && tls_parse_fingerprint(value, fp, why, why_size) != 0)) {
+            if (strlen(value) >= k->size)
+                snprintf(why, why_size, "must be at most %zu characters", k->size - 1);
+            return -EINVAL;
+        }
+        memcpy(member, value, strlen(value) + 1);
+        return 0;
+    }
     case KEY_STRING:
     case KEY_HOST:
     case KEY_IP_ADDRESS:
@@ -266,7 +318,8 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
                      k->size - 1);
             return -EINVAL;
         }
-        if (k->type == KEY_IP_ADDRESS && !is_ip_address(value)) {
+        /* [tls] bind may be empty: [modbus] bind then. */
+        if (k->type == KEY_IP_ADDRESS && (value[0] || k->min > 0) && !is_ip_address(value)) {
             snprintf(why, why_size, "'%s' is not an IPv4 or IPv6 address", value);
             return -EINVAL;
         }
@@ -478,6 +531,63 @@ static bool is_continuation(const struct load_state *st, const char *value)
     return (size_t)(end - p) == strlen(value) && memcmp(p, value, strlen(value)) == 0;
 }
 
+/*
+ * A [roles] line: a role name as certificates carry it (printable, no
+ * spaces, at most 63 bytes), each named once, and its rights.
+ */
+static int add_role(struct gw_config *cfg, const char *name, const char *value, char *why,
+                    size_t why_size)
+{
+    struct config_role *r;
+
+    if (strlen(name) >= sizeof(r->name)) {
+        snprintf(why, why_size, "a role name is at most %zu characters", sizeof(r->name) - 1);
+        return -EINVAL;
+    }
+    for (const char *p = name; *p; p++) {
+        if (!isgraph((unsigned char)*p)) {
+            snprintf(why, why_size, "a role name has no spaces or control characters");
+            return -EINVAL;
+        }
+    }
+    for (unsigned i = 0; i < cfg->role_count; i++) {
+        if (strcmp(cfg->roles[i].name, name) == 0) {
+            snprintf(why, why_size, "the role is listed twice");
+            return -EINVAL;
+        }
+    }
+    if (cfg->role_count == CONFIG_MAX_ROLES) {
+        snprintf(why, why_size, "more than %d roles", CONFIG_MAX_ROLES);
+        return -EINVAL;
+    }
+    r = &cfg->roles[cfg->role_count];
+    if (strlen(value) >= sizeof(r->text)) {
+        snprintf(why, why_size, "must be at most %zu characters", sizeof(r->text) - 1);
+        return -EINVAL;
+    }
+    if (regmap_parse_rights(value, &r->rights, why, why_size) != 0)
+        return -EINVAL;
+    snprintf(r->name, sizeof(r->name), "%s", name);
+    snprintf(r->text, sizeof(r->text), "%s", value);
+    cfg->role_count++;
+    return 0;
+}
+
+uint32_t config_role_rights(const struct gw_config *cfg, const char *role, bool valid,
+                            bool *listed)
+{
+    *listed = false;
+    if (valid && role[0]) {
+        for (unsigned i = 0; i < cfg->role_count; i++) {
+            if (strcmp(cfg->roles[i].name, role) == 0) {
+                *listed = true;
+                return cfg->roles[i].rights;
+            }
+        }
+    }
+    return cfg->tls_default_rights_mask;
+}
+
 static int on_ini_entry(void *user, const char *section, const char *name,
                         const char *value)
 {
@@ -501,6 +611,11 @@ static int on_ini_entry(void *user, const char *section, const char *name,
     if (section[0] == '\0') {
         fail(st, "%s: a key before any [section] line", name);
         return 0;
+    }
+    if (strcmp(section, "roles") == 0) {
+        if (add_role(st->cfg, name, value, reason, sizeof(reason)) != 0)
+            fail(st, "[roles] %s: %s", name, reason);
+        return 1;
     }
     k = find_key(section, name);
     if (!k) {
@@ -642,6 +757,35 @@ int config_load(struct gw_config *cfg, const char *path, char *why,
 
 int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
 {
+    if (!cfg->modbus_enabled && !cfg->tls_enabled) {
+        snprintf(why, why_size,
+                 "[modbus] enabled: false leaves nothing to serve without [tls] enabled = true");
+        return -EINVAL;
+    }
+    if (cfg->tls_enabled) {
+        static const struct { const char *key; size_t offset; } needed[] = {
+            {"certificate", offsetof(struct gw_config, tls_certificate)},
+            {"private_key", offsetof(struct gw_config, tls_private_key)},
+            {"client_ca", offsetof(struct gw_config, tls_client_ca)},
+        };
+        for (size_t i = 0; i < sizeof(needed) / sizeof(needed[0]); i++) {
+            if (((const char *)cfg + needed[i].offset)[0] == '\0') {
+                snprintf(why, why_size, "[tls] %s: required with [tls] enabled = true",
+                         needed[i].key);
+                return -EINVAL;
+            }
+        }
+        if (cfg->modbus_enabled && cfg->tls_port == cfg->modbus_port &&
+            (cfg->tls_bind[0] == '\0' || strcmp(cfg->tls_bind, cfg->modbus_bind) == 0)) {
+            snprintf(why, why_size, "[tls] port: %u is [modbus] port too", cfg->tls_port);
+            return -EINVAL;
+        }
+    }
+    if (cfg->robot_tls && !cfg->robot_tls_ca[0] && !cfg->robot_tls_fingerprint[0]) {
+        snprintf(why, why_size,
+                 "[robot] tls: true needs tls_ca or tls_fingerprint to trust the controller");
+        return -EINVAL;
+    }
     if (cfg->reconnect_min_ms > cfg->reconnect_max_ms) {
         snprintf(why, why_size,
                  "[robot] reconnect_min_ms: %u exceeds reconnect_max_ms %u",
@@ -692,6 +836,9 @@ void config_print(const struct gw_config *cfg, FILE *out)
         case KEY_HOST:
         case KEY_IP_ADDRESS:
         case KEY_IP_LIST:
+        case KEY_PATH:
+        case KEY_RIGHTS:
+        case KEY_FINGERPRINT:
             print_text(out, (const char *)m);
             break;
         case KEY_UINT:
@@ -728,5 +875,15 @@ void config_print(const struct gw_config *cfg, FILE *out)
             break;
         }
         }
+    }
+    /* Last, so that every configuration prints the keys above in the same
+     * order (config_reload.c compares them line by line). */
+    if (cfg->role_count)
+        fprintf(out, "\n[roles]\n");
+    for (unsigned i = 0; i < cfg->role_count; i++) {
+        char name[6 * sizeof(cfg->roles[i].name)];
+        log_escape(name, sizeof(name), cfg->roles[i].name, strlen(cfg->roles[i].name));
+        fprintf(out, "%s = ", name);
+        print_text(out, cfg->roles[i].text);
     }
 }

@@ -2,6 +2,7 @@
 /* config_reload.c - see config_reload.h. */
 #include "config_reload.h"
 
+#include "gw_tls.h"
 #include "log.h"
 
 #include <errno.h>
@@ -81,6 +82,37 @@ static void apply_unit_id(struct gateway *gw, const struct gw_config *next)
     gw->modbus.cfg.unit_id = next->unit_id;
 }
 
+/*
+ * [tls]: the files are read again on every reload (gw_tls_reload), so a
+ * changed name only has to be kept; new connections get what they hold.
+ */
+#define APPLY_TLS_TEXT(member)                                                 \
+    static void apply_##member(struct gateway *gw, const struct gw_config *next) \
+    {                                                                          \
+        memcpy(gw->cfg.member, next->member, sizeof(gw->cfg.member));          \
+    }
+APPLY_TLS_TEXT(tls_certificate)
+APPLY_TLS_TEXT(tls_private_key)
+APPLY_TLS_TEXT(tls_client_ca)
+APPLY_TLS_TEXT(tls_crl)
+
+static void apply_tls_default_rights(struct gateway *gw, const struct gw_config *next)
+{
+    memcpy(gw->cfg.tls_default_rights, next->tls_default_rights,
+           sizeof(gw->cfg.tls_default_rights));
+    gw->cfg.tls_default_rights_mask = next->tls_default_rights_mask;
+}
+
+static void apply_tls_handshake_timeout(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.tls_handshake_timeout_ms = next->tls_handshake_timeout_ms;
+}
+
+static void apply_tls_max_handshakes(struct gateway *gw, const struct gw_config *next)
+{
+    gw->cfg.tls_max_handshakes = next->tls_max_handshakes;
+}
+
 static const struct live_key live_keys[] = {
     {"robot", "connect_timeout_ms", apply_connect_timeout},
     {"robot", "reconnect_min_ms", apply_reconnect_min},
@@ -91,6 +123,13 @@ static const struct live_key live_keys[] = {
     {"modbus", "frame_timeout_ms", apply_frame_timeout},
     {"modbus", "unit_id", apply_unit_id},
     {"log", "level", apply_log_level},
+    {"tls", "certificate", apply_tls_certificate},
+    {"tls", "private_key", apply_tls_private_key},
+    {"tls", "client_ca", apply_tls_client_ca},
+    {"tls", "crl", apply_tls_crl},
+    {"tls", "default_rights", apply_tls_default_rights},
+    {"tls", "handshake_timeout_ms", apply_tls_handshake_timeout},
+    {"tls", "max_handshakes", apply_tls_max_handshakes},
 };
 
 static const struct live_key *find_live(const char *section, const char *key)
@@ -211,6 +250,8 @@ int config_reload_apply(struct gateway *gw, const struct gw_config *next,
         const struct entry *a = &now.entries[i], *b = &then.entries[i];
         const struct live_key *live;
 
+        if (strcmp(a->section, "roles") == 0 || strcmp(b->section, "roles") == 0)
+            break; /* the last section: gw_tls_reload() takes it whole */
         if (strcmp(a->value, b->value) == 0)
             continue;
         live = find_live(a->section, a->key);
@@ -227,5 +268,7 @@ int config_reload_apply(struct gateway *gw, const struct gw_config *next,
     }
     printed_free(&now);
     printed_free(&then);
+    /* The TLS files again, and [roles]: new connections get them. */
+    gw_tls_reload(gw, next);
     return 0;
 }

@@ -2,10 +2,12 @@
 /* gateway.c - see gateway.h. */
 #include "gateway.h"
 
+#include "gw_tls.h"
 #include "log.h"
 
 #include <errno.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #define NEVER_MS 4294967295.0
@@ -183,6 +185,7 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_can_frames_sent] = (double)gw->can.stats.frames_sent;
     v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
     v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
+    gw_tls_refresh_values(gw, v);
     regmap_encode_gw(&gw->image, v);
     plc_commands_refresh(&gw->commands);
     if (gw->parts & GATEWAY_PART_POLICY)
@@ -199,6 +202,7 @@ static void clear_counters(void *user)
     gw->modbus.stats.evictions = 0;
     gw->modbus.stats.bad_frames = 0;
     can_mirror_clear_stats(&gw->can);
+    gw_tls_clear_counters(gw);
     log_notice("counters cleared by a Modbus client");
 }
 
@@ -501,6 +505,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
         .frame_timeout_ms = cfg->frame_timeout_ms,
         .unit_id = cfg->unit_id,
         .listen_fd = cfg->modbus_listen_fd,
+        .no_plain = !cfg->modbus_enabled,
     };
     struct mb_server_hooks hooks = {
         .before_request = before_request,
@@ -512,6 +517,9 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     };
     gw->parts |= GATEWAY_PART_MODBUS;
     rc = mb_server_start(loop, &gw->modbus, &mc, &gw->image, &hooks);
+    if (rc)
+        return rc;
+    rc = gw_tls_start(gw);
     if (rc)
         return rc;
     rc = start_links(gw);
@@ -526,6 +534,11 @@ static void part_closed(struct gateway *gw)
         return;
     if (gw->parts & GATEWAY_PART_WRITES)
         plc_write_free(&gw->writes);
+    if (gw->mbaps) {
+        mb_tls_free(gw->mbaps);
+        free(gw->mbaps);
+        gw->mbaps = NULL;
+    }
     plc_commands_free(&gw->commands);
     regmap_image_free(&gw->image);
     regmap_free(&gw->map);

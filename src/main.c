@@ -8,6 +8,7 @@
 #include "config.h"
 #include "config_reload.h"
 #include "gateway.h"
+#include "gw_tls.h"
 #include "log.h"
 #include "regmap.h"
 
@@ -142,6 +143,11 @@ static int load_config(struct gw_config *cfg, bool *file_read, char *why, size_t
         snprintf(why, why_size, "configuration error: %s", reason);
         return -EINVAL;
     }
+    /* Every certificate, key, CA and CRL loads, and the key matches. */
+    if (gw_tls_check(cfg, reason, sizeof(reason))) {
+        snprintf(why, why_size, "configuration error: %s", reason);
+        return -EINVAL;
+    }
     return 0;
 }
 
@@ -213,6 +219,7 @@ static void on_reload(uv_signal_t *s, int signum)
         log_err("reload refused, the running configuration stays in force: %s", why);
     } else {
         next.modbus_listen_fd = svc->gw.cfg.modbus_listen_fd;
+        next.tls_listen_fd = svc->gw.cfg.tls_listen_fd;
         if (config_reload_apply(&svc->gw, &next, &result) != 0)
             log_err("reload: out of memory; the running configuration stays in force");
         else
@@ -225,14 +232,19 @@ static void on_reload(uv_signal_t *s, int signum)
 }
 
 /*
- * Socket activation: a listening socket passed by systemd (jakagw.socket)
- * is served instead of binding [modbus] bind and port. Returns 0 with
- * cfg->modbus_listen_fd set when one was passed, 0 when none was, -EINVAL
- * (logged) when what was passed is not one listening TCP socket.
+ * Socket activation: the listening sockets passed by systemd are served
+ * instead of binding [modbus] bind and port ([tls] bind and port). The one
+ * named "mbaps" (FileDescriptorName= in jakagw-mbaps.socket) is the
+ * Modbus/TCP Security listener; the other (jakagw.socket) is plain Modbus
+ * TCP. Returns 0 with cfg->modbus_listen_fd and cfg->tls_listen_fd set for
+ * those passed, -EINVAL (logged) when what was passed is not at most one
+ * listening TCP socket of each kind.
  */
 static int adopt_passed_socket(struct gw_config *cfg)
 {
-    int n = sd_listen_fds(1);
+    char **names = NULL;
+    int n = sd_listen_fds_with_names(1, &names);
+    int rc = 0;
 
     if (n == 0)
         return 0;
@@ -240,14 +252,31 @@ static int adopt_passed_socket(struct gw_config *cfg)
         log_err("cannot read the sockets passed by systemd: %s", strerror(-n));
         return -EINVAL;
     }
-    if (n > 1 || sd_is_socket(SD_LISTEN_FDS_START, AF_UNSPEC, SOCK_STREAM, 1) <= 0) {
-        log_err("systemd passed %d file descriptors; jakagw serves exactly one listening "
-                "TCP socket (one ListenStream= in the socket unit)",
-                n);
-        return -EINVAL;
+    for (int i = 0; i < n; i++) {
+        int fd = SD_LISTEN_FDS_START + i;
+        bool tls = names && names[i] && strcmp(names[i], "mbaps") == 0;
+        int *slot = tls ? &cfg->tls_listen_fd : &cfg->modbus_listen_fd;
+        if (rc == 0 && (*slot || sd_is_socket(fd, AF_UNSPEC, SOCK_STREAM, 1) <= 0)) {
+            log_err("systemd passed %d file descriptors; jakagw serves one listening TCP "
+                    "socket for Modbus TCP (jakagw.socket) and one named mbaps "
+                    "(jakagw-mbaps.socket) at most",
+                    n);
+            rc = -EINVAL;
+        }
+        *slot = fd;
     }
-    cfg->modbus_listen_fd = SD_LISTEN_FDS_START;
-    return 0;
+    if (rc == 0 && cfg->tls_listen_fd && !cfg->tls_enabled) {
+        log_err("systemd passed the mbaps socket, but [tls] enabled is false");
+        rc = -EINVAL;
+    }
+    if (rc == 0 && cfg->modbus_listen_fd && !cfg->modbus_enabled) {
+        log_err("systemd passed a Modbus TCP socket, but [modbus] enabled is false");
+        rc = -EINVAL;
+    }
+    for (int i = 0; names && i < n; i++)
+        free(names[i]);
+    free(names);
+    return rc;
 }
 
 /*

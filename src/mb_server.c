@@ -25,6 +25,7 @@
 #define MAX_SHUTDOWN_READS 256
 
 enum client_state {
+    CLIENT_PENDING,  /* held by its transport (a handshake); not counted */
     CLIENT_OPEN,     /* reading requests; counts toward max_clients */
     CLIENT_FLUSHING, /* no more reading; replies still going out */
     CLIENT_CLOSING,  /* uv_close() called */
@@ -53,6 +54,10 @@ struct mb_client {
     struct in6_addr addr; /* the same, for comparing (ip_allow.h) */
     enum client_state state;
     int open_handles;          /* tcp and timer */
+    const struct mb_transport *transport;
+    void *transport_state;
+    void *transport_data;      /* the transport's, per connection */
+    uint32_t rights;           /* mb_write.rights */
 };
 
 struct reply {
@@ -88,6 +93,8 @@ static void on_client_handle_closed(uv_handle_t *h)
 
     if (--c->open_handles > 0)
         return;
+    if (c->transport->free)
+        c->transport->free(c->transport_state, c);
     free(c);
     srv->open_handles--;
     maybe_finish_close(srv);
@@ -112,6 +119,8 @@ static void close_client(struct mb_client *c, const char *why)
         c->next->prev = c->prev;
     if (c->state == CLIENT_OPEN)
         client_gone(c);
+    if (c->transport->closed)
+        c->transport->closed(c->transport_state, c, c->state == CLIENT_PENDING);
     c->state = CLIENT_CLOSING;
     uv_close((uv_handle_t *)&c->tcp, on_client_handle_closed);
     uv_close((uv_handle_t *)&c->timer, on_client_handle_closed);
@@ -153,6 +162,10 @@ static void release_client(struct mb_client *c, const char *why)
     c->state = CLIENT_FLUSHING;
     c->used = 0;
     uv_read_stop((uv_stream_t *)&c->tcp);
+    if (c->transport->finish)
+        c->transport->finish(c->transport_state, c);
+    if (c->state != CLIENT_FLUSHING)
+        return; /* the last words failed: closed */
     if (uv_stream_get_write_queue_size((uv_stream_t *)&c->tcp) == 0 ||
         uv_shutdown(&c->shutdown, (uv_stream_t *)&c->tcp, on_client_shutdown) < 0) {
         close_client(c, NULL);
@@ -212,6 +225,12 @@ static void send_bytes(struct mb_client *c, const uint8_t *data, size_t size)
     queue_bytes(c, data, size);
 }
 
+/* A reply goes out through the connection's transport. */
+static void send_reply(struct mb_client *c, const uint8_t *data, size_t size)
+{
+    c->transport->output(c->transport_state, c, data, size);
+}
+
 static void put16(uint8_t *p, unsigned v)
 {
     p[0] = (uint8_t)(v >> 8);
@@ -228,7 +247,7 @@ static void send_pdu(struct mb_client *c, const uint8_t *req, const uint8_t *pdu
     put16(adu + 4, (unsigned)(pdu_size + 1));
     adu[6] = req[6];
     memcpy(adu + MBAP_SIZE, pdu, pdu_size);
-    send_bytes(c, adu, MBAP_SIZE + pdu_size);
+    send_reply(c, adu, MBAP_SIZE + pdu_size);
 }
 
 /*
@@ -242,7 +261,7 @@ static void forward_libmodbus_reply(struct mb_client *c, const uint8_t *req)
     ssize_t n = recv(c->srv->pair[1], rsp, sizeof(rsp), MSG_DONTWAIT);
 
     if (n > 0) {
-        send_bytes(c, rsp, (size_t)n);
+        send_reply(c, rsp, (size_t)n);
         return;
     }
     log_err("modbus: libmodbus produced no reply to function %u (%s); "
@@ -483,7 +502,8 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         /* Act before answering, so that a write can be refused. */
         static uint16_t values[MODBUS_MAX_WRITE_BITS];
         struct mb_write w = {.client = c->host, .client_addr = c->addr,
-                             .client_id = c->accept_seq, .values = values};
+                             .client_id = c->accept_seq, .values = values,
+                             .rights = c->rights};
         int n = mb_request_written_values(srv->img, pdu, pdu_size, &w.table,
                                           &w.address, values);
         w.count = n > 0 ? (unsigned)n : 0;
@@ -557,7 +577,7 @@ static void on_client_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
 {
     struct mb_client *c = h->data;
     (void)suggested;
-    *buf = uv_buf_init((char *)c->buf + c->used, (unsigned)(sizeof(c->buf) - c->used));
+    c->transport->alloc(c->transport_state, c, buf);
 }
 
 /*
@@ -615,9 +635,12 @@ static void drain_client_reads(struct mb_client *c, int max_reads)
     if (c->state != CLIENT_OPEN || uv_fileno((uv_handle_t *)&c->tcp, &fd) != 0)
         return;
     for (int i = 0; i < max_reads && c->state == CLIENT_OPEN; i++) {
-        ssize_t n = recv(fd, c->buf + c->used, sizeof(c->buf) - c->used, MSG_DONTWAIT);
+        uv_buf_t into;
+        c->transport->alloc(c->transport_state, c, &into);
+        ssize_t n = recv(fd, into.base, into.len, MSG_DONTWAIT);
         if (n > 0) {
-            client_received(c, (size_t)n);
+            c->transport->input(c->transport_state, c, (const uint8_t *)into.base,
+                                (size_t)n);
         } else if (n == 0) {
             release_client(c, NULL);
         } else if (errno != EINTR) {
@@ -637,19 +660,21 @@ static void on_client_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
 {
     struct mb_client *c = s->data;
 
-    (void)buf;
     if (nread == 0)
         return;
     if (nread == UV_EOF) {
         /* Replies to what it sent before closing its side still go out. */
-        release_client(c, NULL);
+        if (c->state == CLIENT_PENDING)
+            close_client(c, NULL);
+        else
+            release_client(c, NULL);
         return;
     }
     if (nread < 0) {
         close_client(c, uv_strerror((int)nread));
         return;
     }
-    client_received(c, (size_t)nread);
+    c->transport->input(c->transport_state, c, (const uint8_t *)buf->base, (size_t)nread);
 }
 
 static void on_client_timer(uv_timer_t *t)
@@ -660,6 +685,12 @@ static void on_client_timer(uv_timer_t *t)
 
     if (c->state == CLIENT_FLUSHING) {
         close_client(c, "replies not taken after the client closed its side");
+        return;
+    }
+    if (c->state == CLIENT_PENDING) {
+        if (c->transport->expired)
+            c->transport->expired(c->transport_state, c);
+        close_client(c, NULL);
         return;
     }
     drain_client(c); /* bytes that have arrived count */
@@ -753,6 +784,7 @@ static void describe_peer(struct mb_client *c)
 }
 
 static void on_connection(uv_stream_t *listener, int status);
+static void admit_client(struct mb_client *c);
 
 static void on_refused_closed(uv_handle_t *h)
 {
@@ -769,6 +801,9 @@ static void on_refused_closed(uv_handle_t *h)
     if (srv->refuse_waiting) {
         srv->refuse_waiting = false;
         on_connection((uv_stream_t *)&srv->listener, 0);
+    } else if (srv->extra_refuse_waiting) {
+        srv->extra_refuse_waiting = false;
+        on_connection((uv_stream_t *)&srv->extra_listener, 0);
     }
 }
 
@@ -777,12 +812,16 @@ static void on_refused_closed(uv_handle_t *h)
  * Returning without uv_accept() would stop libuv from polling the listener
  * for good, and no PLC could connect again.
  */
-static void refuse_connection(struct mb_server *srv)
+static void refuse_connection(struct mb_server *srv, uv_stream_t *listener)
 {
     uint64_t suppressed;
 
     if (srv->refusing) {
-        srv->refuse_waiting = true; /* accepted when the previous one is closed */
+        /* Accepted when the previous one is closed. */
+        if (listener == (uv_stream_t *)&srv->extra_listener)
+            srv->extra_refuse_waiting = true;
+        else
+            srv->refuse_waiting = true;
         return;
     }
     srv->stats.refused_no_memory++;
@@ -793,7 +832,7 @@ static void refuse_connection(struct mb_server *srv)
     srv->open_handles++;
     uv_tcp_init(srv->loop, &srv->refused);
     srv->refused.data = srv;
-    if (uv_accept((uv_stream_t *)&srv->listener, (uv_stream_t *)&srv->refused) < 0)
+    if (uv_accept(listener, (uv_stream_t *)&srv->refused) < 0)
         log_err("modbus: cannot accept a connection to close it");
     uv_close((uv_handle_t *)&srv->refused, on_refused_closed);
 }
@@ -809,10 +848,17 @@ static void on_connection(uv_stream_t *listener, int status)
     }
     c = srv->calloc_client(1, sizeof(*c));
     if (!c) {
-        refuse_connection(srv);
+        refuse_connection(srv, listener);
         return;
     }
     c->srv = srv;
+    c->rights = REGMAP_RIGHTS_ALL;
+    if (listener == (uv_stream_t *)&srv->extra_listener) {
+        c->transport = srv->extra_transport;
+        c->transport_state = srv->extra_state;
+    } else {
+        c->transport = &mb_transport_plain;
+    }
     uv_tcp_init(srv->loop, &c->tcp);
     uv_timer_init(srv->loop, &c->timer);
     c->tcp.data = c;
@@ -827,6 +873,34 @@ static void on_connection(uv_stream_t *listener, int status)
         return;
     }
     describe_peer(c);
+    c->accepted_ms = c->last_activity_ms = uv_now(srv->loop);
+    uv_tcp_nodelay(&c->tcp, 1);
+    uv_tcp_keepalive(&c->tcp, 1, 10);
+    /* In the list, so that a close of the server closes it, but pending:
+     * not a client, neither counted nor heard of, until admitted. */
+    c->state = CLIENT_PENDING;
+    c->next = srv->clients;
+    if (srv->clients)
+        srv->clients->prev = c;
+    srv->clients = c;
+    int rc = c->transport->open(c->transport_state, c);
+    if (rc < 0) {
+        close_client(c, NULL);
+        return;
+    }
+    if (uv_read_start((uv_stream_t *)&c->tcp, on_client_alloc, on_client_read) < 0) {
+        close_client(c, "cannot read");
+        return;
+    }
+    if (rc != MB_TRANSPORT_PENDING)
+        admit_client(c);
+}
+
+/* A connection becomes a client: counted, heard of, served. */
+static void admit_client(struct mb_client *c)
+{
+    struct mb_server *srv = c->srv;
+
     if (srv->stats.clients >= srv->cfg.max_clients) {
         /* Judge on what has arrived: answer the requests the kernel holds
          * and let go of the peers that have closed. A burst of connects is
@@ -839,22 +913,15 @@ static void on_connection(uv_stream_t *listener, int status)
         if (srv->stats.clients >= srv->cfg.max_clients)
             evict_for(srv, c->peer);
     }
-    c->accepted_ms = c->last_activity_ms = uv_now(srv->loop);
+    if (c->state != CLIENT_PENDING)
+        return; /* closed meanwhile */
+    c->last_activity_ms = uv_now(srv->loop);
     c->accept_seq = ++srv->sequence;
-    c->next = srv->clients;
-    if (srv->clients)
-        srv->clients->prev = c;
-    srv->clients = c;
+    c->state = CLIENT_OPEN;
     srv->stats.clients++;
     if (srv->hooks.on_client)
         srv->hooks.on_client(srv->hooks.user, c->accept_seq, true, srv->stats.clients);
-    uv_tcp_nodelay(&c->tcp, 1);
-    uv_tcp_keepalive(&c->tcp, 1, 10);
     log_debug("modbus: client %s connected (%u now)", c->peer, srv->stats.clients);
-    if (uv_read_start((uv_stream_t *)&c->tcp, on_client_alloc, on_client_read) < 0) {
-        close_client(c, "cannot read");
-        return;
-    }
     arm_deadline(c);
 }
 
@@ -941,6 +1008,11 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
     uv_tcp_init(loop, &srv->listener);
     srv->listener.data = srv;
     srv->open_handles = 1;
+    if (cfg->no_plain) {
+        log_notice("modbus: no plain Modbus TCP listener ([modbus] enabled = false)");
+        return 0;
+    }
+    srv->plain_listening = true;
     if (cfg->listen_fd > 0)
         return adopt_listener(srv, cfg->listen_fd);
     rc = uv_tcp_bind(&srv->listener, (const struct sockaddr *)&addr, 0);
@@ -956,12 +1028,74 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
     return 0;
 }
 
+static int port_of(const uv_tcp_t *listener)
+{
+    struct sockaddr_storage sa;
+    int len = sizeof(sa);
+
+    if (uv_tcp_getsockname(listener, (struct sockaddr *)&sa, &len) != 0)
+        return -1;
+    if (sa.ss_family == AF_INET6)
+        return ntohs(((struct sockaddr_in6 *)&sa)->sin6_port);
+    return ntohs(((struct sockaddr_in *)&sa)->sin_port);
+}
+
+int mb_server_listen_port(const struct mb_server *srv)
+{
+    return srv->extra_listening ? port_of(&srv->extra_listener) : -1;
+}
+
+int mb_server_listen(struct mb_server *srv, const char *bind, uint16_t port, int listen_fd,
+                     const struct mb_transport *transport, void *state)
+{
+    struct sockaddr_storage addr;
+    const char *name = transport->name;
+    int rc;
+
+    if (srv->extra_transport || srv->closing)
+        return -EBUSY;
+    if (!listen_fd && uv_ip4_addr(bind, port, (struct sockaddr_in *)&addr) != 0 &&
+        uv_ip6_addr(bind, port, (struct sockaddr_in6 *)&addr) != 0) {
+        log_err("%s: bind address '%s' is not an IPv4 or IPv6 address", name, bind);
+        return -EINVAL;
+    }
+    srv->extra_transport = transport;
+    srv->extra_state = state;
+    uv_tcp_init(srv->loop, &srv->extra_listener);
+    srv->extra_listener.data = srv;
+    srv->open_handles++;
+    if (listen_fd > 0) {
+        rc = uv_tcp_open(&srv->extra_listener, listen_fd);
+    } else {
+        rc = uv_tcp_bind(&srv->extra_listener, (const struct sockaddr *)&addr, 0);
+    }
+    if (rc == 0)
+        rc = uv_listen((uv_stream_t *)&srv->extra_listener, 64, on_connection);
+    if (rc < 0) {
+        if (listen_fd > 0)
+            log_err("%s: cannot listen on the socket passed as fd %d: %s", name, listen_fd,
+                    uv_strerror(rc));
+        else
+            log_err("%s: cannot listen on %s port %u: %s", name, bind, port,
+                    uv_strerror(rc));
+        return rc;
+    }
+    srv->extra_listening = true;
+    if (listen_fd > 0)
+        log_notice("%s: listening on port %d, the socket passed by systemd", name,
+                   mb_server_listen_port(srv));
+    else
+        log_notice("%s: listening on %s port %d", name, bind, mb_server_listen_port(srv));
+    return 0;
+}
+
 int mb_server_port(const struct mb_server *srv)
 {
     struct sockaddr_storage sa;
     int len = sizeof(sa);
 
-    if (uv_tcp_getsockname(&srv->listener, (struct sockaddr *)&sa, &len) != 0)
+    if (!srv->plain_listening ||
+        uv_tcp_getsockname(&srv->listener, (struct sockaddr *)&sa, &len) != 0)
         return -1;
     if (sa.ss_family == AF_INET6)
         return ntohs(((struct sockaddr_in6 *)&sa)->sin6_port);
@@ -985,7 +1119,9 @@ static void close_server(struct mb_server *srv, void (*cb)(struct mb_server *srv
     for (c = srv->clients; c; c = next) {
         /* Neither call frees a client: 'next' stays valid. */
         next = c->next;
-        if (graceful) {
+        if (c->state == CLIENT_PENDING) {
+            close_client(c, NULL); /* never served: nothing owed */
+        } else if (graceful) {
             /* Answered with the image as it is now, before anything closes. */
             drain_client_reads(c, MAX_SHUTDOWN_READS);
             release_client(c, NULL);
@@ -1009,6 +1145,8 @@ static void close_server(struct mb_server *srv, void (*cb)(struct mb_server *srv
         return;
     }
     uv_close((uv_handle_t *)&srv->listener, on_server_handle_closed);
+    if (srv->extra_transport)
+        uv_close((uv_handle_t *)&srv->extra_listener, on_server_handle_closed);
 }
 
 void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv))
@@ -1019,4 +1157,105 @@ void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv))
 void mb_server_shutdown(struct mb_server *srv, void (*cb)(struct mb_server *srv))
 {
     close_server(srv, cb, true);
+}
+
+/* ---- the plain transport, and what transports may call ---- */
+
+static int plain_open(void *state, struct mb_client *c)
+{
+    (void)state, (void)c;
+    return 0;
+}
+
+static void plain_alloc(void *state, struct mb_client *c, uv_buf_t *buf)
+{
+    (void)state;
+    /* Straight into the framing buffer: no copy. */
+    *buf = uv_buf_init((char *)c->buf + c->used, (unsigned)(sizeof(c->buf) - c->used));
+}
+
+static void plain_input(void *state, struct mb_client *c, const uint8_t *data, size_t size)
+{
+    (void)state, (void)data;
+    client_received(c, size);
+}
+
+static void plain_output(void *state, struct mb_client *c, const uint8_t *data, size_t size)
+{
+    (void)state;
+    send_bytes(c, data, size);
+}
+
+const struct mb_transport mb_transport_plain = {
+    .name = "modbus",
+    .open = plain_open,
+    .alloc = plain_alloc,
+    .input = plain_input,
+    .output = plain_output,
+};
+
+void **mb_client_data(struct mb_client *c)
+{
+    return &c->transport_data;
+}
+
+const char *mb_client_peer(const struct mb_client *c)
+{
+    return c->peer;
+}
+
+uv_loop_t *mb_client_loop(const struct mb_client *c)
+{
+    return c->srv->loop;
+}
+
+bool mb_client_is_open(const struct mb_client *c)
+{
+    return c->state == CLIENT_PENDING || c->state == CLIENT_OPEN;
+}
+
+uint8_t *mb_client_space(struct mb_client *c, size_t *room)
+{
+    *room = c->state == CLIENT_OPEN ? sizeof(c->buf) - c->used : 0;
+    return c->buf + c->used;
+}
+
+void mb_client_received(struct mb_client *c, size_t n)
+{
+    if (c->state == CLIENT_OPEN && n > 0 && n <= sizeof(c->buf) - c->used)
+        client_received(c, n);
+}
+
+void mb_client_send_raw(struct mb_client *c, const uint8_t *data, size_t size)
+{
+    if (c->state != CLIENT_CLOSING && size > 0)
+        send_bytes(c, data, size);
+}
+
+void mb_client_set_deadline(struct mb_client *c, uint64_t ms)
+{
+    if (c->state == CLIENT_PENDING)
+        uv_timer_start(&c->timer, on_client_timer, ms, 0);
+}
+
+void mb_client_admit(struct mb_client *c, uint32_t rights)
+{
+    if (c->state != CLIENT_PENDING)
+        return;
+    c->rights = rights;
+    uv_timer_stop(&c->timer);
+    admit_client(c);
+}
+
+void mb_client_close(struct mb_client *c, const char *why)
+{
+    close_client(c, why);
+}
+
+void mb_client_release(struct mb_client *c, const char *why)
+{
+    if (c->state == CLIENT_PENDING)
+        close_client(c, why);
+    else
+        release_client(c, why);
 }

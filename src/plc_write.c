@@ -98,10 +98,14 @@ static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_
 int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
 {
     struct regmap_image *img = pw->img;
-    int ex = plc_write_authorize(pw, w);
+    /* First of all, the connection's rights (the role of a Modbus/TCP
+     * Security client): a row outside them refuses the whole write, 01. */
+    int ex = regmap_write_allowed(img->map, w->table, w->address, w->count, w->rights);
 
     pw->awaiting_after = false;
     pw->element_count = 0;
+    if (ex == 0)
+        ex = plc_write_authorize(pw, w);
     if (ex)
         return ex;
     if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS)

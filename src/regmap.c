@@ -205,6 +205,15 @@ int regmap_init(struct regmap *map)
             regmap_free(map);
             return -EINVAL;
         }
+        /* Every writable row is in exactly one write class; no other is. */
+        if (map->rows[r].writable != (map->rows[r].write_class != REGMAP_CLASS_NONE) ||
+            map->rows[r].write_class >= REGMAP_CLASS_COUNT) {
+            log_err("register map: row '%s' %s", map->rows[r].name,
+                    map->rows[r].writable ? "is writable but in no write class"
+                                          : "is not writable but has a write class");
+            regmap_free(map);
+            return -EINVAL;
+        }
     }
     rc = index_rows(map);
     if (rc == 0)
@@ -372,7 +381,11 @@ static void print_md_intro(const struct regmap *map, FILE *out)
             "`f32`. Addresses between entries read 0; an address past a "
             "table's last entry answers exception 02.\n"
             "- Input register 18 (`status_age_ms`) and discrete input 2 "
-            "(`status_fresh`) tell live data from stale.\n",
+            "(`status_fresh`) tell live data from stale.\n"
+            "- **Write class** groups the writable entries: over Modbus/TCP "
+            "Security (port 802), a client writes an entry only if the role "
+            "of its certificate has that class (`[roles]`, "
+            "docs/security.md).\n",
             REGMAP_VERSION, map->crc);
 }
 
@@ -389,7 +402,7 @@ static void print_element(const struct regmap_row *row, unsigned i,
         fprintf(out, "%s,%u,%u,%s,%g,", table_names[row->table], address,
                 regmap_element_width(row), type_names[row->type], scale);
         put_csv_field(out, row->unit);
-        fprintf(out, ",%s,", access);
+        fprintf(out, ",%s,%s,", access, regmap_write_class_names[row->write_class]);
         put_csv_field(out, t.name);
         fputc(',', out);
         put_csv_field(out, t.source);
@@ -402,7 +415,8 @@ static void print_element(const struct regmap_row *row, unsigned i,
             table_plc_base[row->table] + address, regmap_element_width(row),
             type_names[row->type], scale);
     put_md_field(out, row->unit);
-    fprintf(out, " | %s | `%s` | `", access, t.name);
+    fprintf(out, " | %s | %s | `%s` | `", access, regmap_write_class_names[row->write_class],
+            t.name);
     put_md_field(out, t.source);
     fputs("` | ", out);
     put_md_field(out, t.description);
@@ -419,7 +433,7 @@ int regmap_print(const struct regmap *map, enum regmap_format format, FILE *out)
     };
 
     if (format == REGMAP_FORMAT_CSV)
-        fputs("table,address,count,type,scale,unit,access,name,source,"
+        fputs("table,address,count,type,scale,unit,access,write_class,name,source,"
               "description\n",
               out);
     else
@@ -428,8 +442,8 @@ int regmap_print(const struct regmap *map, enum regmap_format format, FILE *out)
         if (format == REGMAP_FORMAT_MD)
             fprintf(out,
                     "\n## %s\n\n| Address | PLC | Count | Type | Scale | Unit "
-                    "| Access | Name | Source | Description |\n"
-                    "|---:|---:|---:|---|---:|---|---|---|---|---|\n",
+                    "| Access | Write class | Name | Source | Description |\n"
+                    "|---:|---:|---:|---|---:|---|---|---|---|---|---|\n",
                     md_titles[t]);
         /* In address order, element by element. */
         for (unsigned a = 0; a < map->size[t]; a++) {

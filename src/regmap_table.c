@@ -43,21 +43,24 @@
 
 
 /* Command rows ("cmd:<path>"): a trigger coil sends on 0 -> 1. */
-#define C_TRIGGER(addr, cmd, desc)                                             \
+#define C_TRIGGER(addr, cls, cmd, desc)                                        \
     {.table = REGMAP_COIL, .address = (addr), .elements = 1,                   \
+     .write_class = REGMAP_CLASS_##cls,                                        \
      .type = REGMAP_BOOL, .scale = 1, .unit = "", .writable = true, .min = 0,  \
      .max = 1, .name = "cmd_" cmd, .description = (desc),                      \
      .source = REGMAP_SRC_CMD, .path = cmd}
 /* A parameter: held until its command's trigger. */
-#define C_PARAM(addr, n, type_, regs, min_, max_, unit_, name_, path_, desc)  \
+#define C_PARAM(addr, cls, n, type_, regs, min_, max_, unit_, name_, path_, desc) \
     {.table = REGMAP_HOLDING_REGISTER, .address = (addr), .elements = (n),     \
+     .write_class = REGMAP_CLASS_##cls,                                        \
      .type = (type_), .str_regs = (regs), .scale = 1, .unit = (unit_),         \
      .writable = true, .min = (min_), .max = (max_), .name = (name_),          \
      .description = (desc), .source = REGMAP_SRC_CMD, .path = (path_)}
 /* A setpoint: each write sends its command, with the 'fixed' members. */
-#define C_SET(tbl, addr, n, first, type_, scale_, min_, max_, unit_, name_,    \
+#define C_SET(tbl, addr, cls, n, first, type_, scale_, min_, max_, unit_, name_, \
               path_, fixed_, desc)                                             \
     {.table = (tbl), .address = (addr), .elements = (n), .index = (first),     \
+     .write_class = REGMAP_CLASS_##cls,                                        \
      .type = (type_), .scale = (scale_), .unit = (unit_), .writable = true,    \
      .min = (min_), .max = (max_), .name = (name_), .description = (desc),     \
      .source = REGMAP_SRC_CMD, .path = (path_), .fixed = (fixed_)}
@@ -66,8 +69,9 @@
     {.table = (tbl), .address = (addr), .elements = (n), .type = (type_),     \
      .str_regs = (regs), .scale = 1, .unit = (unit_), .name = (name_),        \
      .description = (desc), .source = REGMAP_SRC_PATH, .path = (path_)}
-#define P_HOLD(addr, n, type_, min_, max_, regs, name_, path_, desc)          \
+#define P_HOLD(addr, cls, n, type_, min_, max_, regs, name_, path_, desc)     \
     {.table = REGMAP_HOLDING_REGISTER, .address = (addr), .elements = (n),    \
+     .write_class = REGMAP_CLASS_##cls,                                       \
      .type = (type_), .str_regs = (regs), .scale = 1, .unit = "",             \
      .writable = true, .min = (min_), .max = (max_), .name = (name_),         \
      .description = (desc), .source = REGMAP_SRC_PATH, .path = (path_)}
@@ -91,123 +95,126 @@ const struct regmap_row regmap_table_rows[] = {
     /* ---- coils ---- */
     {.table = REGMAP_COIL, .address = 0, .elements = 1, .type = REGMAP_BOOL,
      .scale = 1, .unit = "", .writable = true, .min = 0, .max = 1,
-     .name = "clear_counters",
+     .name = "clear_counters", .write_class = REGMAP_CLASS_COUNTERS,
      .description = "Write 1 to reset the gateway's counters to 0; reads 0",
      .source = REGMAP_SRC_GW, .id = GW_clear_counters},
 
     /* ---- coils: command triggers (0 -> 1 sends; write 0 to re-arm) ---- */
-    C_TRIGGER(100, "power_on", "Power on (4.1)"),
-    C_TRIGGER(101, "power_off", "Power off (4.2)"),
-    C_TRIGGER(102, "enable_robot", "Enable the robot (4.3)"),
-    C_TRIGGER(103, "disable_robot", "Disable the robot (4.4)"),
-    C_TRIGGER(104, "clear_error", "Recover from collision protection (4.48)"),
-    C_TRIGGER(105, "shutdown",
+    C_TRIGGER(100, POWER, "power_on", "Power on (4.1)"),
+    C_TRIGGER(101, POWER, "power_off", "Power off (4.2)"),
+    C_TRIGGER(102, POWER, "enable_robot", "Enable the robot (4.3)"),
+    C_TRIGGER(103, POWER, "disable_robot", "Disable the robot (4.4)"),
+    C_TRIGGER(104, POWER, "clear_error", "Recover from collision protection (4.48)"),
+    C_TRIGGER(105, SHUTDOWN, "shutdown",
               "Shut down robot and controller (4.5); only with allow_shutdown"),
-    C_TRIGGER(106, "load_program", "Load the program named in load_program_name (4.18)"),
-    C_TRIGGER(107, "play_program", "Play the loaded program (4.20)"),
-    C_TRIGGER(108, "pause_program", "Pause the program (4.21)"),
-    C_TRIGGER(109, "resume_program", "Resume the program (4.22)"),
-    C_TRIGGER(110, "stop_program", "Stop the program and any motion (4.23)"),
-    C_TRIGGER(111, "set_payload", "Set the payload in set_payload_* (4.42)"),
-    C_TRIGGER(112, "joint_move",
+    C_TRIGGER(106, PROGRAMS, "load_program", "Load the program named in load_program_name (4.18)"),
+    C_TRIGGER(107, PROGRAMS, "play_program", "Play the loaded program (4.20)"),
+    C_TRIGGER(108, PROGRAMS, "pause_program", "Pause the program (4.21)"),
+    C_TRIGGER(109, PROGRAMS, "resume_program", "Resume the program (4.22)"),
+    C_TRIGGER(110, PROGRAMS, "stop_program", "Stop the program and any motion (4.23)"),
+    C_TRIGGER(111, PAYLOAD, "set_payload", "Set the payload in set_payload_* (4.42)"),
+    C_TRIGGER(112, MOTION, "joint_move",
               "Joint move to joint_move_* (4.7); only with [commands] motion"),
-    C_TRIGGER(113, "end_move",
+    C_TRIGGER(113, MOTION, "end_move",
               "TCP move to end_move_* (4.8); only with [commands] motion"),
-    C_TRIGGER(114, "moveL",
+    C_TRIGGER(114, MOTION, "moveL",
               "Linear move to movel_* (4.9); only with [commands] motion"),
     {.table = REGMAP_COIL, .address = 120, .elements = 1, .type = REGMAP_BOOL,
      .scale = 1, .unit = "", .writable = true, .min = 0, .max = 1,
      .name = "json_trigger", .source = REGMAP_SRC_PATH, .path = "json.trigger",
+     .write_class = REGMAP_CLASS_MAILBOXES,
      .description = "JSON mailbox: 0 -> 1 sends the text in json_request"},
     /* ---- coils: the network-exception policy ---- */
     {.table = REGMAP_COIL, .address = 130, .elements = 1, .type = REGMAP_BOOL,
      .scale = 1, .unit = "", .writable = true, .min = 0, .max = 1,
      .name = "fault_reset", .source = REGMAP_SRC_PATH, .path = "fault_reset",
+     .write_class = REGMAP_CLASS_FAULTS,
      .description = "Write 1 to clear the latched network-exception fault; reads 0"},
     {.table = REGMAP_COIL, .address = 131, .elements = 1, .type = REGMAP_BOOL,
      .scale = 1, .unit = "", .writable = true, .min = 0, .max = 1,
      .name = "motion_enable", .source = REGMAP_SRC_PATH, .path = "motion_enable",
+     .write_class = REGMAP_CLASS_FAULTS,
      .description = "Hold at 1 for the robot to run (with [network_exception] "
                     "motion_enable); dropping it pauses the program at once"},
     /* ---- coils: outputs; each write sends set_digital_output (4.25) ---- */
-    C_SET(REGMAP_COIL, 200, 16, 1, REGMAP_BOOL, 1, 0, 1, "", "cabinet_do_*",
+    C_SET(REGMAP_COIL, 200, OUTPUTS, 16, 1, REGMAP_BOOL, 1, 0, 1, "", "cabinet_do_*",
           "set_digital_output.value", "\"type\": 0, \"index\": *",
           "Cabinet digital output * (type 0, index *)"),
-    C_SET(REGMAP_COIL, 216, 2, 0, REGMAP_BOOL, 1, 0, 1, "", "tool_do_*",
+    C_SET(REGMAP_COIL, 216, OUTPUTS, 2, 0, REGMAP_BOOL, 1, 0, 1, "", "tool_do_*",
           "set_digital_output.value", "\"type\": 1, \"index\": *",
           "Tool digital output * (type 1, index *)"),
-    C_SET(REGMAP_COIL, 224, 16, 0, REGMAP_BOOL, 1, 0, 1, "", "extio_do_*",
+    C_SET(REGMAP_COIL, 224, OUTPUTS, 16, 0, REGMAP_BOOL, 1, 0, 1, "", "extio_do_*",
           "set_digital_output.value", "\"type\": 2, \"index\": *",
           "Extension IO digital output * (type 2, index *)"),
 
     /* ---- holding registers ---- */
     {.table = REGMAP_HOLDING_REGISTER, .address = 0, .elements = 1,
      .type = REGMAP_U16, .scale = 1, .unit = "", .writable = true, .min = 0,
-     .max = 65535, .name = "plc_heartbeat",
+     .max = 65535, .name = "plc_heartbeat", .write_class = REGMAP_CLASS_HEARTBEAT,
      .description = "PLC watchdog: write a changing value; its age is "
                     "plc_heartbeat_age_ms",
      .source = REGMAP_SRC_GW, .id = GW_plc_heartbeat},
 
     /* ---- holding registers: setpoints; each write sends its command ---- */
-    C_SET(REGMAP_HOLDING_REGISTER, 100, 1, 0, REGMAP_U16, 1000, 0, 1000, "1/1000",
+    C_SET(REGMAP_HOLDING_REGISTER, 100, SETPOINTS, 1, 0, REGMAP_U16, 1000, 0, 1000, "1/1000",
           "rapid_rate", "rapid_rate.rate_value", "",
           "Speed override in per mille, 0..1000 (4.17; sent as 0..1); read back "
           "from rapid_rate in the status"),
-    C_SET(REGMAP_HOLDING_REGISTER, 101, 1, 0, REGMAP_U16, 1, 0, 10, "", "tool_id",
+    C_SET(REGMAP_HOLDING_REGISTER, 101, SETPOINTS, 1, 0, REGMAP_U16, 1, 0, 10, "", "tool_id",
           "set_tool_id.tool_id", "", "Select tool frame 0..10 (4.30)"),
-    C_SET(REGMAP_HOLDING_REGISTER, 102, 1, 0, REGMAP_U16, 1, 0, 10, "", "user_id",
+    C_SET(REGMAP_HOLDING_REGISTER, 102, SETPOINTS, 1, 0, REGMAP_U16, 1, 0, 10, "", "user_id",
           "set_user_id.user_frame_id", "", "Select user frame 0..10 (4.33)"),
-    C_SET(REGMAP_HOLDING_REGISTER, 103, 1, 0, REGMAP_U16, 1, 0, 5, "",
+    C_SET(REGMAP_HOLDING_REGISTER, 103, SETPOINTS, 1, 0, REGMAP_U16, 1, 0, 5, "",
           "collision_level", "set_clsn_sensitivity.sensitivityVal", "",
           "Collision sensitivity level 0..5 (4.44)"),
-    C_SET(REGMAP_HOLDING_REGISTER, 110, 7, 1, REGMAP_F32, 1, -FMAX, FMAX, "",
+    C_SET(REGMAP_HOLDING_REGISTER, 110, OUTPUTS, 7, 1, REGMAP_F32, 1, -FMAX, FMAX, "",
           "cabinet_ao_*", "set_analog_output.value", "\"type\": 0, \"index\": *",
           "Cabinet analog output * (type 0, index *: the manual numbers them 1-7; 4.27)"),
-    C_SET(REGMAP_HOLDING_REGISTER, 126, 8, 0, REGMAP_F32, 1, -FMAX, FMAX, "",
+    C_SET(REGMAP_HOLDING_REGISTER, 126, OUTPUTS, 8, 0, REGMAP_F32, 1, -FMAX, FMAX, "",
           "extio_ao_*", "set_analog_output.value", "\"type\": 2, \"index\": *",
           "Extension IO analog output * (type 2, index *; 4.27)"),
     /* ---- holding registers: parameters, sent by the command's trigger ---- */
-    C_PARAM(150, 1, REGMAP_F32, 0, 0, FMAX, "kg", "set_payload_mass",
+    C_PARAM(150, PAYLOAD, 1, REGMAP_F32, 0, 0, FMAX, "kg", "set_payload_mass",
             "set_payload.mass", "Payload mass for set_payload"),
-    C_PARAM(152, 3, REGMAP_F32, 0, -FMAX, FMAX, "mm", "set_payload_centroid_#",
+    C_PARAM(152, PAYLOAD, 3, REGMAP_F32, 0, -FMAX, FMAX, "mm", "set_payload_centroid_#",
             "set_payload.centroid[*]", "Payload centroid, coordinate # (x, y, z)"),
-    C_PARAM(200, 1, REGMAP_STR, 32, 0, 0, "", "load_program_name",
+    C_PARAM(200, PROGRAMS, 1, REGMAP_STR, 32, 0, 0, "", "load_program_name",
             "load_program.programName",
             "Program to load, UTF-8 text, NUL-padded (e.g. track/test.jks)"),
-    C_PARAM(300, 6, REGMAP_F32, 0, -FMAX, FMAX, "deg", "joint_move_joint_#",
+    C_PARAM(300, MOTION, 6, REGMAP_F32, 0, -FMAX, FMAX, "deg", "joint_move_joint_#",
             "joint_move.jointPosition[*]", "joint_move target, joint #"),
-    C_PARAM(312, 1, REGMAP_F32, 0, 0, FMAX, "deg/s", "joint_move_speed",
+    C_PARAM(312, MOTION, 1, REGMAP_F32, 0, 0, FMAX, "deg/s", "joint_move_speed",
             "joint_move.speed", "joint_move speed"),
-    C_PARAM(314, 1, REGMAP_F32, 0, 0, FMAX, "deg/s2", "joint_move_accel",
+    C_PARAM(314, MOTION, 1, REGMAP_F32, 0, 0, FMAX, "deg/s2", "joint_move_accel",
             "joint_move.accel", "joint_move acceleration"),
-    C_PARAM(316, 1, REGMAP_U16, 0, 0, 1, "", "joint_move_relative",
+    C_PARAM(316, MOTION, 1, REGMAP_U16, 0, 0, 1, "", "joint_move_relative",
             "joint_move.relFlag", "joint_move: 0 absolute, 1 relative"),
-    C_PARAM(320, 6, REGMAP_F32, 0, -FMAX, FMAX, "mm, deg", "end_move_pose_#",
+    C_PARAM(320, MOTION, 6, REGMAP_F32, 0, -FMAX, FMAX, "mm, deg", "end_move_pose_#",
             "end_move.endPosition[*]", "end_move target, x y z rx ry rz: element #"),
-    C_PARAM(332, 1, REGMAP_F32, 0, 0, FMAX, "deg/s", "end_move_speed",
+    C_PARAM(332, MOTION, 1, REGMAP_F32, 0, 0, FMAX, "deg/s", "end_move_speed",
             "end_move.speed", "end_move joint speed"),
-    C_PARAM(334, 1, REGMAP_F32, 0, 0, FMAX, "deg/s2", "end_move_accel",
+    C_PARAM(334, MOTION, 1, REGMAP_F32, 0, 0, FMAX, "deg/s2", "end_move_accel",
             "end_move.accel", "end_move joint acceleration"),
-    C_PARAM(340, 6, REGMAP_F32, 0, -FMAX, FMAX, "mm, deg", "movel_pose_#",
+    C_PARAM(340, MOTION, 6, REGMAP_F32, 0, -FMAX, FMAX, "mm, deg", "movel_pose_#",
             "moveL.cartPosition[*]", "moveL target, x y z rx ry rz: element #"),
-    C_PARAM(352, 1, REGMAP_F32, 0, 0, FMAX, "mm/s", "movel_speed", "moveL.speed",
+    C_PARAM(352, MOTION, 1, REGMAP_F32, 0, 0, FMAX, "mm/s", "movel_speed", "moveL.speed",
             "moveL linear speed"),
-    C_PARAM(354, 1, REGMAP_F32, 0, 0, FMAX, "mm/s2", "movel_accel", "moveL.accel",
+    C_PARAM(354, MOTION, 1, REGMAP_F32, 0, 0, FMAX, "mm/s2", "movel_accel", "moveL.accel",
             "moveL linear acceleration"),
-    C_PARAM(356, 1, REGMAP_U16, 0, 0, 1, "", "movel_relative", "moveL.relFlag",
+    C_PARAM(356, MOTION, 1, REGMAP_U16, 0, 0, 1, "", "movel_relative", "moveL.relFlag",
             "moveL: 0 absolute, 1 relative"),
-    C_PARAM(358, 1, REGMAP_F32, 0, 0, FMAX, "mm", "movel_tol", "moveL.tol",
+    C_PARAM(358, MOTION, 1, REGMAP_F32, 0, 0, FMAX, "mm", "movel_tol", "moveL.tol",
             "moveL: maximum permissible error, 0 if not needed"),
     /* ---- holding registers: the exactly-once mailbox ---- */
-    P_HOLD(400, 1, REGMAP_U16, 0, 65535, 0, "mailbox_code", "mailbox.code",
+    P_HOLD(400, MAILBOXES, 1, REGMAP_U16, 0, 65535, 0, "mailbox_code", "mailbox.code",
            "Exactly-once mailbox: command code (see the PLC guide)"),
-    P_HOLD(401, 12, REGMAP_F32, -FMAX, FMAX, 0, "mailbox_arg_#", "mailbox.arg[*]",
+    P_HOLD(401, MAILBOXES, 12, REGMAP_F32, -FMAX, FMAX, 0, "mailbox_arg_#", "mailbox.arg[*]",
            "Exactly-once mailbox: argument #"),
-    P_HOLD(425, 1, REGMAP_U16, 0, 65535, 0, "mailbox_seq", "mailbox.seq",
+    P_HOLD(425, MAILBOXES, 1, REGMAP_U16, 0, 65535, 0, "mailbox_seq", "mailbox.seq",
            "Exactly-once mailbox: write a new number last (in the same write) "
            "to run the command once"),
     /* ---- holding registers: the JSON mailbox ---- */
-    P_HOLD(500, 1, REGMAP_STR, 0, 0, 120, "json_request", "json.request",
+    P_HOLD(500, MAILBOXES, 1, REGMAP_STR, 0, 0, 120, "json_request", "json.request",
            "JSON mailbox: a whole command as UTF-8 text, NUL-padded, written in "
            "one write (up to 240 bytes)"),
 
@@ -326,6 +333,28 @@ const struct regmap_row regmap_table_rows[] = {
           "motion_enabled", "The motion-enable coil as the policy sees it"),
     P_ROW(REGMAP_INPUT_REGISTER, 66, 1, REGMAP_STR, 24, "", "write_owner",
           "write_owner", "Address of the client that owns the write side; empty: none"),
+
+    /* ---- input registers: Modbus/TCP Security (mbaps, [tls]) ---- */
+    G_IR(90, tls_clients, REGMAP_U16, "", "Modbus/TCP Security clients connected now"),
+    G_IR(91, tls_handshakes_running, REGMAP_U16, "",
+         "TLS handshakes running now (at most [tls] max_handshakes)"),
+    G_IR(92, tls_handshakes_ok, REGMAP_U32, "", "TLS handshakes completed"),
+    G_IR(94, tls_failed_total, REGMAP_U32, "",
+         "TLS handshakes failed or refused, every reason (input registers 5500-5513)"),
+    G_IR(5500, tls_failed_no_certificate, REGMAP_U32, "",
+         "TLS handshakes failed: the client sent no certificate"),
+    G_IR(5502, tls_failed_untrusted, REGMAP_U32, "",
+         "TLS handshakes failed: certificate not from client_ca (or a bad signature)"),
+    G_IR(5504, tls_failed_expired, REGMAP_U32, "",
+         "TLS handshakes failed: certificate expired or not yet valid"),
+    G_IR(5506, tls_failed_revoked, REGMAP_U32, "",
+         "TLS handshakes failed: certificate revoked by the crl"),
+    G_IR(5508, tls_failed_protocol, REGMAP_U32, "",
+         "TLS handshakes failed: not TLS, TLS 1.0/1.1, no shared cipher, renegotiation"),
+    G_IR(5510, tls_failed_timeout, REGMAP_U32, "",
+         "TLS handshakes not finished within handshake_timeout_ms"),
+    G_IR(5512, tls_failed_over_limit, REGMAP_U32, "",
+         "TLS connections closed at once: max_handshakes were running"),
 
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",

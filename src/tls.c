@@ -325,7 +325,11 @@ int tls_context_new(const struct tls_settings *s, struct tls_context **out, char
         SSL_CTX_set_session_id_context(ctx, session_context, sizeof(session_context) - 1);
         SSL_CTX_set_session_cache_mode(ctx, SSL_SESS_CACHE_SERVER);
         SSL_CTX_sess_set_cache_size(ctx, 256);
-        SSL_CTX_set_num_tickets(ctx, 1);
+        /* TLS 1.3 tickets would go out alone right after the handshake,
+         * and a client that polls its socket before reading (pymodbus)
+         * takes a record with no data for a failed read: the ticket goes
+         * with the first reply instead (tls_conn_handshake). */
+        SSL_CTX_set_num_tickets(ctx, 0);
     } else {
         if (s->ca && s->ca[0]) {
             rc = load_trust(ctx, s, why, why_size);
@@ -549,6 +553,9 @@ int tls_conn_handshake(struct tls_conn *c)
             return TLS_ERROR;
         c->handshake_done = true;
         read_peer(c);
+        if (c->ctx->server && SSL_version(c->ssl) >= TLS1_3_VERSION)
+            SSL_new_session_ticket(c->ssl); /* sent with the next write */
+        ERR_clear_error();
         return TLS_OK;
     }
     switch (SSL_get_error(c->ssl, rc)) {

@@ -176,7 +176,8 @@ static int write_from(const char *who, enum regmap_table table, unsigned address
                       unsigned count, const uint16_t *values)
 {
     struct mb_write w = {.table = table, .address = address, .count = count,
-                         .values = values, .client = who, .client_id = 1};
+                         .values = values, .client = who, .client_id = 1,
+                         .rights = REGMAP_RIGHTS_ALL};
 
     assert_int_equal(ip_addr_parse(who, &w.client_addr), 0);
     int ex = plc_write_judge(&writes, &w);

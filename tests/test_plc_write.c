@@ -95,7 +95,8 @@ static int write_one(const char *from, uint64_t client_id, const struct regmap_r
                      uint16_t value)
 {
     struct mb_write w = {.table = row->table, .address = row->address, .count = 1,
-                         .values = &value, .client = from, .client_id = client_id};
+                         .values = &value, .client = from, .client_id = client_id,
+                         .rights = REGMAP_RIGHTS_ALL};
     assert_int_equal(ip_addr_parse(from, &w.client_addr), 0);
     int ex = plc_write_judge(&pw, &w);
     if (ex == 0) {

@@ -114,7 +114,7 @@ static void map_is_valid_and_stable(void **state)
     row = regmap_find(&map, REGMAP_DISCRETE_INPUT, 17);
     assert_int_equal(row->id, STATUS_F_enabled);
     /* A hole reads as no row; past the end as well. */
-    assert_null(regmap_find(&map, REGMAP_INPUT_REGISTER, 90));
+    assert_null(regmap_find(&map, REGMAP_INPUT_REGISTER, 96));
     assert_null(regmap_find(&map, REGMAP_INPUT_REGISTER, 60000));
     /* Every status field appears in the map. */
     for (int id = 0; id < STATUS_FIELD_COUNT; id++) {
@@ -187,13 +187,16 @@ static void csv_listing_has_the_contract_header(void **state)
     assert_int_equal(regmap_print(&map, REGMAP_FORMAT_CSV, mem), 0);
     fclose(mem);
     assert_memory_equal(text,
-                        "table,address,count,type,scale,unit,access,name,source,"
-                        "description\n",
-                        strlen("table,address,count,type,scale,unit,access,name,"
-                               "source,description\n"));
-    assert_non_null(strstr(text, "\ninput_register,200,2,f32,1,deg,r,"
+                        "table,address,count,type,scale,unit,access,write_class,name,"
+                        "source,description\n",
+                        strlen("table,address,count,type,scale,unit,access,write_class,"
+                               "name,source,description\n"));
+    assert_non_null(strstr(text, "\ninput_register,200,2,f32,1,deg,r,,"
                                  "joint_actual_position_1,joint_actual_position[0],"));
-    assert_non_null(strstr(text, "\ninput_register,114,1,u16,1000,permille,r,"));
+    assert_non_null(strstr(text, "\ninput_register,114,1,u16,1000,permille,r,,"));
+    /* Every writable row, with its write class. */
+    assert_non_null(strstr(text, "\nholding_register,0,1,u16,1,,rw,heartbeat,plc_heartbeat,"));
+    assert_non_null(strstr(text, "\ncoil,100,1,bool,1,,rw,power,cmd_power_on,"));
     assert_non_null(strstr(text, ",monitor_data[5][5][10],"));
     free(text);
     regmap_free(&map);

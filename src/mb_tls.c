@@ -1,0 +1,252 @@
+/* SPDX-License-Identifier: MIT */
+/* mb_tls.c - see mb_tls.h. */
+#include "mb_tls.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+struct mb_tls_conn {
+    struct tls_conn *tls;
+    bool admitted;
+};
+
+static struct mb_tls_conn *conn_of(struct mb_client *c)
+{
+    return *mb_client_data(c);
+}
+
+int mb_tls_init(struct mb_tls *t, struct tls_context *ctx, const struct mb_tls_config *cfg)
+{
+    if (!ctx || !cfg || !cfg->rights_for_role || cfg->max_handshakes == 0)
+        return -EINVAL;
+    memset(t, 0, sizeof(*t));
+    t->ctx = ctx;
+    t->cfg = *cfg;
+    t->fail_log.interval_ms = 1000;
+    t->limit_log.interval_ms = 1000;
+    return 0;
+}
+
+void mb_tls_set_context(struct mb_tls *t, struct tls_context *ctx)
+{
+    tls_context_unref(t->ctx);
+    t->ctx = ctx;
+}
+
+void mb_tls_free(struct mb_tls *t)
+{
+    tls_context_unref(t->ctx);
+    t->ctx = NULL;
+}
+
+uint64_t mb_tls_failed_total(const struct mb_tls_stats *s)
+{
+    uint64_t total = 0;
+    for (int i = 1; i < TLS_FAIL_COUNT; i++)
+        total += s->failed[i];
+    return total;
+}
+
+/* Counts a failed handshake and says why, at most once a second. */
+static void handshake_failed(struct mb_tls *t, struct mb_client *c, enum tls_failure f,
+                             const char *why, struct log_ratelimit *limit)
+{
+    uint64_t suppressed;
+
+    t->stats.failed[f]++;
+    if (!log_ratelimit_pass(limit, uv_now(mb_client_loop(c)), &suppressed))
+        return;
+    log_warn("mbaps: client %s: handshake failed: %s (%s); %llu more failed handshakes "
+             "since the last such line",
+             mb_client_peer(c), tls_failure_name(f), why, (unsigned long long)suppressed);
+}
+
+/* Writes what the engine has for the socket. */
+static void flush(struct mb_client *c, struct mb_tls_conn *conn)
+{
+    uint8_t buf[16384];
+    size_t n;
+
+    while (mb_client_is_open(c) && (n = tls_conn_take(conn->tls, buf, sizeof(buf))) > 0)
+        mb_client_send_raw(c, buf, n);
+}
+
+static int tls_open(void *state, struct mb_client *c)
+{
+    struct mb_tls *t = state;
+    struct mb_tls_conn *conn;
+
+    if (t->stats.handshakes >= t->cfg.max_handshakes) {
+        char why[64];
+        snprintf(why, sizeof(why), "max_handshakes %u running; closed at once",
+                 t->cfg.max_handshakes);
+        handshake_failed(t, c, TLS_FAIL_OVER_LIMIT, why, &t->limit_log);
+        return -EBUSY;
+    }
+    conn = calloc(1, sizeof(*conn));
+    if (conn)
+        conn->tls = tls_conn_new(t->ctx, NULL);
+    if (!conn || !conn->tls) {
+        free(conn);
+        log_err("mbaps: out of memory for a new connection from %s: closed", mb_client_peer(c));
+        return -ENOMEM;
+    }
+    *mb_client_data(c) = conn;
+    t->stats.handshakes++;
+    mb_client_set_deadline(c, t->cfg.handshake_timeout_ms);
+    return MB_TRANSPORT_PENDING;
+}
+
+static void tls_alloc(void *state, struct mb_client *c, uv_buf_t *buf)
+{
+    struct mb_tls *t = state;
+    (void)c;
+    *buf = uv_buf_init((char *)t->read_buf, sizeof(t->read_buf));
+}
+
+/* The handshake is done: one line, the rights of the role, a client. */
+static void admit(struct mb_tls *t, struct mb_client *c, struct mb_tls_conn *conn)
+{
+    bool valid, listed = false;
+    const char *role = tls_conn_role(conn->tls, &valid);
+    uint32_t rights = t->cfg.rights_for_role(t->cfg.user, role, valid, &listed);
+    char shown[160];
+
+    regmap_format_rights(rights, shown, sizeof(shown));
+    t->stats.handshakes--;
+    t->stats.handshakes_ok++;
+    conn->admitted = true;
+    t->stats.clients++;
+    log_notice("mbaps: client %s: certificate \"%s\", role %s%s%s: may write %s (%s, %s%s)",
+               mb_client_peer(c), tls_conn_subject(conn->tls),
+               !valid ? "(not a valid UTF8String)" : role[0] ? "\"" : "(none)", valid ? role : "",
+               valid && role[0] ? "\"" : "", shown,
+               listed ? "[roles]" : "default_rights", tls_conn_version(conn->tls),
+               tls_conn_resumed(conn->tls) ? ", session resumed" : "new session");
+    mb_client_admit(c, rights);
+}
+
+/* Hands every whole piece of plaintext to the server's framing. */
+static void read_plaintext(struct mb_client *c, struct mb_tls_conn *conn)
+{
+    char why[200];
+
+    while (mb_client_is_open(c)) {
+        size_t room;
+        uint8_t *space = mb_client_space(c, &room);
+        if (room == 0)
+            return;
+        int n = tls_conn_read(conn->tls, space, room);
+        if (n > 0) {
+            mb_client_received(c, (size_t)n);
+            continue;
+        }
+        flush(c, conn); /* an alert or a ticket */
+        if (n == TLS_AGAIN || !mb_client_is_open(c))
+            return;
+        if (n == TLS_CLOSED) {
+            mb_client_release(c, NULL);
+            return;
+        }
+        tls_conn_failure(conn->tls, why, sizeof(why));
+        mb_client_close(c, why);
+        return;
+    }
+}
+
+static void tls_input(void *state, struct mb_client *c, const uint8_t *data, size_t size)
+{
+    struct mb_tls *t = state;
+    struct mb_tls_conn *conn = conn_of(c);
+    char why[200];
+
+    if (tls_conn_feed(conn->tls, data, size) < 0) {
+        mb_client_close(c, "out of memory for TLS input");
+        return;
+    }
+    if (!conn->admitted) {
+        int rc = tls_conn_handshake(conn->tls);
+        flush(c, conn); /* our flight, or the alert that says no */
+        if (!mb_client_is_open(c) || rc == TLS_AGAIN)
+            return;
+        if (rc == TLS_ERROR) {
+            enum tls_failure f = tls_conn_failure(conn->tls, why, sizeof(why));
+            handshake_failed(t, c, f, why, &t->fail_log);
+            mb_client_close(c, NULL);
+            return;
+        }
+        admit(t, c, conn);
+    }
+    read_plaintext(c, conn);
+}
+
+static void tls_output(void *state, struct mb_client *c, const uint8_t *data, size_t size)
+{
+    struct mb_tls_conn *conn = conn_of(c);
+    (void)state;
+
+    if (tls_conn_write(conn->tls, data, size) != 0) {
+        mb_client_close(c, "TLS encryption failed");
+        return;
+    }
+    flush(c, conn);
+}
+
+static void tls_finish(void *state, struct mb_client *c)
+{
+    struct mb_tls_conn *conn = conn_of(c);
+    (void)state;
+
+    tls_conn_close_notify(conn->tls);
+    flush(c, conn);
+}
+
+static void tls_expired(void *state, struct mb_client *c)
+{
+    struct mb_tls *t = state;
+    char why[64];
+
+    snprintf(why, sizeof(why), "not finished within handshake_timeout_ms %u",
+             t->cfg.handshake_timeout_ms);
+    handshake_failed(t, c, TLS_FAIL_TIMEOUT, why, &t->fail_log);
+}
+
+static void tls_closed(void *state, struct mb_client *c, bool was_pending)
+{
+    struct mb_tls *t = state;
+    struct mb_tls_conn *conn = conn_of(c);
+
+    (void)was_pending; /* the connection knows better: admitted or not */
+    if (!conn)
+        return; /* refused at open */
+    if (conn->admitted)
+        t->stats.clients--;
+    else
+        t->stats.handshakes--;
+}
+
+static void tls_free(void *state, struct mb_client *c)
+{
+    struct mb_tls_conn *conn = conn_of(c);
+    (void)state;
+
+    if (!conn)
+        return;
+    tls_conn_free(conn->tls);
+    free(conn);
+    *mb_client_data(c) = NULL;
+}
+
+const struct mb_transport mb_transport_tls = {
+    .name = "mbaps",
+    .open = tls_open,
+    .alloc = tls_alloc,
+    .input = tls_input,
+    .output = tls_output,
+    .finish = tls_finish,
+    .expired = tls_expired,
+    .closed = tls_closed,
+    .free = tls_free,
+};
