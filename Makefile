@@ -195,9 +195,9 @@ man: $(BUILD)/jakagw $(BUILD)/jakasim
 	/usr/bin/python3 scripts/gen-man.py $(BUILD) jakagw.8 > man/jakagw.8
 	/usr/bin/python3 scripts/gen-man.py $(BUILD) jakasim.1 > man/jakasim.1
 
-UNITS := jakagw.service jakagw@.service jakagw.socket jakagw-socket.service
+UNITS := jakagw.service jakagw@.service jakagw.socket jakagw-socket.service jakagw-mbaps.socket
 DOCS  := README.md docs/register-map.md docs/register-map.csv \
-         $(wildcard docs/plc-guide.md docs/jakagw.dbc)
+         $(wildcard docs/plc-guide.md docs/jakagw.dbc docs/security.md)
 CONF  := $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
 # A configuration already there is the user's: it is never overwritten.
 install: all

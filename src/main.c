@@ -18,6 +18,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 #include <systemd/sd-daemon.h>
 #include <uv.h>
 
@@ -266,8 +267,12 @@ static int adopt_passed_socket(struct gw_config *cfg)
         *slot = fd;
     }
     if (rc == 0 && cfg->tls_listen_fd && !cfg->tls_enabled) {
-        log_err("systemd passed the mbaps socket, but [tls] enabled is false");
-        rc = -EINVAL;
+        /* jakagw-socket.service wants jakagw-mbaps.socket (Sockets=): it
+         * is passed whether or not the configuration serves it. */
+        log_notice("systemd passed the mbaps socket (port 802), but [tls] enabled is "
+                   "false: it is not served");
+        close(cfg->tls_listen_fd);
+        cfg->tls_listen_fd = 0;
     }
     if (rc == 0 && cfg->modbus_listen_fd && !cfg->modbus_enabled) {
         log_err("systemd passed a Modbus TCP socket, but [modbus] enabled is false");

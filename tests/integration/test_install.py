@@ -14,7 +14,8 @@ import tempfile
 from harness import BIN, TestFailure, check, run
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
-UNITS = ["jakagw.service", "jakagw@.service", "jakagw.socket", "jakagw-socket.service"]
+UNITS = ["jakagw.service", "jakagw@.service", "jakagw.socket", "jakagw-socket.service",
+         "jakagw-mbaps.socket"]
 # The most systemd-analyze security may rate each service.
 EXPOSURE_LIMITS = {"jakagw.service": 1.9, "jakagw@.service": 1.9, "jakagw-socket.service": 1.2}
 

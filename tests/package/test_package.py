@@ -26,7 +26,8 @@ sys.path.insert(0, os.path.join(ROOT, "tests", "integration"))
 from harness import TestFailure, check, run  # noqa: E402
 
 BUILD = sys.argv[1] if len(sys.argv) > 1 else "build"
-UNITS = ["jakagw.service", "jakagw@.service", "jakagw.socket", "jakagw-socket.service"]
+UNITS = ["jakagw.service", "jakagw@.service", "jakagw.socket", "jakagw-socket.service",
+         "jakagw-mbaps.socket"]
 # What systemd-analyze security may rate each service, at most.
 EXPOSURE_LIMITS = {"jakagw.service": 1.9, "jakagw@cell1.service": 1.9,
                    "jakagw-socket.service": 1.2}

@@ -1,0 +1,458 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
+"""Modbus/TCP Security (mbaps) with real certificates and real clients.
+
+The certificates come from tests/tls/make-pki.sh: the openssl commands of
+docs/security.md, run as written, and the test-only ones (no role, an
+unknown role, expired, revoked, another CA). The clients are pymodbus's
+TLS client, Python's ssl module and `openssl s_client`; the gateway is the
+real jakagw in front of the real jakasim.
+"""
+import os
+import re
+import socket
+import ssl
+import statistics
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+sys.path.insert(0, os.path.dirname(__file__))
+from harness import (Gateway, ModbusPlc, Sim, TestFailure, check, free_port, log_lines,  # noqa: E402
+                     mbap, open_fds, raw_client, read_input_registers, recv_adu, rss_kb, run,
+                     sim_commands, wait_until)
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+PKI = tempfile.mkdtemp(prefix="jakagw-pki-")
+subprocess.run([os.path.join(ROOT, "tests", "tls", "make-pki.sh"), PKI], check=True)
+
+# Input registers (docs/register-map.md).
+IR_TLS_CLIENTS, IR_HANDSHAKES_RUNNING, IR_HANDSHAKES_OK, IR_FAILED_TOTAL = 90, 91, 92, 94
+IR_FAILED = {"no_certificate": 5500, "untrusted": 5502, "expired": 5504, "revoked": 5506,
+             "protocol": 5508, "timeout": 5510, "over_limit": 5512}
+IR_ROBOT_HANDLE = 64
+COIL_CABINET_DO_1 = 200
+COIL_JOINT_MOVE = 112
+HR_HEARTBEAT = 0
+
+
+def pki(name):
+    return os.path.join(PKI, name)
+
+
+def tls_config(port, extra=""):
+    return """
+[tls]
+enabled = true
+port = %d
+certificate = %s
+private_key = %s
+client_ca = %s
+crl = %s
+handshake_timeout_ms = 1000
+max_handshakes = 16
+
+[network_exception]
+single_owner = false
+
+[roles]
+operator = heartbeat, faults, setpoints, outputs, power, programs, payload
+monitor = read
+%s""" % (port, pki("gateway.crt"), pki("gateway.key"), pki("ca.crt"), pki("ca.crl"), extra)
+
+
+class Mbaps:
+    """A sim and a gateway with the mbaps listener."""
+
+    def __init__(self, extra="", edit=None):
+        self.tls_port = free_port()
+        self.sim = Sim("--log-commands")
+        config = tls_config(self.tls_port, extra)
+        try:
+            self.gw = Gateway(self.sim, edit(config) if edit else config)
+            wait_until(lambda: port_open(self.tls_port), 10, "the mbaps port")
+        except Exception:
+            self.sim.stop(None)
+            raise
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        try:
+            self.gw.stop()
+        finally:
+            self.sim.stop()
+
+    def plain(self):
+        return ModbusPlc(self.gw.modbus_port)
+
+    def counter(self, address):
+        s = raw_client(self.gw.modbus_port)
+        try:
+            hi, lo = read_input_registers(s, address, 2)
+            return hi << 16 | lo
+        finally:
+            s.close()
+
+
+def port_open(port):
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+            return True
+    except OSError:
+        return False
+
+
+def client_context(name, max_version=None):
+    ctx = ssl.create_default_context(ssl.Purpose.SERVER_AUTH, cafile=pki("ca.crt"))
+    if name:
+        ctx.load_cert_chain(pki(name + ".crt"), pki(name + ".key"))
+    if max_version:
+        ctx.maximum_version = max_version
+    return ctx
+
+
+def tls_socket(port, name, timeout=5, max_version=None):
+    raw = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    raw.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return client_context(name, max_version).wrap_socket(raw, server_hostname="127.0.0.1")
+
+
+class TlsPlc(ModbusPlc):
+    """harness.ModbusPlc over pymodbus's TLS client (MBAP framing, as the
+    protocol has it), with the read fix docs/security.md explains."""
+
+    def __init__(self, port, name, timeout=5):
+        from pymodbus.client import ModbusTlsClient
+        from pymodbus.framer.socket_framer import ModbusSocketFramer
+
+        class TlsClient(ModbusTlsClient):
+            def recv(self, size):
+                self.socket.settimeout(self.params.timeout)
+                data = b""
+                try:
+                    while len(data) < (size or 1):
+                        chunk = self.socket.recv((size or 4096) - len(data))
+                        if not chunk:
+                            break
+                        data += chunk
+                except socket.timeout:
+                    pass
+                return data
+
+        self.client = TlsClient("127.0.0.1", port=port, sslctx=client_context(name),
+                                framer=ModbusSocketFramer, timeout=timeout, retries=0)
+        check(self.client.connect(), "TLS connect to port %d as %s" % (port, name))
+
+
+def doc_blocks(kind):
+    with open(os.path.join(ROOT, "docs", "security.md")) as f:
+        return re.findall(r"^```%s\n(.*?)^```" % kind, f.read(), re.S | re.M)
+
+
+def test_security_doc_word_for_word():
+    """docs/security.md's configuration and PLC, as written: pymodbus reads
+    over TLS with the operator certificate, a monitor's write gets 01."""
+    (ini,) = doc_blocks("ini")
+    (program,) = doc_blocks("python")
+    tls_port = free_port()
+    ini = ini.replace("/etc/jakagw/tls", PKI).replace("enabled = true",
+                                                      "enabled = true\nport = %d" % tls_port)
+    sim = Sim()
+    try:
+        gw = Gateway(sim, ini)
+        try:
+            wait_until(lambda: port_open(tls_port), 10, "the mbaps port")
+            out = subprocess.run([sys.executable, "-c", program.replace("port=802", "port=%d" % tls_port)],
+                                 cwd=PKI, capture_output=True, text=True, timeout=60)
+            check(out.returncode == 0, "the PLC of docs/security.md failed:\n%s%s"
+                  % (out.stdout, out.stderr))
+            check("map magic: 0x4a4b" in out.stdout, out.stdout)
+            check("monitor writes the heartbeat: Exception Response(134, 6, IllegalFunction)"
+                  in out.stdout, out.stdout)
+            check(log_lines(gw, 'role "operator": may write heartbeat'), gw.output())
+            check(log_lines(gw, 'role "monitor": may write read'), gw.output())
+        finally:
+            gw.stop()
+    finally:
+        sim.stop()
+
+
+def test_roles_decide_writes():
+    with Mbaps("intruder_is_not_listed = read\n") as m:
+        wait_until(lambda: m.plain().ir(IR_ROBOT_HANDLE)[0] == 2, 10, "the robot's handler")
+        op = TlsPlc(m.tls_port, "operator")
+        check(op.ir(0)[0] == 0x4A4B, "operator reads")
+        check(op.reg(HR_HEARTBEAT, 7) == 0, "operator writes the heartbeat")
+        check(op.pulse(COIL_CABINET_DO_1) == 0, "operator sets an output")
+        wait_until(lambda: sim_commands(m.sim, "set_digital_output"), 5,
+                   "the output command at the robot")
+        sent = len(sim_commands(m.sim))
+        check(op.coil(COIL_JOINT_MOVE, 1) == 1, "operator has no motion class: 01")
+        for name in ("monitor", "norole", "intruder"):
+            plc = TlsPlc(m.tls_port, name)
+            check(plc.ir(0)[0] == 0x4A4B, "%s reads" % name)
+            check(plc.coil(COIL_CABINET_DO_1, 0) == 1, "%s writes an output: 01" % name)
+            check(plc.reg(HR_HEARTBEAT, 9) == 1, "%s writes the heartbeat: 01" % name)
+            plc.close()
+        time.sleep(0.3)
+        check(len(sim_commands(m.sim)) == sent, "a refused write sent nothing to the robot")
+        check(m.plain().hr(HR_HEARTBEAT) == [7], "refused writes left the image alone")
+        out = m.gw.output()
+        check(log_lines(m.gw, 'role "intruder"') and "default_rights" in out, out)
+        check(log_lines(m.gw, "role (none)"), out)
+        # Plain Modbus TCP is as before: every class.
+        check(m.plain().pulse(COIL_CABINET_DO_1 + 1) == 0, "plain writes as before")
+        check(m.counter(IR_HANDSHAKES_OK) >= 4, "handshakes counted")
+        op.close()
+
+
+def no_modbus_answer(port, name, max_version=None):
+    """Handshake as 'name' (None: no certificate), then a Modbus request:
+    the handshake fails and not one Modbus byte comes back."""
+    try:
+        s = tls_socket(port, name, timeout=3, max_version=max_version)
+    except (ssl.SSLError, OSError):
+        return True
+    try:
+        s.sendall(mbap(1, struct.pack(">BHH", 4, 0, 1)))
+        data = s.recv(100)
+        return data == b""
+    except (ssl.SSLError, OSError):
+        return True
+    finally:
+        s.close()
+
+
+def test_refused_handshakes_answer_nothing():
+    with Mbaps() as m:
+        for name, reason in ((None, "no_certificate"), ("stranger", "untrusted"),
+                             ("expired", "expired"), ("revoked", "revoked")):
+            before = m.counter(IR_FAILED[reason])
+            check(no_modbus_answer(m.tls_port, name), "%s: a Modbus byte was answered" % name)
+            wait_until(lambda: m.counter(IR_FAILED[reason]) == before + 1, 5,
+                       "the %s counter" % reason)
+        check(m.counter(IR_HANDSHAKES_OK) == 0, "no handshake succeeded")
+        check(m.plain().ir(IR_TLS_CLIENTS)[0] == 0, "no TLS client")
+
+
+def s_client(port, *args, stdin=b"", timeout=10):
+    argv = ["openssl", "s_client", "-connect", "127.0.0.1:%d" % port, "-CAfile", pki("ca.crt"),
+            "-cert", pki("operator.crt"), "-key", pki("operator.key")] + list(args)
+    return subprocess.run(argv, input=stdin, capture_output=True, timeout=timeout)
+
+
+def test_old_versions_and_plaintext_refused():
+    with Mbaps() as m:
+        for flag in ("-tls1", "-tls1_1"):
+            before = m.counter(IR_FAILED["protocol"])
+            r = s_client(m.tls_port, flag, "-cipher", "DEFAULT@SECLEVEL=0")
+            check(r.returncode != 0, "%s accepted:\n%s" % (flag, r.stdout.decode(errors="replace")))
+            wait_until(lambda: m.counter(IR_FAILED["protocol"]) == before + 1, 5,
+                       "%s counted as a protocol failure" % flag)
+        r = s_client(m.tls_port, "-tls1_2", stdin=b"")
+        check(b"Protocol  : TLSv1.2" in r.stdout or b"TLSv1.2" in r.stdout,
+              "TLS 1.2 works:\n%s" % r.stdout.decode(errors="replace"))
+        s = raw_client(m.tls_port, timeout=5)
+        s.sendall(mbap(1, struct.pack(">BHH", 4, 0, 1)))
+        data = b""
+        try:
+            while True:
+                chunk = s.recv(100)
+                if not chunk:
+                    break
+                data += chunk
+        except ConnectionResetError:
+            pass
+        s.close()
+        check(not data.startswith(b"\x00\x01\x00\x00"), "plaintext Modbus answered: %r" % data)
+
+
+def test_renegotiation_refused():
+    with Mbaps() as m:
+        # s_client renegotiates on a line "R"; then a Modbus request.
+        proc = subprocess.Popen(["openssl", "s_client", "-connect", "127.0.0.1:%d" % m.tls_port,
+                                 "-CAfile", pki("ca.crt"), "-cert", pki("operator.crt"),
+                                 "-key", pki("operator.key"), "-tls1_2"],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT)
+        try:
+            wait_until(lambda: m.counter(IR_HANDSHAKES_OK) == 1, 10, "the handshake")
+            proc.stdin.write(b"R\n")
+            proc.stdin.flush()
+            out, _ = proc.communicate(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        check(b"RENEGOTIATING" in out, out.decode(errors="replace"))
+        wait_until(lambda: log_lines(m.gw, "renegotiation refused"), 5,
+                   "the gateway to refuse and close")
+        wait_until(lambda: m.plain().ir(IR_TLS_CLIENTS)[0] == 0, 5, "the client closed")
+
+
+def poll_loop(read, stop, latencies, failures):
+    while not stop.is_set():
+        t0 = time.monotonic()
+        try:
+            read()
+            latencies.append(time.monotonic() - t0)
+        except Exception:  # noqa: BLE001 - every failure counts
+            failures.append(sys.exc_info()[1])
+        time.sleep(0.01)
+
+
+def test_handshake_flood_does_not_starve_pollers():
+    """200 handshakes at once and 64 clients stalled mid-handshake, while a
+    plain poller and an established TLS poller are answered throughout."""
+    # Room for the 64 stalled ones and some of the flood; the rest of the
+    # flood is refused at once.
+    with Mbaps(edit=lambda c: c.replace("max_handshakes = 16", "max_handshakes = 100")) as m:
+        plain = raw_client(m.gw.modbus_port)
+        tls = tls_socket(m.tls_port, "operator")
+        stop = threading.Event()
+        lat = {"plain": [], "tls": []}
+        fails = {"plain": [], "tls": []}
+        threads = [threading.Thread(target=poll_loop, args=(lambda: read_input_registers(plain, 18, 2), stop, lat["plain"], fails["plain"])),
+                   threading.Thread(target=poll_loop, args=(lambda: read_input_registers(tls, 18, 2), stop, lat["tls"], fails["tls"]))]
+        for t in threads:
+            t.start()
+        # 64 that stall: a TCP connection and half a ClientHello.
+        stalled = []
+        for _ in range(64):
+            s = socket.create_connection(("127.0.0.1", m.tls_port))
+            s.sendall(b"\x16\x03\x01\x02\x00\x01\x00\x01\xfc\x03\x03")
+            stalled.append(s)
+        # 200 real handshakes at once.
+        results = []
+
+        def shake():
+            try:
+                s = tls_socket(m.tls_port, "operator", timeout=10)
+                s.close()
+                results.append(True)
+            except (ssl.SSLError, OSError):
+                results.append(False)
+        flood = [threading.Thread(target=shake) for _ in range(200)]
+        for t in flood:
+            t.start()
+        for t in flood:
+            t.join()
+        time.sleep(1.5)  # past handshake_timeout_ms for the stalled ones
+        closed = 0
+        for s in stalled:
+            s.settimeout(2)
+            try:
+                closed += s.recv(10) == b""
+            except OSError:
+                closed += 1
+            s.close()
+        stop.set()
+        for t in threads:
+            t.join()
+        tls.close()
+        plain.close()
+        for kind in ("plain", "tls"):
+            q = statistics.quantiles(lat[kind], n=100)
+            print("  %s poller: %d reads, %d failures, p50 %.1f ms, p99 %.1f ms" % (
+                kind, len(lat[kind]), len(fails[kind]), q[49] * 1000, q[98] * 1000))
+            check(not fails[kind], "%s poller failed: %s" % (kind, fails[kind][:3]))
+        print("  flood: %d of 200 handshakes completed, %d refused at max_handshakes; "
+              "%d of 64 stalled closed at the deadline" % (
+                  sum(results), m.counter(IR_FAILED["over_limit"]), closed))
+        check(closed == 64, "stalled handshakes closed: %d of 64" % closed)
+        check(m.counter(IR_FAILED["timeout"]) >= 64, "timeouts counted")
+        check(m.counter(IR_HANDSHAKES_OK) + m.counter(IR_FAILED["over_limit"]) >= 200,
+              "every flood handshake completed or was refused at the limit")
+        check(m.plain().ir(IR_HANDSHAKES_RUNNING)[0] == 0, "no handshake left running")
+
+
+def test_sighup_rotates_the_certificate():
+    cert = pki("rot.crt")
+    key = pki("rot.key")
+    for src, dst in (("gateway.crt", cert), ("gateway.key", key)):
+        with open(pki(src), "rb") as f, open(dst, "wb") as g:
+            g.write(f.read())
+    os.chmod(key, 0o600)
+    with Mbaps(edit=lambda c: c.replace(pki("gateway.crt"), cert).replace(pki("gateway.key"), key)) as m:
+        old = tls_socket(m.tls_port, "operator")
+        check("CN=jakagw" in str(old.getpeercert()["subject"]) or
+              old.getpeercert()["subject"][0][0][1] == "jakagw", "the first certificate")
+        read_input_registers(old, 0, 1)
+        # A key readable by others: refused with one line, nothing changes.
+        for src, dst in (("gateway2.crt", cert), ("gateway2.key", key)):
+            with open(pki(src), "rb") as f, open(dst, "wb") as g:
+                g.write(f.read())
+        os.chmod(key, 0o644)
+        m.gw.proc.send_signal(1)
+        wait_until(lambda: log_lines(m.gw, "accessible by other users (mode 0644)"), 5,
+                   "the refusal")
+        check(len(log_lines(m.gw, "accessible by other users")) == 1, m.gw.output())
+        s = tls_socket(m.tls_port, "operator")
+        check(s.getpeercert()["subject"][0][0][1] == "jakagw", "still the first certificate")
+        s.close()
+        os.chmod(key, 0o600)
+        m.gw.proc.send_signal(1)
+        wait_until(lambda: log_lines(m.gw, 'new connections get certificate "CN=gateway2"'), 5,
+                   "the reload")
+        s = tls_socket(m.tls_port, "operator")
+        check(s.getpeercert()["subject"][0][0][1] == "gateway2", "the new certificate")
+        s.close()
+        check(read_input_registers(old, 0, 1) == [0x4A4B], "the established session goes on")
+        old.close()
+
+
+def test_no_growth_over_1000_handshakes():
+    with Mbaps() as m:
+        pid = m.gw.proc.pid
+
+        def shake(n):
+            for _ in range(n):
+                s = tls_socket(m.tls_port, "operator")
+                read_input_registers(s, 0, 1)
+                s.close()
+        shake(100)
+        time.sleep(0.3)
+        fds, rss = open_fds(pid), rss_kb(pid)
+        shake(1000)
+        time.sleep(0.5)
+        fds2, rss2 = open_fds(pid), rss_kb(pid)
+        print("  1000 handshakes: fds %d -> %d, RSS %d -> %d KiB" % (fds, fds2, rss, rss2))
+        check(fds2 <= fds, "descriptors grew: %d -> %d" % (fds, fds2))
+        check(rss2 - rss < 1024, "RSS grew by %d KiB" % (rss2 - rss))
+
+
+def test_check_config_names_the_key():
+    bad = tls_config(802).replace(pki("gateway.key"), pki("operator.key"))
+    with tempfile.NamedTemporaryFile("w", suffix=".conf", delete=False) as f:
+        f.write(bad)
+    try:
+        from harness import JAKAGW
+        r = subprocess.run([JAKAGW, "-c", f.name, "--check-config"], capture_output=True,
+                           text=True)
+        check(r.returncode == 2, "exit %d" % r.returncode)
+        lines = r.stderr.strip().splitlines()
+        check(len(lines) == 1 and "[tls] private_key:" in lines[0] and
+              "does not match" in lines[0], r.stderr)
+        with open(f.name, "w") as g:
+            g.write("[tls]\nenabled = true\ncertificate = %s\n" % pki("gateway.crt"))
+        r = subprocess.run([JAKAGW, "-c", f.name, "--check-config"], capture_output=True,
+                           text=True)
+        check(r.returncode == 2 and "[tls] private_key: required" in r.stderr, r.stderr)
+    finally:
+        os.unlink(f.name)
+
+
+if __name__ == "__main__":
+    try:
+        run([test_security_doc_word_for_word, test_roles_decide_writes,
+             test_refused_handshakes_answer_nothing, test_old_versions_and_plaintext_refused,
+             test_renegotiation_refused, test_handshake_flood_does_not_starve_pollers,
+             test_sighup_rotates_the_certificate, test_no_growth_over_1000_handshakes,
+             test_check_config_names_the_key])
+    finally:
+        subprocess.run(["rm", "-rf", PKI])
