@@ -423,7 +423,10 @@ def test_no_growth_over_1000_handshakes():
         fds2, rss2 = open_fds(pid), rss_kb(pid)
         print("  1000 handshakes: fds %d -> %d, RSS %d -> %d KiB" % (fds, fds2, rss, rss2))
         check(fds2 <= fds, "descriptors grew: %d -> %d" % (fds, fds2))
-        check(rss2 - rss < 1024, "RSS grew by %d KiB" % (rss2 - rss))
+        # ASan keeps freed memory in quarantine (its leak check runs at exit).
+        from harness import JAKAGW
+        asan = b"libasan" in subprocess.run(["ldd", JAKAGW], capture_output=True).stdout
+        check(asan or rss2 - rss < 1024, "RSS grew by %d KiB" % (rss2 - rss))
 
 
 def test_check_config_names_the_key():
