@@ -18,6 +18,45 @@ MANDIR    ?= $(PREFIX)/share/man
 # systemd's search path too).
 UNITDIR   ?= $(if $(filter /usr,$(PREFIX)),/lib/systemd/system,$(PREFIX)/lib/systemd/system)
 DESTDIR   ?=
+
+# Cross builds for ARM boards (README, "ARM boards"): make ARCH=arm64 or
+# make ARCH=armhf builds into build-ARCH/ with Debian's cross compiler,
+# against a sysroot of Debian 12's packages for that architecture
+# (build-ARCH/sysroot/), which scripts/make-sysroot.sh makes when it is
+# missing or its package list changed. make test ARCH=... runs the tests
+# with the binaries under qemu-user. Only ARCH given on the command line
+# counts: an ARCH in the environment (a kernel build's) changes nothing.
+ifeq ($(origin ARCH),command line)
+CROSS_TRIPLET_arm64 := aarch64-linux-gnu
+CROSS_TRIPLET_armhf := arm-linux-gnueabihf
+CROSS_QEMU_arm64 := qemu-aarch64
+CROSS_QEMU_armhf := qemu-arm
+TRIPLET   := $(CROSS_TRIPLET_$(ARCH))
+ifeq ($(TRIPLET),)
+$(error ARCH=$(ARCH): the architectures are arm64 and armhf (no ARCH: this machine's))
+endif
+BUILD     ?= build-$(ARCH)
+SYSROOT   ?= $(abspath $(BUILD))/sysroot
+ifeq ($(origin CC),default)
+CC        := $(TRIPLET)-gcc
+endif
+ifeq ($(origin AR),default)
+AR        := $(TRIPLET)-ar
+endif
+ARCH_CFLAGS := --sysroot=$(SYSROOT)
+PKG_CONFIG := PKG_CONFIG_SYSROOT_DIR=$(SYSROOT) \
+    PKG_CONFIG_LIBDIR=$(SYSROOT)/usr/lib/$(TRIPLET)/pkgconfig:$(SYSROOT)/usr/share/pkgconfig pkg-config
+# The command line the tests put before each binary (tests/run.sh).
+JAKAGW_RUNNER := $(CROSS_QEMU_$(ARCH)) -L $(SYSROOT)
+export JAKAGW_RUNNER
+# Goals that compile need the sysroot before pkg-config is asked.
+ifneq ($(filter-out deps demo test clean uninstall deb test-package,$(or $(MAKECMDGOALS),all)),)
+ifneq ($(shell scripts/make-sysroot.sh $(ARCH) $(SYSROOT) >&2 || echo failed),)
+$(error could not make the $(ARCH) sysroot $(SYSROOT))
+endif
+endif
+endif
+PKG_CONFIG ?= pkg-config
 BUILD     ?= build
 CC        ?= cc
 SAMPLES_DIR ?= $(abspath tests/data)
@@ -30,19 +69,19 @@ NO_PKG_GOALS := deps demo test clean uninstall deb test-package
 ifneq ($(filter-out $(NO_PKG_GOALS),$(or $(MAKECMDGOALS),all)),)
 MISSING_PKGS := $(shell command -v $(CC) >/dev/null || echo $(CC); \
     for p in $(PKGS) $(if $(filter unit-tests san valgrind,$(MAKECMDGOALS)),cmocka); do \
-        pkg-config --exists $$p 2>/dev/null || echo $$p; done)
+        $(PKG_CONFIG) --exists $$p 2>/dev/null || echo $$p; done)
 ifneq ($(MISSING_PKGS),)
 $(error missing $(strip $(MISSING_PKGS)): run 'make deps' first (or make demo / make test))
 endif
 endif
-PKG_CFLAGS := $(shell pkg-config --cflags $(PKGS) 2>/dev/null)
-PKG_LIBS   := $(shell pkg-config --libs $(PKGS) 2>/dev/null)
-TEST_LIBS  := $(shell pkg-config --libs cmocka 2>/dev/null)
+PKG_CFLAGS := $(shell $(PKG_CONFIG) --cflags $(PKGS) 2>/dev/null)
+PKG_LIBS   := $(shell $(PKG_CONFIG) --libs $(PKGS) 2>/dev/null)
+TEST_LIBS  := $(shell $(PKG_CONFIG) --libs cmocka 2>/dev/null)
 
 WARN      := -Wall -Wextra -Werror -Wshadow -Wstrict-prototypes -Wmissing-prototypes -Wformat=2
 CFLAGS    ?= -O2 -g
 ALL_CFLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' \
-              $(WARN) $(CPPFLAGS) $(CFLAGS) $(EXTRA_CFLAGS) -Iinclude $(PKG_CFLAGS) -MMD -MP
+              $(WARN) $(CPPFLAGS) $(CFLAGS) $(EXTRA_CFLAGS) $(ARCH_CFLAGS) -Iinclude $(PKG_CFLAGS) -MMD -MP
 ALL_LDFLAGS := $(LDFLAGS) $(EXTRA_LDFLAGS)
 
 LIB_SRCS  := $(filter-out src/main.c,$(wildcard src/*.c))
@@ -246,5 +285,5 @@ test-package:
 clean:
 	rm -rf build build-san build-fuzz
 
--include $(shell find $(BUILD) -name '*.d' 2>/dev/null)
+-include $(shell find $(BUILD) -path $(BUILD)/sysroot -prune -o -name '*.d' -type f -print 2>/dev/null)
 -include $(wildcard $(FUZZ_BUILD)/obj/src/*.d)

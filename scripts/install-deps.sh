@@ -35,11 +35,13 @@ group can "to test the CAN mirror on a real kernel CAN stack in a VM: qemu, Debi
     qemu-system-x86 linux-image-amd64 busybox-static can-utils python3-venv
 group package "to build the Debian package and test it and the units (make deb, make test-package): debhelper, dpkg-dev, lintian, mmdebstrap for a fresh root filesystem to install it in, man-db and groff-base to check the man pages, procps for the kill the units' ExecReload runs (systemd-analyze verify looks for it)" \
     debhelper dpkg-dev lintian mmdebstrap man-db groff-base procps
+group cross "to build, package and test for ARM boards (make ARCH=arm64|armhf): Debian's cross compilers, and qemu-user to run their binaries (the sysroot comes from mmdebstrap, group package)" \
+    gcc-aarch64-linux-gnu gcc-arm-linux-gnueabihf qemu-user
 
 group fuzz "to run the libFuzzer targets (make fuzz, make fuzz-ci): clang, and the libFuzzer and sanitizer runtimes it links, which Debian 12 ships apart in libclang-rt-14-dev" \
     clang libclang-rt-14-dev
 
-DEFAULT_GROUPS="build tests can package"
+DEFAULT_GROUPS="build tests can package cross"
 # CI's make test also runs the fuzz targets (make fuzz-ci).
 [ "${CI:-}" = true ] && DEFAULT_GROUPS="$DEFAULT_GROUPS fuzz"
 
