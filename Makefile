@@ -44,7 +44,9 @@ ifeq ($(origin AR),default)
 AR        := $(TRIPLET)-ar
 endif
 ARCH_CFLAGS := --sysroot=$(SYSROOT)
-PKG_CONFIG := PKG_CONFIG_SYSROOT_DIR=$(SYSROOT) \
+# override: a package build's dh_auto_build passes PKG_CONFIG=TRIPLET-pkg-config,
+# which would look in this machine's multiarch directories, not the sysroot.
+override PKG_CONFIG := PKG_CONFIG_SYSROOT_DIR=$(SYSROOT) \
     PKG_CONFIG_LIBDIR=$(SYSROOT)/usr/lib/$(TRIPLET)/pkgconfig:$(SYSROOT)/usr/share/pkgconfig pkg-config
 # The command line the tests put before each binary (tests/run.sh).
 JAKAGW_RUNNER := $(CROSS_QEMU_$(ARCH)) -L $(SYSROOT)
@@ -274,7 +276,7 @@ uninstall:
 # source files, so that nothing in this tree is cleaned or rebuilt:
 # $(BUILD)/deb/jakagw_$(VERSION)_ARCH.deb.
 deb:
-	@scripts/build-deb.sh $(BUILD)/deb
+	@scripts/build-deb.sh $(BUILD)/deb $(if $(TRIPLET),$(ARCH) $(SYSROOT))
 
 # Builds the package and installs it into a fresh Debian 12 root file
 # system (mmdebstrap): files, enabled units, the conffile kept on upgrade,
@@ -286,4 +288,11 @@ clean:
 	rm -rf build build-san build-fuzz
 
 -include $(shell find $(BUILD) -path $(BUILD)/sysroot -prune -o -name '*.d' -type f -print 2>/dev/null)
+
+# A cross build is made again when its sysroot is (new packages, headers).
+ifneq ($(TRIPLET),)
+$(LIB_OBJS) $(SIM_OBJS) $(BUILD)/src/main.o $(UNIT_TESTS:%=$(BUILD)/tests/%) \
+    $(BUILD)/bench/ref_slave $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands \
+    $(BUILD)/bench/bench_modbus: $(SYSROOT)/.jakagw-sysroot
+endif
 -include $(wildcard $(FUZZ_BUILD)/obj/src/*.d)

@@ -17,6 +17,7 @@ another default, or an option line it cannot read.
 """
 import os
 import re
+import shlex
 import subprocess
 import sys
 
@@ -28,7 +29,10 @@ class GenError(Exception):
 
 
 def run(argv):
-    return subprocess.run(argv, check=True, capture_output=True, text=True).stdout
+    """A binary of the build, through the tests' runner prefix if one is set
+    (JAKAGW_RUNNER: qemu-user for an ARM build)."""
+    runner = shlex.split(os.environ.get("JAKAGW_RUNNER", ""))
+    return subprocess.run(runner + argv, check=True, capture_output=True, text=True).stdout
 
 
 def roff_text(text):

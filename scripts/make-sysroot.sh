@@ -49,7 +49,9 @@ packages=$(scripts/install-deps.sh --list |
 packages="libc6-dev $packages"
 [ "$packages" != "libc6-dev " ] || fail "no library packages in scripts/install-deps.sh --list"
 
-want="arch $arch
+# The layout line changes when this script changes what it makes.
+want="layout 3
+arch $arch
 packages $packages
 sources $( { [ -n "$sources" ] && cat "$sources"; } | sha256sum | cut -c1-16)"
 stamp=$dir/.jakagw-sysroot
@@ -99,6 +101,19 @@ if ! extract "$sources"; then
         fail "mmdebstrap failed; the whole log is $log"
     fi
 fi
+
+# qemu-user -L looks up every path the binary opens in the sysroot first:
+# /dev and /tmp must be the machine's own.
+rm -rf "$tmp/dev" "$tmp/tmp"
+
+# Absolute symbolic links (libm.so -> /lib/TRIPLET/libm.so.6) would point
+# into this machine, where nothing is found, and the linker would take
+# libm.a instead: each is made relative, inside the sysroot.
+find "$tmp" -type l -lname '/*' | while read -r link; do
+    ln -sfnr "$tmp$(readlink "$link")" "$link"
+done
+dangling=$(find "$tmp" -xtype l -lname '/*' | head -n 3)
+[ -z "$dangling" ] || fail "absolute symbolic links left in $tmp: $dangling"
 
 # The packages' symbols and shlibs files, for dpkg-shlibdeps; a list of
 # what the sysroot holds, with versions. The .deb files are not kept.

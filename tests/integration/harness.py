@@ -6,11 +6,14 @@ talk to them with real clients (pymodbus, raw sockets, mbpoll), and stop
 exactly the processes they started, by pid. A sanitizer report in any log
 fails the test.
 """
+import atexit
 import contextlib
 import csv
 import io
 import json
 import os
+import shlex
+import shutil
 import signal
 import socket
 import struct
@@ -23,6 +26,44 @@ BIN = os.environ.get("JAKAGW_BIN_DIR", os.path.join(os.path.dirname(__file__), "
 JAKAGW = os.path.abspath(os.path.join(BIN, "jakagw"))
 JAKASIM = os.path.abspath(os.path.join(BIN, "jakasim"))
 DATA = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "data"))
+
+# The runner prefix: a command line put before every binary of the build
+# the tests start. make test ARCH=armhf sets it to "qemu-arm -L SYSROOT", so
+# the ARM binaries run under qemu-user and nothing else in the tests
+# changes. qemu-user runs the guest inside its own process: a pid the tests
+# hold (signals, /proc/PID/fd, VmRSS) is the gateway's. JAKAGW and JAKASIM
+# then name small scripts that exec the prefix and the binary (exec keeps
+# the pid), so that every way a test starts them takes the prefix; so does
+# the reference slave of test_abuse (REF_SLAVE).
+RUNNER = shlex.split(os.environ.get("JAKAGW_RUNNER", ""))
+# How much slower than the host emulation is, for the timing tests that
+# widen their margins under it (1 without a runner). Each such test says so
+# and by how much; none is skipped.
+EMULATION_SLOWDOWN = float(os.environ.get("JAKAGW_EMULATION_SLOWDOWN", "4")) if RUNNER else 1.0
+
+
+def _through_runner(path):
+    if not RUNNER or not os.path.exists(path):
+        return path
+    wrap_dir = _through_runner.dir
+    if wrap_dir is None:
+        wrap_dir = _through_runner.dir = tempfile.mkdtemp(prefix="jakagw-runner-")
+        atexit.register(shutil.rmtree, wrap_dir, True)
+    wrapper = os.path.join(wrap_dir, os.path.basename(path))
+    with open(wrapper, "w") as f:
+        f.write("#!/bin/sh\nexec %s %s \"$@\"\n" % (" ".join(shlex.quote(a) for a in RUNNER),
+                                                  shlex.quote(path)))
+    os.chmod(wrapper, 0o755)
+    return wrapper
+
+
+_through_runner.dir = None
+if RUNNER:
+    JAKAGW = _through_runner(JAKAGW)
+    JAKASIM = _through_runner(JAKASIM)
+    if not os.environ.get("REF_SLAVE"):
+        os.environ["REF_SLAVE"] = _through_runner(os.path.abspath(os.path.join(BIN, "bench",
+                                                                               "ref_slave")))
 SANITIZER_MARKS = ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:")
 
 

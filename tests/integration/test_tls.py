@@ -189,8 +189,11 @@ def test_roles_decide_writes():
         check(op.ir(0)[0] == 0x4A4B, "operator reads")
         check(op.reg(HR_HEARTBEAT, 7) == 0, "operator writes the heartbeat")
         check(op.pulse(COIL_CABINET_DO_1) == 0, "operator sets an output")
-        wait_until(lambda: sim_commands(m.sim, "set_digital_output"), 5,
-                   "the output command at the robot")
+        # The pulse wrote 0, then 1: both are sent, one after the other's
+        # reply. Counting before the second arrived would count it as sent
+        # by a refused write (as it was, under emulation).
+        wait_until(lambda: [c for c in sim_commands(m.sim, "set_digital_output")
+                            if c.get("value") == 1], 5, "the output command at the robot")
         sent = len(sim_commands(m.sim))
         check(op.coil(COIL_JOINT_MOVE, 1) == 1, "operator has no motion class: 01")
         for name in ("monitor", "norole", "intruder"):
