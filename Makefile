@@ -157,10 +157,19 @@ demo:
 	@scripts/demo.sh
 
 test: deps
+ifeq ($(TRIPLET),)
 	$(MAKE) all unit-tests $(BUILD)/bench/ref_slave
 	$(MAKE) san
 	@tests/run.sh
 	@if [ "$$CI" = true ]; then $(MAKE) fuzz-ci; fi
+else
+# ARM: the same unit and integration tests, the binaries under qemu-user
+# (JAKAGW_RUNNER), then the package. The sanitizers and the fuzzers run on
+# this machine's build (qemu-user cannot host ASan's shadow memory).
+# SUITES="status_map commands" picks integration suites (tests/run.sh).
+	$(MAKE) all unit-tests $(BUILD)/bench/ref_slave
+	@BUILDS=$(BUILD) JAKAGW_ARCH=$(ARCH) tests/run.sh
+endif
 
 # 32 Modbus clients at 1000 requests/s in total for LOAD_SECONDS, with
 # commands, the heartbeat and the status at 125 Hz; make test runs it too

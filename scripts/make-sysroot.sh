@@ -50,7 +50,7 @@ packages="libc6-dev $packages"
 [ "$packages" != "libc6-dev " ] || fail "no library packages in scripts/install-deps.sh --list"
 
 # The layout line changes when this script changes what it makes.
-want="layout 3
+want="layout 4
 arch $arch
 packages $packages
 sources $( { [ -n "$sources" ] && cat "$sources"; } | sha256sum | cut -c1-16)"
@@ -128,7 +128,7 @@ for deb in "$tmp"/var/cache/apt/archives/*.deb; do
         [ -f "$ctrl/$f" ] && cat "$ctrl/$f" >>"$tmp/DEBIAN/$f"
     done
     rm -rf "$ctrl"
-    dpkg-deb -f "$deb" Package Version | paste -sd ' ' >>"$tmp/.jakagw-packages"
+    dpkg-deb --show --showformat='${Package} ${Version}\n' "$deb" >>"$tmp/.jakagw-packages"
 done
 count=$(wc -l <"$tmp/.jakagw-packages")
 [ "$count" -gt 0 ] || fail "mmdebstrap left no .deb in $tmp/var/cache/apt/archives"

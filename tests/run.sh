@@ -8,12 +8,27 @@
 #   tests/run.sh                  everything
 #   tests/run.sh unit             unit tests only (VALGRIND=1: under valgrind)
 #   BUILDS=build tests/run.sh     one build only
+#   SUITES="status_map commands"  those integration suites only
+#
+# An ARM build (make test ARCH=arm64|armhf sets BUILDS=build-ARCH,
+# JAKAGW_ARCH and JAKAGW_RUNNER): every unit test and every binary the
+# integration tests start runs under qemu-user through JAKAGW_RUNNER, the
+# one runner prefix ("qemu-arm -L build-armhf/sysroot"). The package test
+# then checks the ARCH package (tests/package/test_package.py). The CAN VM
+# test boots an amd64 kernel, where ARM binaries cannot run: it runs with
+# the amd64 build only.
 set -u
 cd "$(dirname "$0")/.."
 
 what=${1:-all}
 BUILDS=${BUILDS:-"build build-san"}
 PYTHON=${PYTHON:-/usr/bin/python3}
+RUNNER=${JAKAGW_RUNNER:-}
+SUITES=${SUITES:-}
+for name in $SUITES; do
+    [ -f "tests/integration/test_$name.py" ] ||
+        { echo "SUITES: no tests/integration/test_$name.py" >&2; exit 2; }
+done
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:exitcode=23}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 passed=0
@@ -42,7 +57,8 @@ for build in $BUILDS; do
             valgrind -q --error-exitcode=99 --leak-check=full \
                 --errors-for-leak-kinds=definite "$t" 2>&1 | tee "$log"
         else
-            "$t" 2>&1 | tee "$log"
+            # shellcheck disable=SC2086  # the prefix is a command line
+            $RUNNER "$t" 2>&1 | tee "$log"
         fi
         status=${PIPESTATUS[0]}
         ok=$(sed -n 's/^\[  PASSED  \] \([0-9]*\) test.*/\1/p' "$log" | tail -1)
@@ -51,6 +67,9 @@ for build in $BUILDS; do
     done
     [ "$what" = unit ] && continue
     for t in tests/integration/test_*.py; do
+        name=${t#tests/integration/test_}
+        name=${name%.py}
+        case " ${SUITES:-$name} " in *" $name "*) ;; *) continue ;; esac
         echo "== $t ($build)"
         JAKAGW_BIN_DIR="$build" "$PYTHON" "$t" 2>&1 | tee "$log"
         status=${PIPESTATUS[0]}
@@ -63,7 +82,7 @@ for build in $BUILDS; do
 done
 
 # The CAN mirror on a real kernel CAN stack, in a VM: once, with the first build.
-if [ "$what" = all ]; then
+if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
     build=${BUILDS%% *}
     echo "== tests/can/test_can_vm.py ($build)"
     JAKAGW_BIN_DIR="$build" "$PYTHON" tests/can/test_can_vm.py 2>&1 | tee "$log"
@@ -76,8 +95,9 @@ if [ "$what" = all ]; then
 fi
 
 # The Debian package, built and installed into a fresh Debian 12 root file
-# system (also make test-package): once, with the first build.
-if [ "$what" = all ]; then
+# system (also make test-package): once, with the first build. For an ARM
+# build, its package: built, checked and run under qemu-user.
+if [ "$what" = all ] && [ -z "$SUITES" ]; then
     build=${BUILDS%% *}
     echo "== tests/package/test_package.py ($build)"
     "$PYTHON" tests/package/test_package.py "$build" 2>&1 | tee "$log"

@@ -36,10 +36,6 @@ DATA = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "data"))
 # the pid), so that every way a test starts them takes the prefix; so does
 # the reference slave of test_abuse (REF_SLAVE).
 RUNNER = shlex.split(os.environ.get("JAKAGW_RUNNER", ""))
-# How much slower than the host emulation is, for the timing tests that
-# widen their margins under it (1 without a runner). Each such test says so
-# and by how much; none is skipped.
-EMULATION_SLOWDOWN = float(os.environ.get("JAKAGW_EMULATION_SLOWDOWN", "4")) if RUNNER else 1.0
 
 
 def _through_runner(path):

@@ -9,6 +9,14 @@ systemd-analyze verify and rated with systemd-analyze security.
 
   tests/package/test_package.py [BUILD_DIR]     (make test-package)
 
+For an ARM build (JAKAGW_ARCH=arm64|armhf, as make test ARCH=... sets it),
+the package is cross-built (make deb ARCH=...) and checked where it is:
+Architecture, Depends computed against the sysroot, lintian, the ELF
+machine of its binaries, which then run under qemu-user from the unpacked
+package. Installing it with apt into a root filesystem of that
+architecture would run ARM maintainer scripts, which needs binfmt_misc
+(this machine and CI have none): the amd64 run checks the installation.
+
 Needs root (mmdebstrap --mode=root, chroot), mmdebstrap, debhelper,
 lintian and systemd: 'make deps' installs them (group 'package').
 """
@@ -26,6 +34,11 @@ sys.path.insert(0, os.path.join(ROOT, "tests", "integration"))
 from harness import TestFailure, check, run  # noqa: E402
 
 BUILD = sys.argv[1] if len(sys.argv) > 1 else "build"
+ARCH = os.environ.get("JAKAGW_ARCH", "")
+# ELF class and machine of each architecture's binaries.
+ELF_MACHINE = {"arm64": (2, 183), "armhf": (1, 40), "amd64": (2, 62)}
+QEMU = {"arm64": "qemu-aarch64", "armhf": "qemu-arm"}
+TRIPLET = {"arm64": "aarch64-linux-gnu", "armhf": "arm-linux-gnueabihf"}
 UNITS = ["jakagw.service", "jakagw@.service", "jakagw.socket", "jakagw-socket.service",
          "jakagw-mbaps.socket"]
 # What systemd-analyze security may rate each service, at most.
@@ -92,8 +105,8 @@ def test_make_deb_builds_the_package():
     run them already)."""
     start = time.monotonic()
     options = (os.environ.get("DEB_BUILD_OPTIONS", "") + " nocheck").strip()
-    r = sh(["make", "-s", "-C", ROOT, "BUILD=" + BUILD, "deb"], timeout=900,
-           env=dict(os.environ, DEB_BUILD_OPTIONS=options))
+    r = sh(["make", "-s", "-C", ROOT, "BUILD=" + BUILD, "deb"] + (["ARCH=" + ARCH] if ARCH else []),
+           timeout=900, env=dict(os.environ, DEB_BUILD_OPTIONS=options))
     deb = r.stdout.strip().splitlines()[-1]
     check(deb.endswith(".deb") and os.path.isfile(deb), "make deb printed %r" % r.stdout)
     state["deb"] = deb
@@ -121,8 +134,13 @@ def test_package_contents():
     conffiles = sh(["dpkg-deb", "-I", deb, "conffiles"]).stdout.split()
     check(conffiles == ["/etc/jakagw/jakagw.conf"], "conffiles: %s" % conffiles)
     depends = sh(["dpkg-deb", "-f", deb, "Depends"]).stdout
-    for lib in ["libuv1", "libmodbus5", "libcjson1", "libinih1", "libsystemd0", "procps"]:
+    for lib in ["libuv1", "libmodbus5", "libcjson1", "libinih1", "libsystemd0", "libssl3",
+                "libc6", "procps"]:
         check(lib in depends, "Depends lacks %s: %s" % (lib, depends))
+    arch = sh(["dpkg-deb", "-f", deb, "Architecture"]).stdout.strip()
+    want_arch = ARCH or sh(["dpkg", "--print-architecture"]).stdout.strip()
+    check(arch == want_arch, "Architecture: %s, expected %s" % (arch, want_arch))
+    print("  %s: Architecture: %s; Depends: %s" % (os.path.basename(deb), arch, depends.strip()))
 
 
 def test_lintian_finds_no_error():
@@ -135,7 +153,74 @@ def test_lintian_finds_no_error():
     for t in tags:
         print("    " + t)
     check(counts["E"] == 0, "lintian errors:\n" + "\n".join(t for t in tags if t[0] == "E"))
+    check(counts["W"] == 0, "lintian warnings:\n" + "\n".join(t for t in tags if t[0] == "W"))
     check("error" not in r.stderr.lower() or counts["E"] == 0, r.stderr)
+
+
+def elf_class_machine(path):
+    with open(path, "rb") as f:
+        head = f.read(20)
+    check(head[:4] == b"\x7fELF", "%s is not an ELF file" % path)
+    return head[4], int.from_bytes(head[18:20], "little")
+
+
+def test_arm_package_depends_come_from_the_sysroot():
+    """Every library package in Depends is one of the sysroot's, and each
+    library the binaries need (DT_NEEDED) is in it: dpkg-shlibdeps found
+    them there, nothing was written by hand."""
+    sysroot = os.path.join(ROOT, BUILD, "sysroot")
+    with open(os.path.join(sysroot, ".jakagw-packages")) as f:
+        packages = {line.split()[0] for line in f if line.strip()}
+    depends = sh(["dpkg-deb", "-f", need("deb"), "Depends"]).stdout
+    names = {d.strip().split()[0] for d in depends.split(",")} - {"procps"}
+    check(names and names <= packages,
+          "Depends names packages not in the sysroot: %s" % sorted(names - packages))
+    # Which sysroot package ships each soname: the first line of its
+    # section in the symbols files (soname package #MINVER#).
+    provider = {}
+    with open(os.path.join(sysroot, "DEBIAN", "symbols")) as f:
+        for line in f:
+            if line[:1] not in (" ", "|", "*", "#", "") and len(line.split()) >= 2:
+                provider.setdefault(line.split()[0], line.split()[1])
+    work = tempfile.mkdtemp(prefix="jakagw-package-%s." % ARCH, dir="/var/tmp")
+    try:
+        sh(["dpkg-deb", "-x", need("deb"), work])
+        for path in ("usr/sbin/jakagw", "usr/bin/jakasim"):
+            dynamic = sh([TRIPLET[ARCH] + "-objdump", "-p", os.path.join(work, path)]).stdout
+            for soname in re.findall(r"^\s*NEEDED\s+(\S+)", dynamic, re.M):
+                check(provider.get(soname) in names,
+                      "%s needs %s (package %s), not in Depends: %s"
+                      % (path, soname, provider.get(soname), depends))
+    finally:
+        shutil.rmtree(work)
+
+
+def test_arm_binaries_run_under_qemu():
+    """The packaged binaries are ARCH's, stripped, and run under qemu-user
+    with the sysroot's libraries: --version, and --check-config of the
+    packaged configuration."""
+    work = tempfile.mkdtemp(prefix="jakagw-package-%s." % ARCH, dir="/var/tmp")
+    state["work"] = work
+    sh(["dpkg-deb", "-x", need("deb"), work])
+    sysroot = os.path.join(ROOT, BUILD, "sysroot")
+    runner = [QEMU[ARCH], "-L", sysroot]
+    sizes = []
+    for path in ("usr/sbin/jakagw", "usr/bin/jakasim"):
+        full = os.path.join(work, path)
+        check(elf_class_machine(full) == ELF_MACHINE[ARCH],
+              "%s: ELF class and machine %s, expected %s" % (path, elf_class_machine(full),
+                                                            ELF_MACHINE[ARCH]))
+        sections = sh([TRIPLET[ARCH] + "-objdump", "-h", full]).stdout
+        check(".debug_info" not in sections, "%s is not stripped" % path)
+        sizes.append("%s %d bytes" % (os.path.basename(path), os.path.getsize(full)))
+    print("  stripped, %s: %s" % (ARCH, ", ".join(sizes)))
+    r = sh(runner + [os.path.join(work, "usr/sbin/jakagw"), "--version"])
+    check(r.stdout.startswith("jakagw " + makefile_version()), r.stdout)
+    r = sh(runner + [os.path.join(work, "usr/sbin/jakagw"), "-c",
+                     os.path.join(work, "etc/jakagw/jakagw.conf"), "--check-config"])
+    check("[modbus]" in r.stdout, r.stdout)
+    r = sh(runner + [os.path.join(work, "usr/bin/jakasim"), "--help"])
+    check("--status-port" in r.stdout, r.stdout)
 
 
 def apt_sources():
@@ -279,6 +364,13 @@ def main():
     start = time.monotonic()
     import atexit
     atexit.register(lambda: print("package test: %.0f s in all" % (time.monotonic() - start)))
+    if ARCH:
+        try:
+            run([test_make_deb_builds_the_package, test_package_contents,
+                 test_arm_package_depends_come_from_the_sysroot, test_lintian_finds_no_error,
+                 test_arm_binaries_run_under_qemu])
+        finally:
+            cleanup()
     try:
         run([test_make_deb_builds_the_package, test_package_contents,
              test_lintian_finds_no_error, test_installs_into_a_fresh_debian_12,
