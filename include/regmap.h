@@ -110,7 +110,9 @@ enum regmap_word_order {
     X(tls_failed_revoked)                                                      \
     X(tls_failed_protocol)                                                     \
     X(tls_failed_timeout)                                                      \
-    X(tls_failed_over_limit)
+    X(tls_failed_over_limit)                                                   \
+    X(status_link_tls_failure)                                                 \
+    X(command_link_tls_failure)
 
 enum gw_value {
 #define GW_ENUM(name) GW_##name,

@@ -10,6 +10,16 @@
  * robot has sent a complete object. Each change of state is logged once:
  * a controller that stays unreachable does not flood the journal.
  *
+ * With a TLS context (cfg.tls, tls.h), the link speaks TLS: after the TCP
+ * connect it runs the handshake, through the engine's memory BIOs on the
+ * same loop, and is CONNECTED only once the controller's certificate has
+ * been verified (against the CA, or by its pinned fingerprint). The
+ * connect timeout covers connect and handshake together. A handshake that
+ * fails is a link fault like a refused connect: logged once per cause with
+ * its reason (robot_link.tls_failure holds it for the PLC), retried with
+ * the same backoff. What the robot sends is decrypted before the framer
+ * sees it, and what the link sends is encrypted: nothing above changes.
+ *
  * Life cycle, as libuv handles: robot_link_init(), robot_link_start(),
  * robot_link_close(cb); the memory is the caller's until cb runs.
  * Nothing here blocks: resolving runs on libuv's thread pool.
@@ -23,6 +33,7 @@
 
 #include "framer.h"
 #include "log.h"
+#include "tls.h"
 
 /* Bytes queued to a robot that does not read, before sends fail. */
 #define ROBOT_LINK_MAX_QUEUED (64 * 1024)
@@ -54,6 +65,9 @@ struct robot_link_config {
     uint32_t reconnect_max_ms;
     uint32_t silence_timeout_ms;
     size_t max_object;
+    /* NULL: plain TCP. Else TLS with this client context, of which the
+     * link keeps its own reference (robot_link_set_tls to change it). */
+    struct tls_context *tls;
 };
 
 struct robot_link {
@@ -73,6 +87,14 @@ struct robot_link {
     uv_connect_t connect_req;
     struct framer framer;
     char read_buf[16384];
+
+    /* TLS (cfg.tls): the connection's engine, and whether its handshake is
+     * done; the reason the last handshake failed (TLS_FAIL_NONE once one
+     * succeeds), for the PLC. */
+    struct tls_conn *tls_conn;
+    bool tls_ready;
+    enum tls_failure tls_failure;
+    char plain_buf[16384];
 
     uint32_t backoff_ms;
     int last_error; /* the failure last logged, to log each change once */
@@ -108,6 +130,12 @@ int robot_link_start(struct robot_link *link);
  * robot does not read, or a negative libuv error.
  */
 int robot_link_send(struct robot_link *link, const char *data, size_t size);
+
+/*
+ * Connections made from now on use 'ctx' (a reference is taken; NULL: plain
+ * TCP); the one open keeps what it has. On reload.
+ */
+void robot_link_set_tls(struct robot_link *link, struct tls_context *ctx);
 
 /* Closes the connection now and reconnects after the backoff delay. */
 void robot_link_restart(struct robot_link *link, const char *why);

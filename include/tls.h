@@ -57,6 +57,12 @@ const char *tls_failure_name(enum tls_failure f);
 struct tls_settings {
     bool server;
     /*
+     * Server only: do not ask the client for a certificate ('ca' may then
+     * be empty). The simulator's robot ports; never the Modbus listener,
+     * whose clients must authenticate.
+     */
+    bool anonymous_clients;
+    /*
      * Files, PEM. Server: certificate, private_key and ca are required,
      * crl optional. Client: ca and/or fingerprint.
      */

@@ -2,13 +2,16 @@
 /*
  * jakasim.c - a JAKA robot controller simulator: the status port pushes the
  * status document every period; the command port answers Chapter-4
- * commands; faults are injected on request, for the gateway's tests.
+ * commands; faults are injected on request, for the gateway's tests. With
+ * --tls-cert and --tls-key both ports speak TLS, as some controllers do
+ * (no client certificate is asked for), through the gateway's own engine.
  */
 #include "framer.h"
 #include "log.h"
 #include "pyjson.h"
 #include "robot.h"
 #include "status_doc.h"
+#include "tls.h"
 
 #include <cJSON.h>
 #include <errno.h>
@@ -46,6 +49,7 @@ struct sim_options {
     unsigned reply_delay_ms;
     const char *delay_command; /* delay only this command's reply */
     bool log_commands;
+    const char *tls_cert, *tls_key; /* both ports over TLS */
 };
 
 struct peer {
@@ -58,6 +62,8 @@ struct peer {
     struct framer framer;
     bool framer_ready;
     bool closing;
+    struct tls_conn *tls; /* with --tls-cert */
+    bool ready;           /* plain TCP, or the TLS handshake done */
     struct peer *next;
 };
 
@@ -82,6 +88,7 @@ struct sim {
     size_t piece_size, piece_sent;
     uint64_t next_peer_id;
     struct delayed_reply *delayed; /* replies waiting for --reply-delay-ms */
+    struct tls_context *tls;
 };
 
 struct write_req {
@@ -100,6 +107,7 @@ static void peer_closed(uv_handle_t *h)
     struct peer *p = h->data;
     if (p->framer_ready)
         framer_free(&p->framer);
+    tls_conn_free(p->tls);
     free(p);
 }
 
@@ -118,13 +126,12 @@ static void close_peer(struct peer *p)
     uv_close((uv_handle_t *)&p->tcp, peer_closed);
 }
 
-static void send_to(struct peer *p, const char *data, size_t size)
+/* Bytes as they go on the wire. */
+static void write_raw(struct peer *p, const char *data, size_t size)
 {
     struct write_req *w;
     uv_buf_t buf;
 
-    if (p->closing || size == 0)
-        return;
     if (uv_stream_get_write_queue_size((uv_stream_t *)&p->tcp) > MAX_QUEUED_STATUS) {
         log_warn("jakasim: dropping a client that does not read");
         close_peer(p);
@@ -141,12 +148,38 @@ static void send_to(struct peer *p, const char *data, size_t size)
     }
 }
 
+/* What the TLS engine has for the socket. */
+static void flush_tls(struct peer *p)
+{
+    char cipher[16384];
+    size_t n;
+
+    while (!p->closing && (n = tls_conn_take(p->tls, cipher, sizeof(cipher))) > 0)
+        write_raw(p, cipher, n);
+}
+
+static void send_to(struct peer *p, const char *data, size_t size)
+{
+    if (p->closing || !p->ready || size == 0)
+        return;
+    if (!p->tls) {
+        write_raw(p, data, size);
+        return;
+    }
+    if (tls_conn_write(p->tls, data, size) != 0) {
+        log_warn("jakasim: TLS write failed; closing the client");
+        close_peer(p);
+        return;
+    }
+    flush_tls(p);
+}
+
 static void broadcast_status(struct sim *sim, const char *data, size_t size)
 {
     struct peer *next;
     for (struct peer *p = sim->peers; p; p = next) {
         next = p->next;
-        if (p->status && p->synced)
+        if (p->status && p->synced && p->ready)
             send_to(p, data, size);
     }
 }
@@ -372,11 +405,59 @@ static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
     buf->len = buf->base ? suggested : 0;
 }
 
+/* Runs the handshake; false when it failed and the client is closed. */
+static bool continue_handshake(struct peer *p)
+{
+    char why[200];
+    int rc = tls_conn_handshake(p->tls);
+
+    flush_tls(p); /* an alert too */
+    if (rc == TLS_OK) {
+        p->ready = true;
+        p->synced = false; /* from the next document's start */
+        log_info("jakasim: %s client: TLS %s", p->status ? "status" : "command",
+                 tls_conn_version(p->tls));
+    } else if (rc == TLS_ERROR) {
+        tls_conn_failure(p->tls, why, sizeof(why));
+        log_warn("jakasim: %s client: TLS handshake failed: %s",
+                 p->status ? "status" : "command", why);
+        close_peer(p);
+        return false;
+    }
+    return true;
+}
+
+/* Decrypts what arrived and hands a command client's text to its framer. */
+static void read_tls(struct peer *p, const char *data, size_t size)
+{
+    char plain[16384];
+    int n;
+
+    if (tls_conn_feed(p->tls, data, size) != 0 || (!p->ready && !continue_handshake(p))) {
+        close_peer(p);
+        return;
+    }
+    while (p->ready && !p->closing) {
+        n = tls_conn_read(p->tls, plain, sizeof(plain));
+        if (n == TLS_AGAIN)
+            break;
+        if (n < 0) {
+            close_peer(p);
+            return;
+        }
+        if (!p->status)
+            framer_feed(&p->framer, plain, (size_t)n);
+    }
+    flush_tls(p);
+}
+
 static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
 {
     struct peer *p = s->data;
 
-    if (nread > 0 && !p->status)
+    if (nread > 0 && p->tls)
+        read_tls(p, buf->base, (size_t)nread);
+    else if (nread > 0 && !p->status)
         framer_feed(&p->framer, buf->base, (size_t)nread);
     else if (nread < 0)
         close_peer(p);
@@ -406,6 +487,15 @@ static void accept_peer(uv_stream_t *server, bool status)
             return;
         }
         p->framer_ready = true;
+    }
+    if (sim->tls) {
+        p->tls = tls_conn_new(sim->tls, NULL);
+        if (!p->tls) {
+            close_peer(p);
+            return;
+        }
+    } else {
+        p->ready = true;
     }
     p->next = sim->peers;
     sim->peers = p;
@@ -517,6 +607,8 @@ static void usage(FILE *out)
         "  --auto-run             power on, enable and play a program at start\n"
         "  --print-status         print one status document and exit\n"
         "  --log-commands         log every command and its reply\n"
+        "  --tls-cert FILE        serve both ports over TLS with this certificate (PEM)\n"
+        "  --tls-key FILE         and this private key (PEM, mode 0600)\n"
         "Faults:\n"
         "  --drop-every-ms N      close every connection every N ms\n"
         "  --silent-after-ms N    stop pushing status after N ms, keep connections\n"
@@ -572,6 +664,8 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         {"ignore-command", required_argument, NULL, 'i'},
         {"reply-delay-ms", required_argument, NULL, 'd'},
         {"delay-command", required_argument, NULL, 'e'},
+        {"tls-cert", required_argument, NULL, 'K'},
+        {"tls-key", required_argument, NULL, 'k'},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
@@ -612,6 +706,8 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         case 'i': o->ignore_command = optarg; break;
         case 'd': if (parse_uint("reply-delay-ms", optarg, 600000, &o->reply_delay_ms)) return -1; break;
         case 'e': o->delay_command = optarg; break;
+        case 'K': o->tls_cert = optarg; break;
+        case 'k': o->tls_key = optarg; break;
         case 'h': usage(stdout); exit(0);
         case ':':
             log_plain("jakasim: %s needs a value; see jakasim --help", argv[optind - 1]);
@@ -623,6 +719,36 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
     }
     if (optind < argc) {
         log_plain("jakasim: unexpected argument '%s'", argv[optind]);
+        return -1;
+    }
+    if (!o->tls_cert != !o->tls_key) {
+        log_plain("jakasim: --tls-cert and --tls-key go together");
+        return -1;
+    }
+    return 0;
+}
+
+/* --tls-cert, --tls-key: the context every connection uses. */
+static int load_tls(struct sim *sim)
+{
+    char why[600];
+    struct tls_settings s = {
+        .server = true,
+        .anonymous_clients = true,
+        .certificate = sim->opt.tls_cert,
+        .private_key = sim->opt.tls_key,
+        .min_version = 12,
+        .certificate_key = "--tls-cert",
+        .private_key_key = "--tls-key",
+        .ca_key = "",
+        .crl_key = "",
+        .fingerprint_key = "",
+    };
+
+    if (!sim->opt.tls_cert)
+        return 0;
+    if (tls_context_new(&s, &sim->tls, why, sizeof(why)) != 0) {
+        log_plain("jakasim: %s", why);
         return -1;
     }
     return 0;
@@ -666,6 +792,8 @@ int main(int argc, char **argv)
         free(sim.replay_doc);
         return 0;
     }
+    if (load_tls(&sim))
+        return 2;
     signal(SIGPIPE, SIG_IGN);
     sim.loop = uv_default_loop();
     if (listen_on(&sim, &sim.status_server, sim.opt.status_port, on_status_connection) ||
@@ -686,12 +814,15 @@ int main(int argc, char **argv)
     uv_signal_start(&sim.sigterm, on_signal, SIGTERM);
     sim.started_ms = uv_now(sim.loop);
     log_notice("jakasim: status port %s:%d, command port %s:%d, every %u ms, "
-               "profile %s%s", sim.opt.bind, sim.opt.status_port, sim.opt.bind,
+               "profile %s%s%s%s", sim.opt.bind, sim.opt.status_port, sim.opt.bind,
                sim.opt.command_port, sim.opt.period_ms, sim.profile->name,
-               sim.replay_doc ? ", replaying a recorded document" : "");
+               sim.replay_doc ? ", replaying a recorded document" : "",
+               sim.tls ? ", TLS with certificate " : "",
+               sim.tls ? tls_context_subject(sim.tls) : "");
     uv_run(sim.loop, UV_RUN_DEFAULT);
     uv_loop_close(sim.loop);
     pyjson_free(&sim.doc);
+    tls_context_unref(sim.tls);
     free(sim.replay_doc);
     free(sim.merged);
     free(sim.pieces);

@@ -781,14 +781,6 @@ int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
             return -EINVAL;
         }
     }
-    if (cfg->robot_tls) {
-        /* The keys are read and checked, but the robot links do not speak
-         * TLS yet: refusing is better than a plaintext link the
-         * configuration says is encrypted. */
-        snprintf(why, why_size, "[robot] tls: TLS to the robot is not supported yet; "
-                                "set it to false");
-        return -EINVAL;
-    }
     if (cfg->robot_tls && !cfg->robot_tls_ca[0] && !cfg->robot_tls_fingerprint[0]) {
         snprintf(why, why_size,
                  "[robot] tls: true needs tls_ca or tls_fingerprint to trust the controller");

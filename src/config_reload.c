@@ -95,6 +95,8 @@ APPLY_TLS_TEXT(tls_certificate)
 APPLY_TLS_TEXT(tls_private_key)
 APPLY_TLS_TEXT(tls_client_ca)
 APPLY_TLS_TEXT(tls_crl)
+APPLY_TLS_TEXT(robot_tls_ca)
+APPLY_TLS_TEXT(robot_tls_fingerprint)
 
 static void apply_tls_default_rights(struct gateway *gw, const struct gw_config *next)
 {
@@ -118,6 +120,8 @@ static const struct live_key live_keys[] = {
     {"robot", "reconnect_min_ms", apply_reconnect_min},
     {"robot", "reconnect_max_ms", apply_reconnect_max},
     {"robot", "status_timeout_ms", apply_status_timeout},
+    {"robot", "tls_ca", apply_robot_tls_ca},
+    {"robot", "tls_fingerprint", apply_robot_tls_fingerprint},
     {"modbus", "max_clients", apply_max_clients},
     {"modbus", "idle_timeout_ms", apply_idle_timeout},
     {"modbus", "frame_timeout_ms", apply_frame_timeout},

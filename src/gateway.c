@@ -294,9 +294,33 @@ void gateway_describe(const struct gateway *gw, char *buf, size_t size)
              names[gw->command.link.state], gw->modbus.stats.clients);
 }
 
+/* [robot] tls: the client context both links use. */
+static int robot_tls_context(struct gateway *gw, struct tls_context **ctx)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    char why[600];
+
+    *ctx = NULL;
+    if (!cfg->robot_tls)
+        return 0;
+    if (gw_tls_robot_context(cfg, ctx, why, sizeof(why)) != 0) {
+        log_err("robot links: %s", why);
+        return -EINVAL;
+    }
+    log_notice("robot links: TLS, the controller verified with %s%s%s",
+               cfg->robot_tls_ca[0] ? cfg->robot_tls_ca : "",
+               cfg->robot_tls_ca[0] && cfg->robot_tls_fingerprint[0] ? " and " : "",
+               cfg->robot_tls_fingerprint[0] ? "the pinned SHA-256 fingerprint" : "");
+    return 0;
+}
+
 static int start_links(struct gateway *gw)
 {
     const struct gw_config *cfg = &gw->cfg;
+    struct tls_context *tls;
+    int rc = robot_tls_context(gw, &tls);
+    if (rc)
+        return rc;
     struct robot_link_config lc = {
         .name = "status",
         .host = cfg->robot_host,
@@ -306,15 +330,18 @@ static int start_links(struct gateway *gw)
         .reconnect_max_ms = cfg->reconnect_max_ms,
         .silence_timeout_ms = cfg->status_timeout_ms,
         .max_object = cfg->max_document_bytes,
+        .tls = tls,
     };
     struct robot_link_callbacks status_cb = {
         .on_object = on_status_document,
         .on_framing_error = on_status_framing,
         .on_state = on_link_state,
     };
-    int rc = robot_link_init(gw->loop, &gw->status_link, &lc, &status_cb, gw);
-    if (rc)
+    rc = robot_link_init(gw->loop, &gw->status_link, &lc, &status_cb, gw);
+    if (rc) {
+        tls_context_unref(tls);
         return rc;
+    }
     gw->parts |= GATEWAY_PART_STATUS_LINK;
     lc.name = "command";
     lc.port = (uint16_t)cfg->command_port;
@@ -322,6 +349,7 @@ static int start_links(struct gateway *gw)
     lc.silence_timeout_ms = 0;
     rc = command_port_init(gw->loop, &gw->command, &lc, cfg->reply_timeout_ms,
                            on_command_state, gw);
+    tls_context_unref(tls); /* each link holds its own reference */
     if (rc)
         return rc;
     gw->parts |= GATEWAY_PART_COMMAND_LINK;

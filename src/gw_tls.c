@@ -136,6 +136,32 @@ int gw_tls_start(struct gateway *gw)
                             gw->mbaps);
 }
 
+/*
+ * [robot] tls (its own value needs a restart): tls_ca and tls_fingerprint,
+ * already applied to gw->cfg, and the CA file as it is now, for the robot
+ * links' next connections.
+ */
+static void reload_robot_context(struct gateway *gw)
+{
+    struct tls_context *ctx;
+    char why[600];
+
+    if (!gw->cfg.robot_tls || !(gw->parts & GATEWAY_PART_COMMAND_LINK))
+        return;
+    if (gw_tls_robot_context(&gw->cfg, &ctx, why, sizeof(why)) != 0) {
+        log_err("reload: robot links: %s; new connections keep the CA and fingerprint in force",
+                why);
+        return;
+    }
+    robot_link_set_tls(&gw->status_link, ctx);
+    robot_link_set_tls(&gw->command.link, ctx);
+    tls_context_unref(ctx);
+    log_notice("reload: robot links: new connections verify the controller with %s%s%s",
+               gw->cfg.robot_tls_ca[0] ? gw->cfg.robot_tls_ca : "",
+               gw->cfg.robot_tls_ca[0] && gw->cfg.robot_tls_fingerprint[0] ? " and " : "",
+               gw->cfg.robot_tls_fingerprint[0] ? "the pinned fingerprint" : "");
+}
+
 void gw_tls_reload(struct gateway *gw, const struct gw_config *next)
 {
     struct gw_config *cfg = &gw->cfg;
@@ -150,6 +176,7 @@ void gw_tls_reload(struct gateway *gw, const struct gw_config *next)
         log_notice("reload: [roles]: %u roles; new mbaps connections get them",
                    cfg->role_count);
     }
+    reload_robot_context(gw);
     if (!gw->mbaps)
         return; /* [tls] enabled needs a restart: config_reload.c says so */
     /* The files are read again even when no key changed: rotating a
@@ -184,6 +211,8 @@ void gw_tls_refresh_values(struct gateway *gw, double *v)
     v[GW_tls_failed_protocol] = (double)s->failed[TLS_FAIL_PROTOCOL];
     v[GW_tls_failed_timeout] = (double)s->failed[TLS_FAIL_TIMEOUT];
     v[GW_tls_failed_over_limit] = (double)s->failed[TLS_FAIL_OVER_LIMIT];
+    v[GW_status_link_tls_failure] = gw->status_link.tls_failure;
+    v[GW_command_link_tls_failure] = gw->command.link.tls_failure;
 }
 
 void gw_tls_clear_counters(struct gateway *gw)

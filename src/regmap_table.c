@@ -355,6 +355,13 @@ const struct regmap_row regmap_table_rows[] = {
          "TLS handshakes not finished within handshake_timeout_ms"),
     G_IR(5512, tls_failed_over_limit, REGMAP_U32, "",
          "TLS connections closed at once: max_handshakes were running"),
+    G_IR(96, status_link_tls_failure, REGMAP_U16, "",
+         "[robot] tls: why the last handshake on the status port failed: 0 none (or "
+         "plain TCP), 2 certificate not trusted by tls_ca (or its name), 3 expired or "
+         "not yet valid, 5 protocol (not TLS, no shared version), 6 timeout, "
+         "8 tls_fingerprint mismatch; 0 again once a handshake succeeds"),
+    G_IR(97, command_link_tls_failure, REGMAP_U16, "",
+         "[robot] tls: the same for the command port"),
 
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",

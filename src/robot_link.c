@@ -10,6 +10,7 @@
 #include <string.h>
 
 static void start_connect(struct robot_link *link);
+static void on_connect_timeout(uv_timer_t *t);
 
 static void set_state(struct robot_link *link, enum robot_link_state state)
 {
@@ -69,6 +70,8 @@ int robot_link_init(uv_loop_t *loop, struct robot_link *link,
     rc = framer_init(&link->framer, cfg->max_object, on_framer_event, link);
     if (rc)
         return rc;
+    if (cfg->tls)
+        tls_context_ref(cfg->tls);
     uv_timer_init(loop, &link->timer);
     uv_timer_init(loop, &link->watchdog);
     link->timer.data = link;
@@ -77,6 +80,17 @@ int robot_link_init(uv_loop_t *loop, struct robot_link *link,
     link->loss_log.interval_ms = 5000;
     link->open_handles = 2;
     return 0;
+}
+
+/* A failed handshake's cause, as last_error: apart from libuv's errors. */
+#define TLS_ERROR_BASE (-100000)
+
+void robot_link_set_tls(struct robot_link *link, struct tls_context *ctx)
+{
+    if (ctx)
+        tls_context_ref(ctx);
+    tls_context_unref(link->cfg.tls);
+    link->cfg.tls = ctx;
 }
 
 /* Logs a failure once per change of its cause. */
@@ -88,6 +102,25 @@ static void log_failure(struct robot_link *link, int err, const char *what)
     log_warn("%s link: %s %s:%u: %s; retrying every %u ms at most "
              "(logged again when the cause changes)",
              link->cfg.name, what, link->host, link->cfg.port, uv_strerror(err),
+             link->cfg.reconnect_max_ms);
+}
+
+/*
+ * A handshake that failed: the controller is not the one configured (or
+ * does not speak TLS). Logged like a refused connect, once per cause, with
+ * OpenSSL's reason; the PLC reads the cause in tls_failure.
+ */
+static void log_tls_failure(struct robot_link *link, enum tls_failure f, const char *why)
+{
+    int err = TLS_ERROR_BASE - (int)f;
+
+    link->tls_failure = f;
+    if (err == link->last_error)
+        return;
+    link->last_error = err;
+    log_warn("%s link: TLS handshake with %s:%u failed: %s (%s); retrying every %u ms "
+             "at most (logged again when the cause changes)",
+             link->cfg.name, link->host, link->cfg.port, tls_failure_name(f), why,
              link->cfg.reconnect_max_ms);
 }
 
@@ -130,6 +163,11 @@ static void drop_connection(struct robot_link *link)
     uv_timer_stop(&link->timer);
     uv_timer_stop(&link->watchdog);
     framer_reset(&link->framer);
+    /* No close_notify: closing the handle would cancel its write anyway,
+     * and the controller learns of the end from the TCP close. */
+    tls_conn_free(link->tls_conn);
+    link->tls_conn = NULL;
+    link->tls_ready = false;
     set_state(link, ROBOT_LINK_DISCONNECTED);
     if (link->tcp_open && !uv_is_closing((uv_handle_t *)&link->tcp))
         uv_close((uv_handle_t *)&link->tcp, on_tcp_closed);
@@ -195,12 +233,99 @@ static void on_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
     *buf = uv_buf_init(link->read_buf, sizeof(link->read_buf));
 }
 
+static void link_established(struct robot_link *link);
+static int write_raw(struct robot_link *link, const void *data, size_t size);
+
+/* Sends what the TLS engine has for the socket. 0 or a negative error. */
+static int flush_tls(struct robot_link *link)
+{
+    /* Not plain_buf: a send from inside the framer's callback comes here
+     * while the framer still reads that buffer. */
+    char cipher[16384];
+    size_t n;
+    int rc = 0;
+
+    while (rc == 0 && (n = tls_conn_take(link->tls_conn, cipher, sizeof(cipher))) > 0)
+        rc = write_raw(link, cipher, n);
+    return rc;
+}
+
+/* Advances the handshake; false when the connection was dropped. */
+static bool continue_handshake(struct robot_link *link)
+{
+    char why[200];
+    int rc = tls_conn_handshake(link->tls_conn);
+    int sent = flush_tls(link);
+
+    if (rc == TLS_AGAIN && sent == 0)
+        return true;
+    if (rc == TLS_OK && sent == 0) {
+        link->tls_ready = true;
+        link->tls_failure = TLS_FAIL_NONE;
+        uv_timer_stop(&link->timer);
+        link_established(link);
+        return true;
+    }
+    if (rc == TLS_ERROR) {
+        enum tls_failure f = tls_conn_failure(link->tls_conn, why, sizeof(why));
+        log_tls_failure(link, f, why);
+    } else {
+        log_failure(link, sent, "cannot write to");
+    }
+    drop_connection(link);
+    return false;
+}
+
+/* Decrypts what arrived for the framer; false when the connection ended. */
+static bool read_tls(struct robot_link *link, const char *data, size_t size)
+{
+    char why[200];
+    int n;
+
+    if (tls_conn_feed(link->tls_conn, data, size) != 0) {
+        log_loss(link, "lost the connection to", "out of memory for TLS input");
+        drop_connection(link);
+        return false;
+    }
+    if (!link->tls_ready && !continue_handshake(link))
+        return false;
+    while (link->tls_ready) {
+        n = tls_conn_read(link->tls_conn, link->plain_buf, sizeof(link->plain_buf));
+        if (n > 0) {
+            framer_feed(&link->framer, link->plain_buf, (size_t)n);
+            /* The framer's callback may have restarted the link. */
+            if (!link->tls_conn)
+                return false;
+            continue;
+        }
+        if (n == TLS_AGAIN)
+            break;
+        if (n == TLS_CLOSED) {
+            log_loss(link, "lost the connection to", "closed by the robot (TLS close_notify)");
+        } else {
+            tls_conn_failure(link->tls_conn, why, sizeof(why));
+            log_loss(link, "lost the connection to", why);
+        }
+        drop_connection(link);
+        return false;
+    }
+    /* TLS 1.3 may answer what arrived (a key update). */
+    if (link->tls_conn && flush_tls(link) != 0) {
+        drop_connection(link);
+        return false;
+    }
+    return true;
+}
+
 static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
 {
     struct robot_link *link = s->data;
 
     if (nread > 0) {
-        framer_feed(&link->framer, buf->base, (size_t)nread);
+        if (link->tls_conn)
+            read_tls(link, buf->base, (size_t)nread);
+        else
+            framer_feed(&link->framer, buf->base, (size_t)nread);
         return;
     }
     if (nread == 0)
@@ -232,6 +357,24 @@ static void on_connected(uv_connect_t *req, int status)
     }
     uv_tcp_nodelay(&link->tcp, 1);
     uv_tcp_keepalive(&link->tcp, 1, 5);
+    if (!link->cfg.tls) {
+        link_established(link);
+        return;
+    }
+    /* The handshake gets its own connect_timeout_ms. */
+    link->tls_conn = tls_conn_new(link->cfg.tls, link->host);
+    if (!link->tls_conn) {
+        log_failure(link, UV_ENOMEM, "cannot start TLS with");
+        drop_connection(link);
+        return;
+    }
+    uv_timer_start(&link->timer, on_connect_timeout, link->cfg.connect_timeout_ms, 0);
+    continue_handshake(link);
+}
+
+/* Connected (and, with TLS, the controller authenticated): ready to use. */
+static void link_established(struct robot_link *link)
+{
     link->connections++;
     link->last_error = 0;
     link->last_object_ms = uv_now(link->loop);
@@ -253,7 +396,11 @@ static void on_connected(uv_connect_t *req, int status)
 static void on_connect_timeout(uv_timer_t *t)
 {
     struct robot_link *link = t->data;
-    log_failure(link, UV_ETIMEDOUT, "cannot connect to");
+    if (link->tls_conn)
+        log_tls_failure(link, TLS_FAIL_TIMEOUT, "no complete handshake within "
+                                                "connect_timeout_ms");
+    else
+        log_failure(link, UV_ETIMEDOUT, "cannot connect to");
     /* Closing the handle cancels the pending connect. */
     drop_connection(link);
 }
@@ -338,18 +485,13 @@ static void on_written(uv_write_t *req, int status)
     free(req);
 }
 
-int robot_link_send(struct robot_link *link, const char *data, size_t size)
+/* Queues bytes as they go on the wire (ciphertext with TLS). */
+static int write_raw(struct robot_link *link, const void *data, size_t size)
 {
     struct send_req *sr;
     uv_buf_t buf;
     int rc;
 
-    if (link->state != ROBOT_LINK_CONNECTED)
-        return -ENOTCONN;
-    /* A robot that does not read must not make the gateway queue without
-     * bound: past the limit, sending fails and the caller says so. */
-    if (uv_stream_get_write_queue_size((uv_stream_t *)&link->tcp) > ROBOT_LINK_MAX_QUEUED)
-        return -ENOBUFS;
     sr = malloc(sizeof(*sr) + size);
     if (!sr)
         return -ENOMEM;
@@ -359,6 +501,21 @@ int robot_link_send(struct robot_link *link, const char *data, size_t size)
     if (rc < 0)
         free(sr);
     return rc;
+}
+
+int robot_link_send(struct robot_link *link, const char *data, size_t size)
+{
+    if (link->state != ROBOT_LINK_CONNECTED)
+        return -ENOTCONN;
+    /* A robot that does not read must not make the gateway queue without
+     * bound: past the limit, sending fails and the caller says so. */
+    if (uv_stream_get_write_queue_size((uv_stream_t *)&link->tcp) > ROBOT_LINK_MAX_QUEUED)
+        return -ENOBUFS;
+    if (!link->tls_conn)
+        return write_raw(link, data, size);
+    if (tls_conn_write(link->tls_conn, data, size) != 0)
+        return -EPROTO;
+    return flush_tls(link);
 }
 
 static void on_timer_closed(uv_handle_t *h)
@@ -376,6 +533,11 @@ void robot_link_close(struct robot_link *link,
     link->close_cb = cb;
     set_state(link, ROBOT_LINK_DISCONNECTED);
     framer_free(&link->framer);
+    tls_conn_free(link->tls_conn);
+    link->tls_conn = NULL;
+    link->tls_ready = false;
+    tls_context_unref(link->cfg.tls);
+    link->cfg.tls = NULL;
     uv_close((uv_handle_t *)&link->timer, on_timer_closed);
     uv_close((uv_handle_t *)&link->watchdog, on_timer_closed);
     if (link->tcp_open && !uv_is_closing((uv_handle_t *)&link->tcp))

@@ -278,7 +278,8 @@ int tls_context_new(const struct tls_settings *s, struct tls_context **out, char
         return -EINVAL;
     }
     if (s->server && (!s->certificate || !s->certificate[0] || !s->private_key ||
-                      !s->private_key[0] || !s->ca || !s->ca[0])) {
+                      !s->private_key[0] ||
+                      (!s->anonymous_clients && (!s->ca || !s->ca[0])))) {
         snprintf(why, why_size, "%s, %s and %s are required", s->certificate_key,
                  s->private_key_key, s->ca_key);
         return -EINVAL;
@@ -321,9 +322,13 @@ int tls_context_new(const struct tls_settings *s, struct tls_context **out, char
     rc = 0;
     if (s->server) {
         rc = load_identity(ctx, s, why, why_size);
-        if (rc == 0)
+        if (rc == 0 && s->ca && s->ca[0])
             rc = load_trust(ctx, s, why, why_size);
-        SSL_CTX_set_verify(ctx, SSL_VERIFY_PEER | SSL_VERIFY_FAIL_IF_NO_PEER_CERT, NULL);
+        SSL_CTX_set_verify(ctx,
+                           s->anonymous_clients
+                               ? SSL_VERIFY_NONE
+                               : SSL_VERIFY_PEER | SSL_VERIFY_FAIL_IF_NO_PEER_CERT,
+                           NULL);
         SSL_CTX_set_session_id_context(ctx, session_context, sizeof(session_context) - 1);
         SSL_CTX_set_session_cache_mode(ctx, SSL_SESS_CACHE_SERVER);
         SSL_CTX_sess_set_cache_size(ctx, 256);

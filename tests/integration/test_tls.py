@@ -432,6 +432,98 @@ def test_no_growth_over_1000_handshakes():
         check(asan or rss2 - rss < 1024, "RSS grew by %d KiB" % (rss2 - rss))
 
 
+IR_STATUS_LINK, IR_COMMAND_LINK, IR_STATUS_TASK_STATE = 16, 17, 100
+IR_STATUS_TLS_FAILURE, IR_COMMAND_TLS_FAILURE = 96, 97
+COIL_POWER_ON = 100
+
+
+def robot_config(**keys):
+    lines = "".join("%s = %s\n" % kv for kv in keys.items())
+    return ("[robot]\ntls = true\nconnect_timeout_ms = 1000\nreconnect_min_ms = 50\n"
+            "reconnect_max_ms = 200\n" + lines)
+
+
+def fingerprint(name):
+    out = subprocess.run(["openssl", "x509", "-in", pki(name), "-noout", "-fingerprint",
+                          "-sha256"], capture_output=True, text=True, check=True).stdout
+    return out.strip().split("=", 1)[1]
+
+
+def links(gw):
+    plc = ModbusPlc(gw.modbus_port)
+    try:
+        return plc.ir(IR_STATUS_LINK)[0], plc.ir(IR_COMMAND_LINK)[0], \
+            plc.ir(IR_STATUS_TLS_FAILURE)[0], plc.ir(IR_COMMAND_TLS_FAILURE)[0]
+    finally:
+        plc.close()
+
+
+def test_robot_over_tls():
+    """jakasim serving TLS with the robot certificate; the gateway verifying
+    it by the CA, or by its pinned fingerprint: status and commands go
+    through; a wrong pin, another CA or a plaintext controller is a link
+    fault with its reason, logged once while it lasts."""
+    sim = Sim("--log-commands", "--tls-cert", pki("robot.crt"), "--tls-key", pki("robot.key"))
+    try:
+        for how in (dict(tls_ca=pki("ca.crt")), dict(tls_fingerprint=fingerprint("robot.crt")),
+                    dict(tls_ca=pki("ca.crt"), tls_fingerprint=fingerprint("robot.crt"))):
+            gw = Gateway(sim, robot_config(**how))
+            try:
+                wait_until(lambda: links(gw) == (2, 2, 0, 0), 10, "both links up over TLS")
+                plc = ModbusPlc(gw.modbus_port)
+                wait_until(lambda: plc.ir(IR_STATUS_TASK_STATE)[0] in (1, 2, 3, 4), 5,
+                           "a status document through TLS")
+                wait_until(lambda: plc.ir(IR_ROBOT_HANDLE)[0] == 2, 10,
+                           "the robot's handler, through the command port")
+                before = len(sim_commands(sim, "power_on"))
+                check(plc.pulse(COIL_POWER_ON) == 0, "power_on written")
+                wait_until(lambda: len(sim_commands(sim, "power_on")) == before + 1, 5,
+                           "power_on at the robot, once")
+                wait_until(lambda: plc.ir(IR_STATUS_TASK_STATE)[0] == 2, 5,
+                           "the robot powered on, seen through the status port")
+                plc.close()
+                check(log_lines(gw, "robot links: TLS"), gw.output())
+            finally:
+                gw.stop()
+        # A wrong pin, another CA: the handshake fails, the link stays down
+        # with the reason readable, and the log says it once.
+        for how, reason, text in (
+                (dict(tls_fingerprint="00" * 32), 8, "fingerprint mismatch"),
+                (dict(tls_ca=pki("other-ca.crt")), 2, "certificate not trusted")):
+            sent = len(sim_commands(sim))
+            gw = Gateway(sim, robot_config(**how))
+            try:
+                wait_until(lambda: links(gw)[2:] == (reason, reason), 10,
+                           "the TLS failure reported")
+                connects = len(log_lines(sim, "status client connected"))
+                time.sleep(1.0)
+                check(len(log_lines(sim, "status client connected")) >= connects + 2,
+                      "the gateway keeps retrying")
+                check(links(gw)[0] != 2 and links(gw)[1] != 2, "no link is up")
+                check(len(log_lines(gw, "status link: TLS handshake")) == 1 and
+                      text in gw.output(), gw.output())
+                check(len(sim_commands(sim)) == sent, "nothing reached the robot")
+            finally:
+                gw.stop()
+    finally:
+        sim.stop()
+    # A controller that speaks plain TCP to a gateway that expects TLS: its
+    # status port pushes JSON where a ServerHello should be (protocol); its
+    # command port waits for a request and never answers the ClientHello
+    # (timeout, after connect_timeout_ms).
+    plain = Sim("--log-commands")
+    try:
+        gw = Gateway(plain, robot_config(tls_ca=pki("ca.crt")))
+        try:
+            wait_until(lambda: links(gw)[2:] == (5, 6), 10, "protocol and timeout reported")
+            check(links(gw)[:2] != (2, 2), "no link is up")
+            check(not sim_commands(plain), "nothing reached the robot")
+        finally:
+            gw.stop()
+    finally:
+        plain.stop()
+
+
 def test_check_config_names_the_key():
     bad = tls_config(802).replace(pki("gateway.key"), pki("operator.key"))
     with tempfile.NamedTemporaryFile("w", suffix=".conf", delete=False) as f:
@@ -459,6 +551,6 @@ if __name__ == "__main__":
              test_refused_handshakes_answer_nothing, test_old_versions_and_plaintext_refused,
              test_renegotiation_refused, test_handshake_flood_does_not_starve_pollers,
              test_sighup_rotates_the_certificate, test_no_growth_over_1000_handshakes,
-             test_check_config_names_the_key])
+             test_robot_over_tls, test_check_config_names_the_key])
     finally:
         subprocess.run(["rm", "-rf", PKI])

@@ -2,7 +2,8 @@
 # SPDX-License-Identifier: MIT
 # Makes the certificates of the TLS tests in DIR (created): first by running,
 # in order, every ```sh block of docs/security.md (the CA, the gateway, the
-# operator and monitor PLCs, the CRL), exactly as a user would; then the
+# operator and monitor PLCs, the CRL, the controller's certificate robot.* for
+# jakasim), exactly as a user would; then the
 # certificates only the tests need, with the same CA:
 #   norole.*      a client certificate without the role extension
 #   intruder.*    role "intruder", which no [roles] line lists
@@ -10,7 +11,6 @@
 #   revoked.*     revoked in ca.crl
 #   other-ca.*, stranger.*   another CA and a client certificate of it
 #   gateway2.*    a second gateway certificate (rotation)
-#   robot.*       the controller's (jakasim's) certificate, for 127.0.0.1
 #
 #   tests/tls/make-pki.sh DIR
 set -eu
@@ -47,7 +47,7 @@ openssl req -newkey ec -pkeyopt ec_paramgen_curve:P-256 -noenc \
 openssl x509 -req -in stranger.csr -CA other-ca.crt -CAkey other-ca.key -CAcreateserial \
     -days 825 -extfile stranger.ext -out stranger.crt 2>/dev/null
 
-for name in gateway2 robot; do
+for name in gateway2; do
     openssl req -newkey ec -pkeyopt ec_paramgen_curve:P-256 -noenc \
         -subj "/CN=$name" -keyout "$name.key" -out "$name.csr" 2>/dev/null
     openssl ca -config ca.cnf -batch -notext -extfile gateway.ext -in "$name.csr" \
