@@ -210,7 +210,7 @@ valgrind: all unit-tests
 FUZZ_SECONDS ?= 60
 FUZZ_BUILD ?= build-fuzz
 FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox
-FUZZ_SRCS := src/framer.c src/status.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c \
+FUZZ_SRCS := src/framer.c src/status.c src/json_arena.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c \
              src/command.c src/plc_commands.c src/config.c src/can_map.c src/can_map_table.c \
              src/plc_write.c src/policy.c src/ip_allow.c src/regmap_rights.c src/tls.c
 FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' -g -O1 -Iinclude \

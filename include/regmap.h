@@ -237,18 +237,29 @@ enum regmap_format { REGMAP_FORMAT_CSV, REGMAP_FORMAT_MD };
 /* Writes the listing; returns 0 or -EIO. */
 int regmap_print(const struct regmap *map, enum regmap_format format, FILE *out);
 
+struct regmap_shown;
+
 /* The register image the Modbus server answers from. */
 struct regmap_image {
     const struct regmap *map;
     modbus_mapping_t *mb;
     enum regmap_word_order word_order;
+    /* The status the status rows show, and those rows by field:
+     * regmap_encode_status() re-encodes only the fields that changed. */
+    struct regmap_shown *shown;
 };
 
 int regmap_image_init(struct regmap_image *img, const struct regmap *map,
                       enum regmap_word_order word_order);
 void regmap_image_free(struct regmap_image *img);
 
-/* Re-encodes every status-sourced row from 's' (after each document). */
+/*
+ * Makes every status-sourced row show 's' (after each document). Only the
+ * rows of fields whose elements or count differ from the status encoded
+ * last are re-encoded (all of them the first time): on a moving robot a
+ * tenth of the fields change from one document to the next. The status
+ * rows must be written by nothing else.
+ */
 void regmap_encode_status(struct regmap_image *img, const struct jaka_status *s);
 /* Re-encodes every gateway-sourced row from 'gw' (before each request). */
 void regmap_encode_gw(struct regmap_image *img, const double gw[GW_VALUE_COUNT]);

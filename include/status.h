@@ -206,8 +206,21 @@ enum status_parse_result {
  * are not finite are not present. "errcode" may be a hex string ("0x1a"), a
  * decimal string or a number. Returns STATUS_PARSE_OK or a negative
  * enum status_parse_result; 'out' is cleared on error.
+ *
+ * One pass over the document's top-level members, each handed to the
+ * fields whose path starts with its name (a duplicated name counts once,
+ * the first, as a lookup would). cJSON parses into an arena (json_arena.h),
+ * installed for this call only: other users of cJSON keep malloc and free.
+ * Not thread-safe (cJSON's hooks are one global): call it from the loop.
  */
 int status_parse(struct jaka_status *out, const char *json, size_t size);
+
+/*
+ * Gives back the memory status_parse() keeps between documents (the arena
+ * its cJSON tree is parsed into, about 20 times a document's size), so a
+ * leak checker at exit sees nothing held. status_parse() works again after.
+ */
+void status_parse_release(void);
 
 /* The numeric slot 'index' of numeric field 'field' (index < capacity). */
 const struct status_num *status_num_at(const struct jaka_status *s,

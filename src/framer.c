@@ -183,14 +183,68 @@ static bool scan_byte(struct framer_scanner *s, char c)
     return false;
 }
 
+/*
+ * Bytes that can change the brace scanner's state: outside strings a quote
+ * or a brace or bracket, inside one a quote or a backslash. Every other
+ * byte is skipped in bulk (skip_plain), which is most of a document.
+ */
+enum { SPECIAL_OUTSIDE = 1, SPECIAL_INSIDE = 2 };
+static const uint8_t special[256] = {
+    ['"'] = SPECIAL_OUTSIDE | SPECIAL_INSIDE, ['\\'] = SPECIAL_INSIDE,
+    ['{'] = SPECIAL_OUTSIDE, ['}'] = SPECIAL_OUTSIDE,
+    ['['] = SPECIAL_OUTSIDE, [']'] = SPECIAL_OUTSIDE,
+};
+
+#define ONES UINT64_C(0x0101010101010101)
+#define HIGHS UINT64_C(0x8080808080808080)
+
+/* Non-zero when a byte of 'w' equals 'c' (exact for whether, not where). */
+static uint64_t has_byte(uint64_t w, uint8_t c)
+{
+    uint64_t x = w ^ (ONES * c);
+    return (x - ONES) & ~x & HIGHS;
+}
+
+/* Does the 8-byte word hold a byte of class 'cls'? */
+static bool word_has_special(uint64_t w, unsigned cls)
+{
+    if (cls == SPECIAL_INSIDE)
+        return has_byte(w, '"') | has_byte(w, '\\');
+    /* '{' and '[' differ only in bit 5, as do '}' and ']'. */
+    uint64_t folded = w | (ONES * 0x20);
+    return has_byte(w, '"') | has_byte(folded, '{') | has_byte(folded, '}');
+}
+
+/*
+ * The first byte at or after 'p' (before 'limit') that scan_byte() would
+ * act on, or 'limit'. Eight bytes at a time while none of them is one.
+ */
+static size_t skip_plain(const struct framer_scanner *s, const char *b, size_t p, size_t limit)
+{
+    if (s->escaped)
+        return p; /* the next byte is taken whatever it is */
+    unsigned cls = s->in_string ? SPECIAL_INSIDE : SPECIAL_OUTSIDE;
+    uint64_t w;
+
+    while (limit - p >= sizeof(w)) {
+        memcpy(&w, b + p, sizeof(w));
+        if (word_has_special(w, cls))
+            break;
+        p += sizeof(w);
+    }
+    while (p < limit && !(special[(uint8_t)b[p]] & cls))
+        p++;
+    return p;
+}
+
 /* Is b[0, n) one balanced object that closes exactly at its last byte? */
 static bool is_whole_object(const char *b, size_t n)
 {
     struct framer_scanner s = {0};
 
-    for (size_t i = 0; i < n; i++)
-        if (scan_byte(&s, b[i]))
-            return i + 1 == n;
+    for (size_t i = skip_plain(&s, b, 0, n); i < n; i = skip_plain(&s, b, i, n))
+        if (scan_byte(&s, b[i++]))
+            return i == n;
     return false;
 }
 
@@ -271,8 +325,12 @@ static enum restart find_restart(struct framer *f, size_t limit, bool prefix_hel
         return RESTART_NONE;
     }
     for (; f->restart_scan < limit; f->restart_scan++) {
-        if (f->buf[f->restart_scan] != '{')
-            continue;
+        const char *brace = memchr(f->buf + f->restart_scan, '{', limit - f->restart_scan);
+        if (!brace) {
+            f->restart_scan = limit;
+            break;
+        }
+        f->restart_scan = (size_t)(brace - f->buf);
         enum restart r = test_restart(f, f->restart_scan, prefix_held);
         if (r != RESTART_NONE) {
             *at = f->restart_scan;
@@ -302,9 +360,11 @@ static bool check_header(struct framer *f)
 /* Runs the brace scanner up to 'limit'; returns where it closed the object, or 0. */
 static size_t scan_to_end(struct framer *f, size_t limit)
 {
-    while (!f->end && f->scan.pos < limit)
-        if (scan_byte(&f->scan, f->buf[f->scan.pos++]))
+    while (!f->end && f->scan.pos < limit) {
+        f->scan.pos = skip_plain(&f->scan, f->buf, f->scan.pos, limit);
+        if (f->scan.pos < limit && scan_byte(&f->scan, f->buf[f->scan.pos++]))
             f->end = f->scan.pos;
+    }
     return f->end;
 }
 

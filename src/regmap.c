@@ -461,16 +461,68 @@ int regmap_print(const struct regmap *map, enum regmap_format format, FILE *out)
 
 /* ---- the image ---- */
 
+/* What the status rows show, to encode only what changed. */
+struct regmap_shown {
+    bool valid; /* 'status' was encoded: false until the first encode */
+    struct jaka_status status;
+    /* The status-sourced rows of field f: rows[start[f], start[f + 1]). */
+    const struct regmap_row **rows;
+    unsigned start[STATUS_FIELD_COUNT + 1];
+};
+
+static bool is_status_row(const struct regmap_row *row)
+{
+    return row->source == REGMAP_SRC_STATUS || row->source == REGMAP_SRC_PRESENT ||
+           row->source == REGMAP_SRC_COUNT;
+}
+
+/* Buckets the status rows by field (a counting sort, in table order). */
+static struct regmap_shown *new_shown(const struct regmap *map)
+{
+    struct regmap_shown *sh = calloc(1, sizeof(*sh));
+    unsigned fill[STATUS_FIELD_COUNT] = {0};
+
+    if (!sh)
+        return NULL;
+    sh->rows = calloc(map->row_count ? map->row_count : 1, sizeof(sh->rows[0]));
+    if (!sh->rows) {
+        free(sh);
+        return NULL;
+    }
+    for (unsigned r = 0; r < map->row_count; r++)
+        if (is_status_row(&map->rows[r]))
+            sh->start[map->rows[r].id + 1]++;
+    for (unsigned f = 0; f < STATUS_FIELD_COUNT; f++)
+        sh->start[f + 1] += sh->start[f];
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const struct regmap_row *row = &map->rows[r];
+        if (is_status_row(row))
+            sh->rows[sh->start[row->id] + fill[row->id]++] = row;
+    }
+    return sh;
+}
+
+static void free_shown(struct regmap_shown *sh)
+{
+    if (sh)
+        free(sh->rows);
+    free(sh);
+}
+
 int regmap_image_init(struct regmap_image *img, const struct regmap *map,
                       enum regmap_word_order word_order)
 {
     img->map = map;
     img->word_order = word_order;
+    img->shown = new_shown(map);
     img->mb = modbus_mapping_new((int)map->size[REGMAP_COIL],
                                  (int)map->size[REGMAP_DISCRETE_INPUT],
                                  (int)map->size[REGMAP_HOLDING_REGISTER],
                                  (int)map->size[REGMAP_INPUT_REGISTER]);
-    return img->mb ? 0 : -ENOMEM;
+    if (img->mb && img->shown)
+        return 0;
+    regmap_image_free(img);
+    return -ENOMEM;
 }
 
 void regmap_image_free(struct regmap_image *img)
@@ -478,6 +530,8 @@ void regmap_image_free(struct regmap_image *img)
     if (img->mb)
         modbus_mapping_free(img->mb);
     img->mb = NULL;
+    free_shown(img->shown);
+    img->shown = NULL;
 }
 
 /* Rounds and clamps without undefined double-to-integer conversions. */
@@ -608,14 +662,52 @@ static void encode_status_row(struct regmap_image *img,
     }
 }
 
+/* Do the elements of field 'id' differ between 'a' and 'b'? */
+static bool field_changed(const struct jaka_status *a, const struct jaka_status *b,
+                          enum status_field id)
+{
+    const struct status_field_info *f = &status_fields[id];
+
+    if (a->count[id] != b->count[id])
+        return true;
+    if (f->kind == STATUS_KIND_NUM) {
+        /* Bytes, padding included: a false "changed" only costs an encode. */
+        return memcmp(status_num_at(a, id, 0), status_num_at(b, id, 0),
+                      f->capacity * sizeof(struct status_num)) != 0;
+    }
+    for (unsigned i = 0; i < f->capacity; i++) {
+        const struct status_str *x = status_str_at(a, id, i), *y = status_str_at(b, id, i);
+        if (x->present != y->present || strcmp(x->text, y->text) != 0)
+            return true;
+    }
+    return false;
+}
+
+/* Remembers field 'id' of 's' as shown. */
+static void keep_field(struct jaka_status *shown, const struct jaka_status *s,
+                       enum status_field id)
+{
+    const struct status_field_info *f = &status_fields[id];
+    size_t size = f->kind == STATUS_KIND_NUM ? sizeof(struct status_num)
+                                             : sizeof(struct status_str);
+
+    memcpy((char *)shown + f->offset, (const char *)s + f->offset, f->capacity * size);
+    shown->count[id] = s->count[id];
+}
+
 void regmap_encode_status(struct regmap_image *img, const struct jaka_status *s)
 {
-    for (unsigned r = 0; r < img->map->row_count; r++) {
-        const struct regmap_row *row = &img->map->rows[r];
-        if (row->source == REGMAP_SRC_STATUS || row->source == REGMAP_SRC_PRESENT ||
-            row->source == REGMAP_SRC_COUNT)
-            encode_status_row(img, row, s);
+    struct regmap_shown *sh = img->shown;
+
+    for (unsigned f = 0; f < STATUS_FIELD_COUNT; f++) {
+        enum status_field id = (enum status_field)f;
+        if (sh->valid && !field_changed(&sh->status, s, id))
+            continue;
+        for (unsigned r = sh->start[f]; r < sh->start[f + 1]; r++)
+            encode_status_row(img, sh->rows[r], s);
+        keep_field(&sh->status, s, id);
     }
+    sh->valid = true;
 }
 
 void regmap_encode_gw(struct regmap_image *img, const double gw[GW_VALUE_COUNT])

@@ -11,6 +11,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <cJSON.h>
+
 #include "status.h"
 
 #ifndef SAMPLES_DIR
@@ -227,6 +229,215 @@ static void element_paths(void **state)
     assert_string_equal(path, "extio.setup[2][3][0][1]");
 }
 
+/* ---- the parser against a reference: every field looked up by its path ---- */
+
+/* The path of element 'index' of field 'id' from the root, as the gateway
+ * documents it, followed step by step in the tree. */
+static const cJSON *lookup(const cJSON *root, const char *path)
+{
+    const cJSON *node = root;
+    const char *p = path;
+    char key[64];
+
+    while (node && *p) {
+        if (*p == '[') {
+            char *after;
+            long n = strtol(p + 1, &after, 10);
+            if (!cJSON_IsArray(node))
+                return NULL;
+            node = cJSON_GetArrayItem(node, (int)n);
+            p = after + 1;
+        } else {
+            if (*p == '.')
+                p++;
+            size_t len = strcspn(p, ".[");
+            if (!cJSON_IsObject(node) || len >= sizeof(key))
+                return NULL;
+            memcpy(key, p, len);
+            key[len] = '\0';
+            node = cJSON_GetObjectItemCaseSensitive(node, key);
+            p += len;
+        }
+    }
+    return node;
+}
+
+/* What the reference expects of one number element. */
+static bool expect_number(const cJSON *item, double *v)
+{
+    if (cJSON_IsBool(item)) {
+        *v = cJSON_IsTrue(item);
+        return true;
+    }
+    if (cJSON_IsNumber(item)) {
+        *v = item->valuedouble;
+        return isfinite(*v);
+    }
+    if (cJSON_IsString(item) && item->valuestring[0]) {
+        char *end;
+        *v = strtod(item->valuestring, &end);
+        return *end == '\0' && isfinite(*v);
+    }
+    return false;
+}
+
+/* Checks every element of every field of 'st' against 'root'. */
+static void check_against_reference(const cJSON *root)
+{
+    for (int id = 0; id < STATUS_FIELD_COUNT; id++) {
+        const struct status_field_info *f = &status_fields[id];
+        bool star = strchr(f->path, '*') != NULL;
+        unsigned carried = 0;
+        for (unsigned i = 0; i < f->capacity; i++) {
+            char path[128];
+            status_element_path((enum status_field)id, i, path, sizeof(path));
+            const cJSON *item = lookup(root, path);
+            if (id == STATUS_F_task_mode && !item)
+                item = cJSON_GetObjectItemCaseSensitive(root, "task mode");
+            if (f->kind == STATUS_KIND_NUM) {
+                const struct status_num *n = status_num_at(&st, (enum status_field)id, i);
+                double v = 0;
+                bool present = item && expect_number(item, &v);
+                if (id == STATUS_F_errcode)
+                    continue; /* normalised: errcode_forms covers it */
+                if (n->present != present || (present && n->value != v))
+                    fail_msg("%s: present %d value %g, expected %d %g", path, n->present,
+                             n->value, present, v);
+                if (item && (star || present))
+                    carried = i + 1;
+            } else {
+                const struct status_str *t = status_str_at(&st, (enum status_field)id, i);
+                bool present = cJSON_IsString(item) ||
+                               (cJSON_IsNumber(item) && isfinite(item->valuedouble));
+                if (t->present != present)
+                    fail_msg("%s: present %d, expected %d", path, t->present, present);
+                if (cJSON_IsString(item))
+                    assert_int_equal(strncmp(t->text, item->valuestring, f->str_size - 1), 0);
+                if (item && (star || present))
+                    carried = i + 1;
+            }
+        }
+        if (id != STATUS_F_errcode && st.count[id] != carried)
+            fail_msg("%s: count %u, expected %u", f->name, st.count[id], carried);
+    }
+}
+
+static void parse_tree_and_check(const cJSON *root)
+{
+    char *text = cJSON_PrintUnformatted(root);
+    assert_non_null(text);
+    assert_int_equal(status_parse(&st, text, strlen(text)), STATUS_PARSE_OK);
+    /* cJSON prints a double in 15 digits when that is within an epsilon:
+     * the reference is the printed text, parsed again. */
+    cJSON *printed = cJSON_Parse(text);
+    assert_non_null(printed);
+    check_against_reference(printed);
+    cJSON_Delete(printed);
+    cJSON_free(text);
+}
+
+static cJSON *read_sample_tree(const char *name)
+{
+    char path[512];
+    size_t size = 0;
+    snprintf(path, sizeof(path), "%s/%s", SAMPLES_DIR, name);
+    char *doc = read_file(path, &size);
+    assert_non_null(doc);
+    cJSON *root = cJSON_ParseWithLength(doc, size);
+    free(doc);
+    assert_non_null(root);
+    return root;
+}
+
+/* A value of another type, or none, in place of 'node' (a member of 'parent'). */
+static void mutate(cJSON *parent, cJSON *node, unsigned how)
+{
+    switch (how % 6) {
+    case 0:
+        cJSON_ReplaceItemViaPointer(parent, node, cJSON_CreateString("12.5"));
+        break;
+    case 1:
+        cJSON_ReplaceItemViaPointer(parent, node, cJSON_CreateNull());
+        break;
+    case 2:
+        cJSON_ReplaceItemViaPointer(parent, node, cJSON_CreateObject());
+        break;
+    case 3:
+        cJSON_ReplaceItemViaPointer(parent, node, cJSON_CreateTrue());
+        break;
+    case 4:
+        cJSON_DetachItemViaPointer(parent, node);
+        cJSON_Delete(node);
+        break;
+    case 5: /* an array cut short, or a scalar turned into one */
+        if (cJSON_IsArray(node) && cJSON_GetArraySize(node) > 1)
+            cJSON_DeleteItemFromArray(node, cJSON_GetArraySize(node) / 2);
+        else
+            cJSON_ReplaceItemViaPointer(parent, node, cJSON_CreateIntArray((int[]){7, 8}, 2));
+        break;
+    }
+}
+
+/* The node at random depth under 'root', with its parent. */
+static cJSON *pick(cJSON *root, unsigned *seed, cJSON **parent)
+{
+    cJSON *node = root;
+    *parent = NULL;
+    while (node->child && (*parent == NULL || rand_r(seed) % 3)) {
+        int n = cJSON_GetArraySize(node);
+        *parent = node;
+        node = cJSON_GetArrayItem(node, rand_r(seed) % n);
+    }
+    return node;
+}
+
+static void one_pass_matches_lookup_by_path(void **state)
+{
+    (void)state;
+    static const char *const samples[] = {"status-controller-a.json", "status-zu5s-1.5.14.json"};
+    unsigned seed = 17;
+
+    for (size_t s = 0; s < sizeof(samples) / sizeof(samples[0]); s++) {
+        cJSON *root = read_sample_tree(samples[s]);
+        parse_tree_and_check(root);
+        cJSON_Delete(root);
+        for (int round = 0; round < 300; round++) {
+            root = read_sample_tree(samples[s]);
+            for (int m = 0; m < 1 + round % 5; m++) {
+                cJSON *parent;
+                cJSON *node = pick(root, &seed, &parent);
+                if (parent)
+                    mutate(parent, node, (unsigned)rand_r(&seed));
+            }
+            if (round % 7 == 0) /* a name twice: the first one counts */
+                cJSON_AddItemToObject(root, "din", cJSON_CreateIntArray((int[]){1, 1}, 2));
+            if (round % 11 == 0) {
+                cJSON_DeleteItemFromObjectCaseSensitive(root, "task_mode");
+                cJSON_AddNumberToObject(root, "task mode", 3);
+            }
+            parse_tree_and_check(root);
+            cJSON_Delete(root);
+        }
+    }
+}
+
+/* cJSON's default hooks are back after each parse, for every other user. */
+static void other_cjson_users_keep_malloc(void **state)
+{
+    (void)state;
+    parse_sample("status-controller-a.json");
+    void *p = cJSON_malloc(32);
+    assert_non_null(p);
+    free(p); /* only right if cJSON_malloc is malloc again */
+    cJSON *kept = cJSON_Parse("{\"a\": [1, 2, 3]}");
+    assert_int_equal(parse("{\"enabled\": 1}"), STATUS_PARSE_OK);
+    assert_int_equal(cJSON_GetArraySize(cJSON_GetObjectItem(kept, "a")), 3);
+    cJSON_Delete(kept);
+    status_parse_release();
+    assert_int_equal(parse("{\"enabled\": 1}"), STATUS_PARSE_OK);
+    assert_true(st.enabled[0].present);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -241,6 +452,10 @@ int main(void)
         cmocka_unit_test(manual_spelling_task_mode),
         cmocka_unit_test(long_strings_are_truncated),
         cmocka_unit_test(element_paths),
+        cmocka_unit_test(one_pass_matches_lookup_by_path),
+        cmocka_unit_test(other_cjson_users_keep_malloc),
     };
-    return cmocka_run_group_tests_name("status", tests, NULL, NULL);
+    int failed = cmocka_run_group_tests_name("status", tests, NULL, NULL);
+    status_parse_release();
+    return failed;
 }
