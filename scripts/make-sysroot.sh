@@ -34,13 +34,18 @@ case $arch in
     *) fail "unknown architecture '$arch' (arm64 or armhf)" ;;
 esac
 
+# This machine's Debian sources: debian.sources, or the deb822 file
+# mmdebstrap writes into a root it makes (0000debian.sources: CI's), or
+# sources.list.
 sources=${SYSROOT_APT_SOURCES:-}
 if [ -z "$sources" ]; then
-    if [ -f /etc/apt/sources.list.d/debian.sources ]; then
-        sources=/etc/apt/sources.list.d/debian.sources
-    elif [ -s /etc/apt/sources.list ]; then
-        sources=/etc/apt/sources.list
-    fi
+    for f in /etc/apt/sources.list.d/debian.sources /etc/apt/sources.list.d/*debian*.sources \
+             /etc/apt/sources.list; do
+        if [ -s "$f" ] && grep -q 'debian' "$f"; then
+            sources=$f
+            break
+        fi
+    done
 fi
 
 packages=$(scripts/install-deps.sh --list |
@@ -81,7 +86,12 @@ extract() { # sources-file
 # link and compute Depends against, and to test under emulation.
 without_security=
 if ! extract "$sources"; then
-    if [ -n "$sources" ] && grep -q -- '-security.*\(unexpected size\|Hash Sum mismatch\)' "$log"; then
+    if grep -q -- '-security.*\(unexpected size\|Hash Sum mismatch\)' "$log"; then
+        if [ -z "$sources" ]; then
+            # mmdebstrap's own default: deb.debian.org, with security.
+            sources=$dir.$$.default.sources
+            printf 'Types: deb\nURIs: http://deb.debian.org/debian\nSuites: bookworm bookworm-updates\nComponents: main\n\nTypes: deb\nURIs: http://security.debian.org/debian-security\nSuites: bookworm-security\nComponents: main\n' >"$sources"
+        fi
         say "the mirror's bookworm-security index for $arch is inconsistent:" \
             "$(grep -m1 -o 'File has unexpected size[^.]*' "$log" || echo 'hash mismatch');" \
             "making the sysroot from the other suites of $sources"
@@ -94,7 +104,7 @@ if ! extract "$sources"; then
         fi >"$without_security"
         ok=0
         extract "$without_security" && ok=1
-        rm -f "$without_security"
+        rm -f "$without_security" "$dir.$$.default.sources"
         [ "$ok" = 1 ] || { tail -n 20 "$log" >&2; fail "mmdebstrap failed; the whole log is $log"; }
     else
         tail -n 20 "$log" >&2
