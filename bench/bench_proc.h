@@ -1,0 +1,256 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * bench_proc.h - what a benchmark needs around the programs it measures:
+ * children started and stopped by their pid (their output in a temporary
+ * directory kept when the run fails), their CPU time and memory from
+ * /proc, loopback sockets with timeouts, medians.
+ *
+ * Header-only (static functions): each benchmark is one program built from
+ * one file. A benchmark sets bench_name and bench_tmp_dir first.
+ */
+#ifndef JAKAGW_BENCH_PROC_H
+#define JAKAGW_BENCH_PROC_H
+
+#define _GNU_SOURCE /* sched_setaffinity */
+#include <errno.h>
+#include <fcntl.h>
+#include <limits.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <sched.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/wait.h>
+#include <time.h>
+#include <unistd.h>
+
+#define BENCH_IO_TIMEOUT_S 10
+
+static const char *bench_name = "bench";
+static char bench_tmp_dir[PATH_MAX];
+static pid_t bench_children[8];
+static unsigned bench_child_count;
+
+static double now_s(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
+}
+
+static int cmp_double(const void *a, const void *b)
+{
+    double x = *(const double *)a, y = *(const double *)b;
+    return x < y ? -1 : x > y;
+}
+
+/* Sorts v. */
+static double percentile(double *v, unsigned n, double p)
+{
+    qsort(v, n, sizeof(v[0]), cmp_double);
+    return v[(unsigned)(p * (n - 1) + 0.5)];
+}
+
+static double median(double *v, unsigned n)
+{
+    return percentile(v, n, 0.5);
+}
+
+static void sleep_s(double s)
+{
+    struct timespec ts = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
+    while (nanosleep(&ts, &ts) < 0 && errno == EINTR)
+        ;
+}
+
+static void stop_child(pid_t pid)
+{
+    int status;
+
+    if (pid <= 0)
+        return;
+    kill(pid, SIGTERM);
+    for (int i = 0; i < 1000; i++) {
+        if (waitpid(pid, &status, WNOHANG) == pid)
+            goto reaped;
+        sleep_s(0.01);
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, &status, 0);
+reaped:
+    for (unsigned i = 0; i < bench_child_count; i++)
+        if (bench_children[i] == pid)
+            bench_children[i] = 0;
+}
+
+static void stop_children(void)
+{
+    for (unsigned i = 0; i < bench_child_count; i++)
+        stop_child(bench_children[i]);
+    bench_child_count = 0;
+}
+
+/* Stops every child and exits; the temporary directory stays to look at. */
+static void die(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    fprintf(stderr, "%s: ", bench_name);
+    vfprintf(stderr, fmt, ap);
+    fprintf(stderr, " (logs in %s)\n", bench_tmp_dir);
+    va_end(ap);
+    stop_children();
+    exit(1);
+}
+
+static void pin_to(int cpu)
+{
+    cpu_set_t set;
+
+    if (cpu < 0)
+        return;
+    CPU_ZERO(&set);
+    CPU_SET(cpu, &set);
+    if (sched_setaffinity(0, sizeof(set), &set) < 0)
+        fprintf(stderr, "%s: cannot pin to CPU %d: %s\n", bench_name, cpu, strerror(errno));
+}
+
+/* Runs argv with its output in TMP/NAME.log, on 'cpu' (-1: anywhere). */
+static pid_t spawn(const char *name, char *const argv[], int cpu)
+{
+    char log[PATH_MAX + 32];
+    pid_t pid;
+
+    snprintf(log, sizeof(log), "%s/%s.log", bench_tmp_dir, name);
+    pid = fork();
+    if (pid < 0)
+        die("fork: %s", strerror(errno));
+    if (pid == 0) {
+        int fd = open(log, O_WRONLY | O_CREAT | O_APPEND, 0600);
+        if (fd >= 0) {
+            dup2(fd, STDOUT_FILENO);
+            dup2(fd, STDERR_FILENO);
+            close(fd);
+        }
+        pin_to(cpu);
+        execv(argv[0], argv);
+        fprintf(stderr, "cannot run %s: %s\n", argv[0], strerror(errno));
+        _exit(127);
+    }
+    if (bench_child_count < sizeof(bench_children) / sizeof(bench_children[0]))
+        bench_children[bench_child_count++] = pid;
+    return pid;
+}
+
+static bool child_alive(pid_t pid)
+{
+    int status;
+    return waitpid(pid, &status, WNOHANG) == 0;
+}
+
+/* utime + stime, in seconds, from /proc/PID/stat. */
+static double cpu_seconds(pid_t pid)
+{
+    char path[64], buf[1024];
+    unsigned long utime, stime;
+
+    snprintf(path, sizeof(path), "/proc/%d/stat", (int)pid);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        die("%s: %s", path, strerror(errno));
+    size_t n = fread(buf, 1, sizeof(buf) - 1, f);
+    fclose(f);
+    buf[n] = '\0';
+    /* The name may hold spaces and parentheses: fields follow the last ')'. */
+    char *p = strrchr(buf, ')');
+    if (!p ||
+        sscanf(p + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %lu %lu", &utime, &stime) != 2)
+        die("%s: unexpected format", path);
+    return (double)(utime + stime) / (double)sysconf(_SC_CLK_TCK);
+}
+
+/* A "VmRSS:"-style line of /proc/PID/status, in KiB. */
+static long status_kib(pid_t pid, const char *key)
+{
+    char path[64], line[256];
+    long kib = -1;
+    size_t len = strlen(key);
+
+    snprintf(path, sizeof(path), "/proc/%d/status", (int)pid);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        die("%s: %s", path, strerror(errno));
+    while (fgets(line, sizeof(line), f))
+        if (strncmp(line, key, len) == 0)
+            kib = strtol(line + len, NULL, 10);
+    fclose(f);
+    return kib;
+}
+
+/* A port nobody listens on now (the child binds it a moment later). */
+static uint16_t free_port(void)
+{
+    struct sockaddr_in sa = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    socklen_t len = sizeof(sa);
+    int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+
+    if (fd < 0 || bind(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0 ||
+        getsockname(fd, (struct sockaddr *)&sa, &len) < 0)
+        die("bind: %s", strerror(errno));
+    close(fd);
+    return ntohs(sa.sin_port);
+}
+
+/* A loopback connection with I/O timeouts and TCP_NODELAY; -1 if refused. */
+static int try_connect(uint16_t port)
+{
+    struct sockaddr_in sa = {
+        .sin_family = AF_INET, .sin_port = htons(port), .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    struct timeval tv = {BENCH_IO_TIMEOUT_S, 0};
+    int one = 1;
+    int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+
+    if (fd < 0)
+        die("socket: %s", strerror(errno));
+    if (connect(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0) {
+        close(fd);
+        return -1;
+    }
+    if (setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv)) < 0 ||
+        setsockopt(fd, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof(tv)) < 0 ||
+        setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one)) < 0)
+        die("setsockopt: %s", strerror(errno));
+    return fd;
+}
+
+static int connect_loopback(uint16_t port)
+{
+    int fd = try_connect(port);
+    if (fd < 0)
+        die("connect to port %u: %s", port, strerror(errno));
+    return fd;
+}
+
+static void wait_listening(uint16_t port, pid_t pid, const char *name)
+{
+    double deadline = now_s() + 30;
+    while (now_s() < deadline) {
+        int fd = try_connect(port);
+        if (fd >= 0) {
+            close(fd);
+            return;
+        }
+        if (!child_alive(pid))
+            die("%s exited at start", name);
+        sleep_s(0.02);
+    }
+    die("%s does not listen on port %u after 30 s", name, port);
+}
+
+#endif
