@@ -32,6 +32,9 @@
  *   bench_modbus [--jakagw PATH] [--jakasim PATH] [--ref-slave PATH]
  *                [--document FILE] [--documents N] [--rounds N]
  *                [--cpus G,S|none]
+ *   bench_modbus --load PORT,CLIENTS,SECONDS [--cpus G,S|none]
+ *                only the closed-loop load against a server already
+ *                running on 127.0.0.1:PORT, to profile it (perf, strace)
  *
  * The binaries default to the build directory this program sits in
  * (BUILD/bench/bench_modbus: BUILD/jakagw, BUILD/jakasim,
@@ -601,10 +604,11 @@ static void send_next(struct conn *c)
 }
 
 /*
- * 'n' clients, one request in flight each, for TP_WINDOW_S; the server's
+ * 'n' clients, one request in flight each, for 'seconds'; the server's
  * CPU is read before the first request and after the last reply.
  */
-static struct window closed_loop(struct conn *conns, unsigned n, pid_t server)
+/* 'server' 0: no CPU figure (--load, a server we did not start). */
+static struct window closed_loop(struct conn *conns, unsigned n, pid_t server, double seconds)
 {
     struct epoll_event ev, events[MAX_CLIENTS];
     int ep = epoll_create1(EPOLL_CLOEXEC);
@@ -619,7 +623,7 @@ static struct window closed_loop(struct conn *conns, unsigned n, pid_t server)
         if (epoll_ctl(ep, EPOLL_CTL_ADD, conns[i].fd, &ev) < 0)
             die("epoll_ctl: %s", strerror(errno));
     }
-    double cpu0 = cpu_seconds(server), t0 = now_s(), end = t0 + TP_WINDOW_S;
+    double cpu0 = server ? cpu_seconds(server) : 0, t0 = now_s(), end = t0 + seconds;
     for (unsigned i = 0; i < n; i++, in_flight++)
         send_next(&conns[i]);
     bool sending = true;
@@ -650,7 +654,7 @@ static struct window closed_loop(struct conn *conns, unsigned n, pid_t server)
         }
     }
     w.seconds = now_s() - t0;
-    w.cpu_s = cpu_seconds(server) - cpu0;
+    w.cpu_s = server ? cpu_seconds(server) - cpu0 : 0;
     close(ep);
     return w;
 }
@@ -680,7 +684,7 @@ static void measure_throughput(struct servers *s, unsigned rounds, struct conn *
             conns[v][i].next_kind = i % KINDS;
         }
     for (int v = 0; v < SERVERS; v++) /* warm up: every connection served once */
-        closed_loop(conns[v], MAX_CLIENTS, s->pid[v]);
+        closed_loop(conns[v], MAX_CLIENTS, s->pid[v], TP_WINDOW_S);
     for (unsigned r = 0; r < rounds; r++) {
         uint32_t d0 = documents_parsed(poller);
         double c0 = cpu_seconds(s->pid[GW]), t0 = now_s();
@@ -692,7 +696,7 @@ static void measure_throughput(struct servers *s, unsigned rounds, struct conn *
             struct window w[SERVERS];
             for (int j = 0; j < SERVERS; j++) {
                 int v = (int)((r + n + j) % SERVERS); /* either goes first */
-                w[v] = closed_loop(conns[v], client_counts[n], s->pid[v]);
+                w[v] = closed_loop(conns[v], client_counts[n], s->pid[v], TP_WINDOW_S);
                 rates[v][n][r] = (double)w[v].requests / w[v].seconds;
                 total[v][n].seconds += w[v].seconds;
                 total[v][n].cpu_s += w[v].cpu_s;
@@ -914,6 +918,29 @@ static void print_table(const struct latency *lat, const struct throughput *tp,
            verdict(tp->idle_cpu_share < 0.01), verdict(mem_ok));
 }
 
+/* --load: the closed loop alone, against a server someone else started. */
+static int run_load(const char *spec)
+{
+    unsigned port, clients;
+    double seconds;
+    static struct conn conns[MAX_CLIENTS];
+
+    if (sscanf(spec, "%u,%u,%lf", &port, &clients, &seconds) != 3 || port == 0 ||
+        port > 65535 || clients == 0 || clients > MAX_CLIENTS || seconds <= 0) {
+        fprintf(stderr, "bench_modbus: --load PORT,CLIENTS,SECONDS (CLIENTS 1..%d)\n",
+                MAX_CLIENTS);
+        return 2;
+    }
+    for (unsigned i = 0; i < clients; i++)
+        conns[i].fd = connect_loopback((uint16_t)port);
+    struct window w = closed_loop(conns, clients, 0, seconds);
+    printf("%u clients: %llu requests in %.2f s, %.0f/s\n", clients,
+           (unsigned long long)w.requests, w.seconds, (double)w.requests / w.seconds);
+    for (unsigned i = 0; i < clients; i++)
+        close(conns[i].fd);
+    return 0;
+}
+
 /* ---- main ---- */
 
 static const char *sibling(const char *argv0, const char *rel)
@@ -949,7 +976,7 @@ int main(int argc, char **argv)
     };
     const char *doc_path = "tests/data/status-controller-a.json";
     unsigned long documents = DEFAULT_DOCUMENTS, rounds = 7;
-    const char *cpus = NULL;
+    const char *cpus = NULL, *load = NULL;
     struct regmap map;
 
     for (int i = 1; i < argc; i++) {
@@ -973,6 +1000,8 @@ int main(int argc, char **argv)
             rounds = strtoul(value, NULL, 10);
         else if (strcmp(flag, "--cpus") == 0)
             cpus = value;
+        else if (strcmp(flag, "--load") == 0)
+            load = value;
         else {
             fprintf(stderr, "bench_modbus: unknown option %s\n", flag);
             return 2;
@@ -1002,6 +1031,8 @@ int main(int argc, char **argv)
     }
     pin_to(generator_cpu);
     signal(SIGPIPE, SIG_IGN);
+    if (load)
+        return run_load(load);
     signal(SIGINT, on_fatal_signal);
     signal(SIGTERM, on_fatal_signal);
     snprintf(tmp_dir, sizeof(tmp_dir), "/tmp/bench_modbus-XXXXXX");

@@ -244,8 +244,8 @@ struct regmap_image {
     const struct regmap *map;
     modbus_mapping_t *mb;
     enum regmap_word_order word_order;
-    /* The status the status rows show, and those rows by field:
-     * regmap_encode_status() re-encodes only the fields that changed. */
+    /* What the status rows and the gateway rows show: regmap_encode_status()
+     * and regmap_encode_gw() re-encode only what changed. */
     struct regmap_shown *shown;
 };
 
@@ -261,7 +261,10 @@ void regmap_image_free(struct regmap_image *img);
  * rows must be written by nothing else.
  */
 void regmap_encode_status(struct regmap_image *img, const struct jaka_status *s);
-/* Re-encodes every gateway-sourced row from 'gw' (before each request). */
+/*
+ * Makes every read-only gateway-sourced row show 'gw' (before each
+ * request), encoding only the values that differ from the last call's.
+ */
 void regmap_encode_gw(struct regmap_image *img, const double gw[GW_VALUE_COUNT]);
 
 /* Encoders of single values, exposed for tests and the CAN side. */

@@ -468,6 +468,10 @@ struct regmap_shown {
     /* The status-sourced rows of field f: rows[start[f], start[f + 1]). */
     const struct regmap_row **rows;
     unsigned start[STATUS_FIELD_COUNT + 1];
+    /* The gateway values the read-only gateway rows show: they are
+     * refreshed before every request, and few change from one to the next. */
+    bool gw_valid;
+    double gw[GW_VALUE_COUNT];
 };
 
 static bool is_status_row(const struct regmap_row *row)
@@ -712,10 +716,19 @@ void regmap_encode_status(struct regmap_image *img, const struct jaka_status *s)
 
 void regmap_encode_gw(struct regmap_image *img, const double gw[GW_VALUE_COUNT])
 {
+    struct regmap_shown *sh = img->shown;
+
     for (unsigned r = 0; r < img->map->gw_row_count; r++) {
         const struct regmap_row *row = img->map->gw_rows[r];
-        encode_number(img, row, row->address, gw[row->id], true);
+        double v = gw[row->id];
+        /* Bits, not ==: -0.0 and 0.0 may encode apart. */
+        if (sh->gw_valid && memcmp(&sh->gw[row->id], &v, sizeof(v)) == 0)
+            continue;
+        encode_number(img, row, row->address, v, true);
     }
+    /* After the loop: two rows may show one value. */
+    memcpy(sh->gw, gw, sizeof(sh->gw));
+    sh->gw_valid = true;
 }
 
 int regmap_check_write(const struct regmap *map, enum regmap_table table,
