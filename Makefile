@@ -128,13 +128,15 @@ $(BUILD)/bench/ref_slave: bench/ref_slave.c
 	$(CC) $(ALL_CFLAGS) $< -o $@ $(ALL_LDFLAGS) $(PKG_LIBS)
 
 # Prints costs as ratios to references measured in the same run: a status
-# document against cJSON alone, a command from a Modbus write to the robot's
-# socket through the whole gateway, and Modbus reads through jakagw (jakasim
-# streaming at 125 Hz) against a plain libmodbus slave, with server CPU,
-# the stream's cost and memory. About 5 minutes: the memory figure feeds a
-# million documents (BENCH_MODBUS_FLAGS="--documents N" for fewer). Then
-# Modbus/TCP Security against plain Modbus TCP in one jakagw: CPU per
-# request, handshakes, memory per TLS connection.
+# document's whole ingest path against cJSON's parse and delete of it, in
+# instructions counted by callgrind (valgrind, from make deps) and in time,
+# with the ten functions that cost the most; a command from a Modbus write
+# to the robot's socket through the whole gateway, and Modbus reads through
+# jakagw (jakasim streaming at 125 Hz) against a plain libmodbus slave, with
+# server CPU, the stream's cost and memory. About 5 minutes: the memory
+# figure feeds a million documents (BENCH_MODBUS_FLAGS="--documents N" for
+# fewer). Then Modbus/TCP Security against plain Modbus TCP in one jakagw:
+# CPU per request, handshakes, memory per TLS connection.
 bench: all $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands \
        $(BUILD)/bench/bench_modbus $(BUILD)/bench/ref_slave $(BUILD)/bench/bench_tls
 	@$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
@@ -166,7 +168,7 @@ ifeq ($(TRIPLET),)
 	$(MAKE) all unit-tests $(BUILD)/bench/ref_slave
 	$(MAKE) san
 	@tests/run.sh
-	@if [ "$$CI" = true ]; then $(MAKE) fuzz-ci; fi
+	@if [ "$$CI" = true ]; then $(MAKE) fuzz-ci FUZZ_SECONDS=$(CI_FUZZ_SECONDS); fi
 else
 # ARM: the same unit and integration tests, the binaries under qemu-user
 # (JAKAGW_RUNNER), then the package. The sanitizers and the fuzzers run on
@@ -214,6 +216,9 @@ valgrind: all unit-tests
 # with a 10 s hang limit, and a crash or hang fails it with one line naming
 # the target and the input that caused it (CI runs it from make test).
 FUZZ_SECONDS ?= 60
+# make test under CI=true: each target from its seeds for this long (the
+# whole CI run has 20 minutes; make fuzz is for longer runs).
+CI_FUZZ_SECONDS ?= 20
 FUZZ_BUILD ?= build-fuzz
 FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox
 FUZZ_SRCS := src/framer.c src/status.c src/json_arena.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c \

@@ -364,13 +364,22 @@ def test_handshake_flood_does_not_starve_pollers():
             print("  %s poller: %d reads, %d failures, p50 %.1f ms, p99 %.1f ms" % (
                 kind, len(lat[kind]), len(fails[kind]), q[49] * 1000, q[98] * 1000))
             check(not fails[kind], "%s poller failed: %s" % (kind, fails[kind][:3]))
-        print("  flood: %d of 200 handshakes completed, %d refused at max_handshakes; "
-              "%d of 64 stalled closed at the deadline" % (
-                  sum(results), m.counter(IR_FAILED["over_limit"]), closed))
+        ok, over, timeouts = (m.counter(IR_HANDSHAKES_OK), m.counter(IR_FAILED["over_limit"]),
+                              m.counter(IR_FAILED["timeout"]))
+        # Under emulation (qemu-user, about 14 times slower at crypto) some
+        # of the flood's handshakes outlast handshake_timeout_ms and are
+        # closed at the deadline, as they should be: they are counted.
+        print("  flood: %d of 200 handshakes completed, %d refused at max_handshakes, "
+              "%d closed at the deadline; %d of 64 stalled closed at the deadline" % (
+                  sum(results), over, timeouts - 64 if timeouts >= 64 else 0, closed))
         check(closed == 64, "stalled handshakes closed: %d of 64" % closed)
-        check(m.counter(IR_FAILED["timeout"]) >= 64, "timeouts counted")
-        check(m.counter(IR_HANDSHAKES_OK) + m.counter(IR_FAILED["over_limit"]) >= 200,
-              "every flood handshake completed or was refused at the limit")
+        check(timeouts >= 64, "timeouts counted")
+        # One handshake more than the flood: the TLS poller's own.
+        check(ok + over + (timeouts - 64) >= 201,
+              "every flood handshake completed, was refused at the limit or timed out: "
+              "%d + %d + %d" % (ok, over, timeouts - 64))
+        check(sum(results) == ok - 1, "the clients saw %d handshakes complete, the gateway "
+              "counted %d" % (sum(results), ok - 1))
         check(m.plain().ir(IR_HANDSHAKES_RUNNING)[0] == 0, "no handshake left running")
 
 
