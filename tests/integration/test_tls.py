@@ -22,8 +22,8 @@ import time
 
 sys.path.insert(0, os.path.dirname(__file__))
 from harness import (Gateway, ModbusPlc, Sim, TestFailure, check, free_port, log_lines,  # noqa: E402
-                     mbap, open_fds, raw_client, read_input_registers, recv_adu, rss_kb, run,
-                     sim_commands, wait_until)
+                     mbap, open_fds, port_open, raw_client, read_input_registers, recv_adu,
+                     rss_kb, run, sim_commands, wait_until)
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 PKI = tempfile.mkdtemp(prefix="jakagw-pki-")
@@ -97,14 +97,6 @@ class Mbaps:
             return hi << 16 | lo
         finally:
             s.close()
-
-
-def port_open(port):
-    try:
-        with socket.create_connection(("127.0.0.1", port), timeout=0.2):
-            return True
-    except OSError:
-        return False
 
 
 def client_context(name, max_version=None):
@@ -550,6 +542,21 @@ def test_check_config_names_the_key():
         r = subprocess.run([JAKAGW, "-c", f.name, "--check-config"], capture_output=True,
                            text=True)
         check(r.returncode == 2 and "[tls] private_key: required" in r.stderr, r.stderr)
+        # [robot] tls: the CA file must load; something must be trusted.
+        for text, expect in (("tls_ca = %s\n" % pki("missing.crt"), "[robot] tls_ca: "),
+                             ("", "[robot] tls: true needs tls_ca or tls_fingerprint"),
+                             ("tls_fingerprint = 12:34\n", "[robot] tls_fingerprint: ")):
+            with open(f.name, "w") as g:
+                g.write("[robot]\ntls = true\n" + text)
+            r = subprocess.run([JAKAGW, "-c", f.name, "--check-config"], capture_output=True,
+                               text=True)
+            lines = r.stderr.strip().splitlines()
+            check(r.returncode == 2 and len(lines) == 1 and expect in lines[0], r.stderr)
+        with open(f.name, "w") as g:
+            g.write("[robot]\ntls = true\ntls_ca = %s\n" % pki("ca.crt"))
+        r = subprocess.run([JAKAGW, "-c", f.name, "--check-config"], capture_output=True,
+                           text=True)
+        check(r.returncode == 0, r.stderr)
     finally:
         os.unlink(f.name)
 
