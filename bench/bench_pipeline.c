@@ -76,12 +76,13 @@ struct document {
     size_t size;
 };
 
-/* Adds 'delta' to every number of the array at 'path' ("key" or "key[i]"). */
-static void move_numbers(cJSON *node, double delta)
+/* Moves every number of 'array' by about 'delta', each element its own way. */
+static void move_numbers(cJSON *array, double delta)
 {
-    for (cJSON *c = node ? node->child : NULL; c; c = c->next)
+    double i = 0;
+    for (cJSON *c = array ? array->child : NULL; c; c = c->next, i++)
         if (cJSON_IsNumber(c))
-            cJSON_SetNumberValue(c, c->valuedouble + delta * (1 + 0.37 * (double)c->valueint));
+            cJSON_SetNumberValue(c, c->valuedouble + delta * (1 + 0.37 * i));
 }
 
 static cJSON *array_item(cJSON *node, int i)
@@ -347,51 +348,46 @@ static double callgrind_count(const char *self, const char *doc_path, const char
     return total;
 }
 
+/*
+ * Prints one line of callgrind_annotate's table ("1,234,567 (12.34%)
+ * file:function [object]") as instructions per document, share, function
+ * and the object's file name. Returns false for any other line.
+ */
+static bool print_profile_line(const char *line, double documents)
+{
+    char digits[32], share[16], location[512], object[512] = "";
+    size_t k = 0;
+    const char *p = line;
+
+    for (; *p == ' ' || *p == ',' || (*p >= '0' && *p <= '9'); p++)
+        if (*p >= '0' && *p <= '9' && k + 1 < sizeof(digits))
+            digits[k++] = *p;
+    digits[k] = '\0';
+    if (k == 0 || sscanf(p, "(%15[^)]) %511s [%511[^]]]", share, location, object) < 2)
+        return false;
+    const char *function = strrchr(location, ':');
+    const char *file = strrchr(object, '/');
+    printf("    %9.0f  %7s  %-36s %s\n", strtod(digits, NULL) / documents, share,
+           function ? function + 1 : location, file ? file + 1 : object);
+    return true;
+}
+
 /* The ten functions with the most self instructions in a callgrind file. */
 static void print_top_ten(const char *out_file, double documents)
 {
     char cmd[1024], line[1024];
     int shown = 0;
+    bool table = false;
 
     snprintf(cmd, sizeof(cmd), "callgrind_annotate --inclusive=no '%s' 2>/dev/null", out_file);
     FILE *p = popen(cmd, "r");
     if (!p)
         return;
-    bool table = false;
-    while (fgets(line, sizeof(line), p)) {
-        if (!table) {
+    while (shown < 10 && fgets(line, sizeof(line), p)) {
+        if (!table)
             table = strstr(line, "file:function") != NULL;
-            continue;
-        }
-        char *end;
-        double ir = strtod(line, &end); /* "1,234,567 (12.3%)  file:fn [obj]" */
-        char digits[64];
-        size_t k = 0;
-        for (const char *s = line; *s == ' ' || *s == ',' || (*s >= '0' && *s <= '9'); s++)
-            if (*s >= '0' && *s <= '9' && k + 1 < sizeof(digits))
-                digits[k++] = *s;
-        digits[k] = '\0';
-        if (k == 0)
-            continue;
-        ir = strtod(digits, NULL);
-        const char *pct = strchr(line, '(');
-        const char *name = strchr(line, ')');
-        if (!pct || !name)
-            continue;
-        name++;
-        while (*name == ' ')
-            name++;
-        const char *colon = strstr(name, ":");
-        if (colon && colon[1] != ':')
-            name = colon + 1;
-        line[strcspn(line, "\n")] = '\0';
-        char *obj = strstr(name, " [");
-        if (obj)
-            *obj = '\0';
-        printf("    %9.0f  %.*s  %s\n", ir / documents, (int)strcspn(pct, ")") + 1, pct, name);
-        (void)end;
-        if (++shown == 10)
-            break;
+        else if (print_profile_line(line, documents))
+            shown++;
     }
     pclose(p);
 }

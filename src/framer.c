@@ -205,34 +205,53 @@ static uint64_t has_byte(uint64_t w, uint8_t c)
     return (x - ONES) & ~x & HIGHS;
 }
 
-/* Does the 8-byte word hold a byte of class 'cls'? */
-static bool word_has_special(uint64_t w, unsigned cls)
+/*
+ * Might the 8-byte word hold a byte that acts outside strings? Braces and
+ * brackets are 0x5B-0x7D: any byte with bit 6 or 7 set is looked at, and
+ * the quote exactly. A false alarm (a letter of true, false, null or an
+ * exponent) is settled by the byte loop; numbers, commas and spaces, most
+ * of a status document, pass 8 at a time.
+ */
+static bool word_may_act_outside(uint64_t w)
 {
-    if (cls == SPECIAL_INSIDE)
-        return has_byte(w, '"') | has_byte(w, '\\');
-    /* '{' and '[' differ only in bit 5, as do '}' and ']'. */
-    uint64_t folded = w | (ONES * 0x20);
-    return has_byte(w, '"') | has_byte(folded, '{') | has_byte(folded, '}');
+    return ((w & (ONES * 0xC0)) | has_byte(w, '"')) != 0;
+}
+
+static bool word_may_act_inside(uint64_t w)
+{
+    return (has_byte(w, '"') | has_byte(w, '\\')) != 0;
 }
 
 /*
  * The first byte at or after 'p' (before 'limit') that scan_byte() would
- * act on, or 'limit'. Eight bytes at a time while none of them is one.
+ * act on, or 'limit'. Eight bytes at a time while none of them can be one.
  */
 static size_t skip_plain(const struct framer_scanner *s, const char *b, size_t p, size_t limit)
 {
-    if (s->escaped)
-        return p; /* the next byte is taken whatever it is */
-    unsigned cls = s->in_string ? SPECIAL_INSIDE : SPECIAL_OUTSIDE;
     uint64_t w;
 
-    while (limit - p >= sizeof(w)) {
-        memcpy(&w, b + p, sizeof(w));
-        if (word_has_special(w, cls))
-            break;
-        p += sizeof(w);
+    if (s->escaped)
+        return p; /* the next byte is taken whatever it is */
+    if (s->in_string) {
+        for (; limit - p >= sizeof(w); p += sizeof(w)) {
+            memcpy(&w, b + p, sizeof(w));
+            if (word_may_act_inside(w))
+                break;
+        }
+        while (p < limit && !(special[(uint8_t)b[p]] & SPECIAL_INSIDE))
+            p++;
+        return p;
     }
-    while (p < limit && !(special[(uint8_t)b[p]] & cls))
+    for (; limit - p >= sizeof(w); p += sizeof(w)) {
+        memcpy(&w, b + p, sizeof(w));
+        if (!word_may_act_outside(w))
+            continue;
+        /* Settle the word here: a false alarm must not end the skip. */
+        for (size_t i = 0; i < sizeof(w); i++)
+            if (special[(uint8_t)b[p + i]] & SPECIAL_OUTSIDE)
+                return p + i;
+    }
+    while (p < limit && !(special[(uint8_t)b[p]] & SPECIAL_OUTSIDE))
         p++;
     return p;
 }

@@ -11,7 +11,8 @@
 #include <string.h>
 #include <unistd.h>
 
-#include "framer.h"
+/* The .c, to reach the brace scanner's bulk skip (skip_plain). */
+#include "framer.c"
 
 #define MAX_SEEN 64
 
@@ -398,6 +399,42 @@ static void init_rejects_tiny_buffers(void **state)
     assert_int_equal(framer_init(&g, 10, record, &seen), -22);
 }
 
+/*
+ * The brace scanner skips plain bytes eight at a time: on any bytes, from
+ * any starting state, it must stop where scanning byte by byte stops.
+ */
+static void bulk_skip_matches_byte_by_byte(void **state)
+{
+    (void)state;
+    static const char alphabet[] = "{}[]\"\\ ,0123456789.-eEtrufalsn:_xyzXYZ\x7f\xc3\xa9\x80";
+    unsigned seed = 42;
+    char buf[300];
+
+    for (int round = 0; round < 20000; round++) {
+        size_t n = (size_t)(rand_r(&seed) % sizeof(buf));
+        for (size_t i = 0; i < n; i++)
+            buf[i] = rand_r(&seed) % 4 ? alphabet[rand_r(&seed) % (sizeof(alphabet) - 1)]
+                                        : (char)(rand_r(&seed) % 256);
+        struct framer_scanner fast = {.depth = 1, .in_string = round % 3 == 1,
+                                      .escaped = round % 7 == 1};
+        struct framer_scanner slow = fast;
+        size_t closed_fast = 0, closed_slow = 0;
+        for (size_t i = 0; i < n && !closed_slow; i++)
+            if (scan_byte(&slow, buf[i]))
+                closed_slow = i + 1;
+        for (size_t i = skip_plain(&fast, buf, 0, n); i < n && !closed_fast;
+             i = skip_plain(&fast, buf, i, n))
+            if (scan_byte(&fast, buf[i++]))
+                closed_fast = i;
+        assert_int_equal(closed_fast, closed_slow);
+        if (!closed_slow) {
+            assert_int_equal(fast.depth, slow.depth);
+            assert_int_equal(fast.in_string, slow.in_string);
+            assert_int_equal(fast.escaped, slow.escaped);
+        }
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -417,6 +454,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(nested_len_object_is_content, setup, teardown),
         cmocka_unit_test_setup_teardown(cut_inside_a_string_at_every_split, setup, teardown),
         cmocka_unit_test(callback_may_reset_or_free),
+        cmocka_unit_test(bulk_skip_matches_byte_by_byte),
     };
     return cmocka_run_group_tests_name("framer", tests, NULL, NULL);
 }
