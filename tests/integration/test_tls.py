@@ -360,7 +360,9 @@ def test_handshake_flood_does_not_starve_pollers():
                               m.counter(IR_FAILED["timeout"]))
         # Under emulation (qemu-user, about 14 times slower at crypto) some
         # of the flood's handshakes outlast handshake_timeout_ms and are
-        # closed at the deadline, as they should be: they are counted.
+        # closed at the deadline, as they should be: they are counted. (A
+        # TLS 1.3 client is done before the gateway has checked its
+        # certificate: the clients' own count cannot be compared.)
         print("  flood: %d of 200 handshakes completed, %d refused at max_handshakes, "
               "%d closed at the deadline; %d of 64 stalled closed at the deadline" % (
                   sum(results), over, timeouts - 64 if timeouts >= 64 else 0, closed))
@@ -370,8 +372,7 @@ def test_handshake_flood_does_not_starve_pollers():
         check(ok + over + (timeouts - 64) >= 201,
               "every flood handshake completed, was refused at the limit or timed out: "
               "%d + %d + %d" % (ok, over, timeouts - 64))
-        check(sum(results) == ok - 1, "the clients saw %d handshakes complete, the gateway "
-              "counted %d" % (sum(results), ok - 1))
+
         check(m.plain().ir(IR_HANDSHAKES_RUNNING)[0] == 0, "no handshake left running")
 
 
