@@ -26,6 +26,9 @@ from harness import (Gateway, ModbusPlc, Sim, TestFailure, check, free_port, log
                      rss_kb, run, sim_commands, wait_until)
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+# Under valgrind (make valgrind) a handshake takes 20-50 times longer: the
+# deadlines of the gateway and the waits of the tests grow by this factor.
+SLOW = 10 if os.environ.get("JAKAGW_VALGRIND") == "1" else 1
 PKI = tempfile.mkdtemp(prefix="jakagw-pki-")
 subprocess.run([os.path.join(ROOT, "tests", "tls", "make-pki.sh"), PKI], check=True)
 
@@ -52,7 +55,7 @@ certificate = %s
 private_key = %s
 client_ca = %s
 crl = %s
-handshake_timeout_ms = 1000
+handshake_timeout_ms = %d
 max_handshakes = 16
 
 [network_exception]
@@ -61,7 +64,8 @@ single_owner = false
 [roles]
 operator = heartbeat, faults, setpoints, outputs, power, programs, payload
 monitor = read
-%s""" % (port, pki("gateway.crt"), pki("gateway.key"), pki("ca.crt"), pki("ca.crl"), extra)
+%s""" % (port, pki("gateway.crt"), pki("gateway.key"), pki("ca.crt"), pki("ca.crl"),
+           1000 * SLOW, extra)
 
 
 class Mbaps:
@@ -73,7 +77,7 @@ class Mbaps:
         config = tls_config(self.tls_port, extra)
         try:
             self.gw = Gateway(self.sim, edit(config) if edit else config)
-            wait_until(lambda: port_open(self.tls_port), 10, "the mbaps port")
+            wait_until(lambda: port_open(self.tls_port), 10 * SLOW, "the mbaps port")
         except Exception:
             self.sim.stop(None)
             raise
@@ -108,7 +112,7 @@ def client_context(name, max_version=None):
     return ctx
 
 
-def tls_socket(port, name, timeout=5, max_version=None):
+def tls_socket(port, name, timeout=5 * SLOW, max_version=None):
     raw = socket.create_connection(("127.0.0.1", port), timeout=timeout)
     raw.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     return client_context(name, max_version).wrap_socket(raw, server_hostname="127.0.0.1")
@@ -118,7 +122,7 @@ class TlsPlc(ModbusPlc):
     """harness.ModbusPlc over pymodbus's TLS client (MBAP framing, as the
     protocol has it), with the read fix docs/security.md explains."""
 
-    def __init__(self, port, name, timeout=5):
+    def __init__(self, port, name, timeout=5 * SLOW):
         from pymodbus.client import ModbusTlsClient
         from pymodbus.framer.socket_framer import ModbusSocketFramer
 
@@ -158,7 +162,7 @@ def test_security_doc_word_for_word():
     try:
         gw = Gateway(sim, ini)
         try:
-            wait_until(lambda: port_open(tls_port), 10, "the mbaps port")
+            wait_until(lambda: port_open(tls_port), 10 * SLOW, "the mbaps port")
             out = subprocess.run([sys.executable, "-c", program.replace("port=802", "port=%d" % tls_port)],
                                  cwd=PKI, capture_output=True, text=True, timeout=60)
             check(out.returncode == 0, "the PLC of docs/security.md failed:\n%s%s"
@@ -176,7 +180,7 @@ def test_security_doc_word_for_word():
 
 def test_roles_decide_writes():
     with Mbaps("intruder_is_not_listed = read\n") as m:
-        wait_until(lambda: m.plain().ir(IR_ROBOT_HANDLE)[0] == 2, 10, "the robot's handler")
+        wait_until(lambda: m.plain().ir(IR_ROBOT_HANDLE)[0] == 2, 10 * SLOW, "the robot's handler")
         op = TlsPlc(m.tls_port, "operator")
         check(op.ir(0)[0] == 0x4A4B, "operator reads")
         check(op.reg(HR_HEARTBEAT, 7) == 0, "operator writes the heartbeat")
@@ -185,7 +189,7 @@ def test_roles_decide_writes():
         # reply. Counting before the second arrived would count it as sent
         # by a refused write (as it was, under emulation).
         wait_until(lambda: [c for c in sim_commands(m.sim, "set_digital_output")
-                            if c.get("value") == 1], 5, "the output command at the robot")
+                            if c.get("value") == 1], 5 * SLOW, "the output command at the robot")
         sent = len(sim_commands(m.sim))
         check(op.coil(COIL_JOINT_MOVE, 1) == 1, "operator has no motion class: 01")
         for name in ("monitor", "norole", "intruder"):
@@ -229,7 +233,7 @@ def test_refused_handshakes_answer_nothing():
                              ("expired", "expired"), ("revoked", "revoked")):
             before = m.counter(IR_FAILED[reason])
             check(no_modbus_answer(m.tls_port, name), "%s: a Modbus byte was answered" % name)
-            wait_until(lambda: m.counter(IR_FAILED[reason]) == before + 1, 5,
+            wait_until(lambda: m.counter(IR_FAILED[reason]) == before + 1, 5 * SLOW,
                        "the %s counter" % reason)
         check(m.counter(IR_HANDSHAKES_OK) == 0, "no handshake succeeded")
         check(m.plain().ir(IR_TLS_CLIENTS)[0] == 0, "no TLS client")
@@ -247,7 +251,7 @@ def test_old_versions_and_plaintext_refused():
             before = m.counter(IR_FAILED["protocol"])
             r = s_client(m.tls_port, flag, "-cipher", "DEFAULT@SECLEVEL=0")
             check(r.returncode != 0, "%s accepted:\n%s" % (flag, r.stdout.decode(errors="replace")))
-            wait_until(lambda: m.counter(IR_FAILED["protocol"]) == before + 1, 5,
+            wait_until(lambda: m.counter(IR_FAILED["protocol"]) == before + 1, 5 * SLOW,
                        "%s counted as a protocol failure" % flag)
         r = s_client(m.tls_port, "-tls1_2", stdin=b"")
         check(b"Protocol  : TLSv1.2" in r.stdout or b"TLSv1.2" in r.stdout,
@@ -276,7 +280,7 @@ def test_renegotiation_refused():
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT)
         try:
-            wait_until(lambda: m.counter(IR_HANDSHAKES_OK) == 1, 10, "the handshake")
+            wait_until(lambda: m.counter(IR_HANDSHAKES_OK) == 1, 10 * SLOW, "the handshake")
             proc.stdin.write(b"R\n")
             proc.stdin.flush()
             out, _ = proc.communicate(timeout=10)
@@ -285,9 +289,9 @@ def test_renegotiation_refused():
                 proc.kill()
                 proc.wait()
         check(b"RENEGOTIATING" in out, out.decode(errors="replace"))
-        wait_until(lambda: log_lines(m.gw, "renegotiation refused"), 5,
+        wait_until(lambda: log_lines(m.gw, "renegotiation refused"), 5 * SLOW,
                    "the gateway to refuse and close")
-        wait_until(lambda: m.plain().ir(IR_TLS_CLIENTS)[0] == 0, 5, "the client closed")
+        wait_until(lambda: m.plain().ir(IR_TLS_CLIENTS)[0] == 0, 5 * SLOW, "the client closed")
 
 
 def poll_loop(read, stop, latencies, failures):
@@ -394,7 +398,7 @@ def test_sighup_rotates_the_certificate():
                 g.write(f.read())
         os.chmod(key, 0o644)
         m.gw.proc.send_signal(1)
-        wait_until(lambda: log_lines(m.gw, "accessible by other users (mode 0644)"), 5,
+        wait_until(lambda: log_lines(m.gw, "accessible by other users (mode 0644)"), 5 * SLOW,
                    "the refusal")
         check(len(log_lines(m.gw, "accessible by other users")) == 1, m.gw.output())
         s = tls_socket(m.tls_port, "operator")
@@ -402,7 +406,7 @@ def test_sighup_rotates_the_certificate():
         s.close()
         os.chmod(key, 0o600)
         m.gw.proc.send_signal(1)
-        wait_until(lambda: log_lines(m.gw, 'new connections get certificate "CN=gateway2"'), 5,
+        wait_until(lambda: log_lines(m.gw, 'new connections get certificate "CN=gateway2"'), 5 * SLOW,
                    "the reload")
         s = tls_socket(m.tls_port, "operator")
         check(s.getpeercert()["subject"][0][0][1] == "gateway2", "the new certificate")
@@ -441,8 +445,8 @@ COIL_POWER_ON = 100
 
 def robot_config(**keys):
     lines = "".join("%s = %s\n" % kv for kv in keys.items())
-    return ("[robot]\ntls = true\nconnect_timeout_ms = 1000\nreconnect_min_ms = 50\n"
-            "reconnect_max_ms = 200\n" + lines)
+    return ("[robot]\ntls = true\nconnect_timeout_ms = %d\nreconnect_min_ms = 50\n"
+            "reconnect_max_ms = %d\n" % (1000 * SLOW, 200 * SLOW) + lines)
 
 
 def fingerprint(name):
@@ -471,17 +475,17 @@ def test_robot_over_tls():
                     dict(tls_ca=pki("ca.crt"), tls_fingerprint=fingerprint("robot.crt"))):
             gw = Gateway(sim, robot_config(**how))
             try:
-                wait_until(lambda: links(gw) == (2, 2, 0, 0), 10, "both links up over TLS")
+                wait_until(lambda: links(gw) == (2, 2, 0, 0), 10 * SLOW, "both links up over TLS")
                 plc = ModbusPlc(gw.modbus_port)
-                wait_until(lambda: plc.ir(IR_STATUS_TASK_STATE)[0] in (1, 2, 3, 4), 5,
+                wait_until(lambda: plc.ir(IR_STATUS_TASK_STATE)[0] in (1, 2, 3, 4), 5 * SLOW,
                            "a status document through TLS")
-                wait_until(lambda: plc.ir(IR_ROBOT_HANDLE)[0] == 2, 10,
+                wait_until(lambda: plc.ir(IR_ROBOT_HANDLE)[0] == 2, 10 * SLOW,
                            "the robot's handler, through the command port")
                 before = len(sim_commands(sim, "power_on"))
                 check(plc.pulse(COIL_POWER_ON) == 0, "power_on written")
-                wait_until(lambda: len(sim_commands(sim, "power_on")) == before + 1, 5,
+                wait_until(lambda: len(sim_commands(sim, "power_on")) == before + 1, 5 * SLOW,
                            "power_on at the robot, once")
-                wait_until(lambda: plc.ir(IR_STATUS_TASK_STATE)[0] == 2, 5,
+                wait_until(lambda: plc.ir(IR_STATUS_TASK_STATE)[0] == 2, 5 * SLOW,
                            "the robot powered on, seen through the status port")
                 plc.close()
                 check(log_lines(gw, "robot links: TLS"), gw.output())
@@ -495,10 +499,10 @@ def test_robot_over_tls():
             sent = len(sim_commands(sim))
             gw = Gateway(sim, robot_config(**how))
             try:
-                wait_until(lambda: links(gw)[2:] == (reason, reason), 10,
+                wait_until(lambda: links(gw)[2:] == (reason, reason), 10 * SLOW,
                            "the TLS failure reported")
                 connects = len(log_lines(sim, "status client connected"))
-                time.sleep(1.0)
+                time.sleep(1.0 * SLOW)
                 check(len(log_lines(sim, "status client connected")) >= connects + 2,
                       "the gateway keeps retrying")
                 check(links(gw)[0] != 2 and links(gw)[1] != 2, "no link is up")
@@ -517,7 +521,7 @@ def test_robot_over_tls():
     try:
         gw = Gateway(plain, robot_config(tls_ca=pki("ca.crt")))
         try:
-            wait_until(lambda: links(gw)[2:] == (5, 6), 10, "protocol and timeout reported")
+            wait_until(lambda: links(gw)[2:] == (5, 6), 10 * SLOW, "protocol and timeout reported")
             check(links(gw)[:2] != (2, 2), "no link is up")
             check(not sim_commands(plain), "nothing reached the robot")
         finally:
