@@ -402,7 +402,7 @@ static void one_pass_matches_lookup_by_path(void **state)
         cJSON *root = read_sample_tree(samples[s]);
         parse_tree_and_check(root);
         cJSON_Delete(root);
-        for (int round = 0; round < 300; round++) {
+        for (int round = 0; round < 150; round++) {
             root = read_sample_tree(samples[s]);
             for (int m = 0; m < 1 + round % 5; m++) {
                 cJSON *parent;
