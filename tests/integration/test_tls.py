@@ -23,7 +23,7 @@ import time
 sys.path.insert(0, os.path.dirname(__file__))
 from harness import (Gateway, ModbusPlc, Sim, TestFailure, check, free_port, log_lines,  # noqa: E402
                      mbap, open_fds, port_open, raw_client, read_input_registers, recv_adu,
-                     rss_kb, run, sim_commands, wait_until)
+                     rss_kb, run, sim_commands, sim_events, wait_until)
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 # Under valgrind (make valgrind) a handshake takes 20-50 times longer: the
@@ -523,7 +523,10 @@ def test_robot_over_tls():
         try:
             wait_until(lambda: links(gw)[2:] == (5, 6), 10 * SLOW, "protocol and timeout reported")
             check(links(gw)[:2] != (2, 2), "no link is up")
-            check(not sim_commands(plain), "nothing reached the robot")
+            # The ClientHello's random bytes may hold a '{' that jakasim's
+            # framer takes for the start of a request: no command, though.
+            check(not [e for e in sim_events(plain) if e[0] == "command" and e[1]],
+                  "no command reached the robot")
         finally:
             gw.stop()
     finally:
