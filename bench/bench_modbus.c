@@ -40,7 +40,8 @@
  * (BUILD/bench/bench_modbus: BUILD/jakagw, BUILD/jakasim,
  * BUILD/bench/ref_slave). Every child is stopped by its pid.
  */
-#define _GNU_SOURCE /* sched_setaffinity */
+#include "bench_proc.h"
+
 #include <cJSON.h>
 #include <errno.h>
 #include <fcntl.h>
@@ -71,7 +72,6 @@
 #define MAX_CLIENTS 32
 #define DEFAULT_DOCUMENTS 1000000
 #define RSS_CHECKPOINTS 10
-#define IO_TIMEOUT_S 10
 
 /* GW_QUIET, a jakagw with no robot, takes part in the round trips only:
  * it shows what the stream costs jakagw's round trips. */
@@ -86,119 +86,11 @@ static const struct kind {
 static const unsigned client_counts[] = {1, 8, 32};
 #define CLIENT_COUNTS (sizeof(client_counts) / sizeof(client_counts[0]))
 
-static char tmp_dir[PATH_MAX];
 /* CPUs: the load generator and jakasim on one, the servers on the other
  * (-1: wherever the scheduler puts them). */
 static int generator_cpu = -1, server_cpu = -1;
-static pid_t children[8];
-static unsigned child_count;
 
-/* ---- small helpers ---- */
-
-static double now_s(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
-}
-
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return x < y ? -1 : x > y;
-}
-
-static double percentile(double *v, unsigned n, double p)
-{
-    qsort(v, n, sizeof(v[0]), cmp_double);
-    return v[(unsigned)(p * (n - 1) + 0.5)];
-}
-
-static double median(double *v, unsigned n)
-{
-    return percentile(v, n, 0.5);
-}
-
-static void stop_children(void);
-
-static void die(const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    fprintf(stderr, "bench_modbus: ");
-    vfprintf(stderr, fmt, ap);
-    fprintf(stderr, " (logs in %s)\n", tmp_dir);
-    va_end(ap);
-    stop_children();
-    exit(1);
-}
-
-static void sleep_s(double s)
-{
-    struct timespec ts = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
-    while (nanosleep(&ts, &ts) < 0 && errno == EINTR)
-        ;
-}
-
-/* ---- child processes, stopped by pid ---- */
-
-static void pin_to(int cpu)
-{
-    cpu_set_t set;
-
-    if (cpu < 0)
-        return;
-    CPU_ZERO(&set);
-    CPU_SET(cpu, &set);
-    if (sched_setaffinity(0, sizeof(set), &set) < 0)
-        fprintf(stderr, "bench_modbus: cannot pin to CPU %d: %s\n", cpu, strerror(errno));
-}
-
-static pid_t spawn(const char *name, char *const argv[], int cpu)
-{
-    char log[PATH_MAX + 32];
-    pid_t pid;
-
-    snprintf(log, sizeof(log), "%s/%s.log", tmp_dir, name);
-    pid = fork();
-    if (pid < 0)
-        die("fork: %s", strerror(errno));
-    if (pid == 0) {
-        int fd = open(log, O_WRONLY | O_CREAT | O_APPEND, 0600);
-        if (fd >= 0) {
-            dup2(fd, STDOUT_FILENO);
-            dup2(fd, STDERR_FILENO);
-            close(fd);
-        }
-        pin_to(cpu);
-        execv(argv[0], argv);
-        fprintf(stderr, "cannot run %s: %s\n", argv[0], strerror(errno));
-        _exit(127);
-    }
-    if (child_count < sizeof(children) / sizeof(children[0]))
-        children[child_count++] = pid;
-    return pid;
-}
-
-static void stop_child(pid_t pid)
-{
-    int status;
-
-    if (pid <= 0)
-        return;
-    kill(pid, SIGTERM);
-    for (int i = 0; i < 1000; i++) {
-        if (waitpid(pid, &status, WNOHANG) == pid)
-            goto reaped;
-        sleep_s(0.01);
-    }
-    kill(pid, SIGKILL);
-    waitpid(pid, &status, 0);
-reaped:
-    for (unsigned i = 0; i < child_count; i++)
-        if (children[i] == pid)
-            children[i] = 0;
-}
+/* ---- small helpers (the rest in bench_proc.h) ---- */
 
 /* The children's logs and files: kept when the run fails, to look at. */
 static void remove_tmp_dir(void)
@@ -209,134 +101,10 @@ static void remove_tmp_dir(void)
     char path[PATH_MAX + 32];
 
     for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); i++) {
-        snprintf(path, sizeof(path), "%s/%s", tmp_dir, names[i]);
+        snprintf(path, sizeof(path), "%s/%s", bench_tmp_dir, names[i]);
         unlink(path);
     }
-    rmdir(tmp_dir);
-}
-
-static void stop_children(void)
-{
-    for (unsigned i = 0; i < child_count; i++)
-        stop_child(children[i]);
-    child_count = 0;
-}
-
-static bool child_alive(pid_t pid)
-{
-    int status;
-    return waitpid(pid, &status, WNOHANG) == 0;
-}
-
-/* utime + stime, in seconds, from /proc/PID/stat. */
-static double cpu_seconds(pid_t pid)
-{
-    char path[64], buf[1024];
-    unsigned long utime, stime;
-
-    snprintf(path, sizeof(path), "/proc/%d/stat", (int)pid);
-    FILE *f = fopen(path, "r");
-    if (!f)
-        die("%s: %s", path, strerror(errno));
-    size_t n = fread(buf, 1, sizeof(buf) - 1, f);
-    fclose(f);
-    buf[n] = '\0';
-    /* The name may hold spaces and parentheses: fields follow the last ')'. */
-    char *p = strrchr(buf, ')');
-    if (!p ||
-        sscanf(p + 2, "%*c %*d %*d %*d %*d %*d %*u %*u %*u %*u %*u %lu %lu", &utime, &stime) != 2)
-        die("%s: unexpected format", path);
-    return (double)(utime + stime) / (double)sysconf(_SC_CLK_TCK);
-}
-
-/* A "VmRSS:"-style line of /proc/PID/status, in KiB. */
-static long status_kib(pid_t pid, const char *key)
-{
-    char path[64], line[256];
-    long kib = -1;
-    size_t len = strlen(key);
-
-    snprintf(path, sizeof(path), "/proc/%d/status", (int)pid);
-    FILE *f = fopen(path, "r");
-    if (!f)
-        die("%s: %s", path, strerror(errno));
-    while (fgets(line, sizeof(line), f))
-        if (strncmp(line, key, len) == 0)
-            kib = strtol(line + len, NULL, 10);
-    fclose(f);
-    return kib;
-}
-
-/* ---- sockets ---- */
-
-static int listen_loopback(uint16_t *port)
-{
-    struct sockaddr_in sa = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    socklen_t len = sizeof(sa);
-    int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-
-    if (fd < 0 || bind(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0 || listen(fd, 8) < 0 ||
-        getsockname(fd, (struct sockaddr *)&sa, &len) < 0)
-        die("listen: %s", strerror(errno));
-    *port = ntohs(sa.sin_port);
-    return fd;
-}
-
-/* A port nobody listens on now (the child binds it a moment later). */
-static uint16_t free_port(void)
-{
-    uint16_t port;
-    close(listen_loopback(&port));
-    return port;
-}
-
-static void set_timeouts(int fd)
-{
-    struct timeval tv = {IO_TIMEOUT_S, 0};
-    int one = 1;
-    if (setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv)) < 0 ||
-        setsockopt(fd, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof(tv)) < 0 ||
-        setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one)) < 0)
-        die("setsockopt: %s", strerror(errno));
-}
-
-static int try_connect(uint16_t port)
-{
-    struct sockaddr_in sa = {
-        .sin_family = AF_INET, .sin_port = htons(port), .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
-    if (fd < 0)
-        die("socket: %s", strerror(errno));
-    if (connect(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0) {
-        close(fd);
-        return -1;
-    }
-    set_timeouts(fd);
-    return fd;
-}
-
-static int connect_loopback(uint16_t port)
-{
-    int fd = try_connect(port);
-    if (fd < 0)
-        die("connect to port %u: %s", port, strerror(errno));
-    return fd;
-}
-
-static void wait_listening(uint16_t port, pid_t pid, const char *name)
-{
-    double deadline = now_s() + 30;
-    while (now_s() < deadline) {
-        int fd = try_connect(port);
-        if (fd >= 0) {
-            close(fd);
-            return;
-        }
-        if (!child_alive(pid))
-            die("%s exited at start", name);
-        sleep_s(0.02);
-    }
-    die("%s does not listen on port %u after 30 s", name, port);
+    rmdir(bench_tmp_dir);
 }
 
 static void send_all(int fd, const void *data, size_t size)
@@ -436,7 +204,7 @@ struct servers {
 
 static void write_config(struct servers *s)
 {
-    snprintf(s->conf, sizeof(s->conf), "%s/jakagw.conf", tmp_dir);
+    snprintf(s->conf, sizeof(s->conf), "%s/jakagw.conf", bench_tmp_dir);
     FILE *f = fopen(s->conf, "w");
     if (!f)
         die("%s: %s", s->conf, strerror(errno));
@@ -628,11 +396,11 @@ static struct window closed_loop(struct conn *conns, unsigned n, pid_t server, d
         send_next(&conns[i]);
     bool sending = true;
     while (in_flight > 0) {
-        int ready = epoll_wait(ep, events, MAX_CLIENTS, IO_TIMEOUT_S * 1000);
+        int ready = epoll_wait(ep, events, MAX_CLIENTS, BENCH_IO_TIMEOUT_S * 1000);
         if (ready < 0 && errno == EINTR)
             continue;
         if (ready <= 0)
-            die("no reply within %d s", IO_TIMEOUT_S);
+            die("no reply within %d s", BENCH_IO_TIMEOUT_S);
         if (sending && now_s() >= end)
             sending = false;
         for (int e = 0; e < ready; e++) {
@@ -783,7 +551,7 @@ static void measure_ingest(struct servers *s, const char *doc, size_t size, uint
         die("documents too large or too few");
     for (unsigned i = 0; i < per_batch; i++)
         memcpy(batch + i * size, doc, size);
-    if (poll(&p, 1, IO_TIMEOUT_S * 1000) != 1)
+    if (poll(&p, 1, BENCH_IO_TIMEOUT_S * 1000) != 1)
         die("jakagw-feed did not connect to the status port");
     int feed = accept(listener, NULL, NULL);
     if (feed < 0)
@@ -943,32 +711,9 @@ static int run_load(const char *spec)
 
 /* ---- main ---- */
 
-static const char *sibling(const char *argv0, const char *rel)
-{
-    static char buf[4][2 * PATH_MAX];
-    static unsigned used;
-    char dir[PATH_MAX];
-
-    snprintf(dir, sizeof(dir), "%s", argv0);
-    char *slash = strrchr(dir, '/');
-    if (slash)
-        *slash = '\0';
-    else
-        snprintf(dir, sizeof(dir), ".");
-    char *b = buf[used++ % 4];
-    snprintf(b, sizeof(buf[0]), "%s/%s", dir, rel);
-    return b;
-}
-
-static void on_fatal_signal(int sig)
-{
-    (void)sig;
-    stop_children();
-    _exit(1);
-}
-
 int main(int argc, char **argv)
 {
+    bench_name = "bench_modbus";
     struct servers s = {
         .jakagw = sibling(argv[0], "../jakagw"),
         .jakasim = sibling(argv[0], "../jakasim"),
@@ -1035,8 +780,8 @@ int main(int argc, char **argv)
         return run_load(load);
     signal(SIGINT, on_fatal_signal);
     signal(SIGTERM, on_fatal_signal);
-    snprintf(tmp_dir, sizeof(tmp_dir), "/tmp/bench_modbus-XXXXXX");
-    if (!mkdtemp(tmp_dir))
+    snprintf(bench_tmp_dir, sizeof(bench_tmp_dir), "/tmp/bench_modbus-XXXXXX");
+    if (!mkdtemp(bench_tmp_dir))
         die("mkdtemp: %s", strerror(errno));
     if (regmap_init(&map) != 0)
         die("regmap_init failed");
@@ -1059,7 +804,7 @@ int main(int argc, char **argv)
 
     /* What cJSON alone pays for the document jakasim streams. */
     char sim_doc_path[PATH_MAX + 16], cmd[3 * PATH_MAX];
-    snprintf(sim_doc_path, sizeof(sim_doc_path), "%s/jakasim.json", tmp_dir);
+    snprintf(sim_doc_path, sizeof(sim_doc_path), "%s/jakasim.json", bench_tmp_dir);
     snprintf(cmd, sizeof(cmd), "'%s' --print-status > '%s'", s.jakasim, sim_doc_path);
     if (system(cmd) != 0)
         die("%s failed", cmd);

@@ -5,8 +5,8 @@
  * directory kept when the run fails), their CPU time and memory from
  * /proc, loopback sockets with timeouts, medians.
  *
- * Header-only (static functions): each benchmark is one program built from
- * one file. A benchmark sets bench_name and bench_tmp_dir first.
+ * Header-only (static inline functions): each benchmark is one program
+ * built from one file. A benchmark sets bench_name and bench_tmp_dir first.
  */
 #ifndef JAKAGW_BENCH_PROC_H
 #define JAKAGW_BENCH_PROC_H
@@ -37,39 +37,39 @@ static char bench_tmp_dir[PATH_MAX];
 static pid_t bench_children[8];
 static unsigned bench_child_count;
 
-static double now_s(void)
+static inline double now_s(void)
 {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
 }
 
-static int cmp_double(const void *a, const void *b)
+static inline int cmp_double(const void *a, const void *b)
 {
     double x = *(const double *)a, y = *(const double *)b;
     return x < y ? -1 : x > y;
 }
 
 /* Sorts v. */
-static double percentile(double *v, unsigned n, double p)
+static inline double percentile(double *v, unsigned n, double p)
 {
     qsort(v, n, sizeof(v[0]), cmp_double);
     return v[(unsigned)(p * (n - 1) + 0.5)];
 }
 
-static double median(double *v, unsigned n)
+static inline double median(double *v, unsigned n)
 {
     return percentile(v, n, 0.5);
 }
 
-static void sleep_s(double s)
+static inline void sleep_s(double s)
 {
     struct timespec ts = {(time_t)s, (long)((s - (double)(time_t)s) * 1e9)};
     while (nanosleep(&ts, &ts) < 0 && errno == EINTR)
         ;
 }
 
-static void stop_child(pid_t pid)
+static inline void stop_child(pid_t pid)
 {
     int status;
 
@@ -89,7 +89,7 @@ reaped:
             bench_children[i] = 0;
 }
 
-static void stop_children(void)
+static inline void stop_children(void)
 {
     for (unsigned i = 0; i < bench_child_count; i++)
         stop_child(bench_children[i]);
@@ -97,7 +97,7 @@ static void stop_children(void)
 }
 
 /* Stops every child and exits; the temporary directory stays to look at. */
-static void die(const char *fmt, ...)
+static inline void die(const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
@@ -109,7 +109,7 @@ static void die(const char *fmt, ...)
     exit(1);
 }
 
-static void pin_to(int cpu)
+static inline void pin_to(int cpu)
 {
     cpu_set_t set;
 
@@ -122,7 +122,7 @@ static void pin_to(int cpu)
 }
 
 /* Runs argv with its output in TMP/NAME.log, on 'cpu' (-1: anywhere). */
-static pid_t spawn(const char *name, char *const argv[], int cpu)
+static inline pid_t spawn(const char *name, char *const argv[], int cpu)
 {
     char log[PATH_MAX + 32];
     pid_t pid;
@@ -148,14 +148,14 @@ static pid_t spawn(const char *name, char *const argv[], int cpu)
     return pid;
 }
 
-static bool child_alive(pid_t pid)
+static inline bool child_alive(pid_t pid)
 {
     int status;
     return waitpid(pid, &status, WNOHANG) == 0;
 }
 
 /* utime + stime, in seconds, from /proc/PID/stat. */
-static double cpu_seconds(pid_t pid)
+static inline double cpu_seconds(pid_t pid)
 {
     char path[64], buf[1024];
     unsigned long utime, stime;
@@ -176,7 +176,7 @@ static double cpu_seconds(pid_t pid)
 }
 
 /* A "VmRSS:"-style line of /proc/PID/status, in KiB. */
-static long status_kib(pid_t pid, const char *key)
+static inline long status_kib(pid_t pid, const char *key)
 {
     char path[64], line[256];
     long kib = -1;
@@ -193,27 +193,44 @@ static long status_kib(pid_t pid, const char *key)
     return kib;
 }
 
-/* A port nobody listens on now (the child binds it a moment later). */
-static uint16_t free_port(void)
+/* A loopback listener on a port the kernel picks. */
+static inline int listen_loopback(uint16_t *port)
 {
     struct sockaddr_in sa = {.sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
     socklen_t len = sizeof(sa);
     int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
 
-    if (fd < 0 || bind(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0 ||
+    if (fd < 0 || bind(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0 || listen(fd, 8) < 0 ||
         getsockname(fd, (struct sockaddr *)&sa, &len) < 0)
-        die("bind: %s", strerror(errno));
-    close(fd);
-    return ntohs(sa.sin_port);
+        die("listen: %s", strerror(errno));
+    *port = ntohs(sa.sin_port);
+    return fd;
 }
 
-/* A loopback connection with I/O timeouts and TCP_NODELAY; -1 if refused. */
-static int try_connect(uint16_t port)
+/* A port nobody listens on now (the child binds it a moment later). */
+static inline uint16_t free_port(void)
+{
+    uint16_t port;
+    close(listen_loopback(&port));
+    return port;
+}
+
+/* I/O timeouts and TCP_NODELAY: a stuck peer fails the run, not hangs it. */
+static inline void set_timeouts(int fd)
+{
+    struct timeval tv = {BENCH_IO_TIMEOUT_S, 0};
+    int one = 1;
+    if (setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv)) < 0 ||
+        setsockopt(fd, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof(tv)) < 0 ||
+        setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one)) < 0)
+        die("setsockopt: %s", strerror(errno));
+}
+
+/* A loopback connection with set_timeouts; -1 if refused. */
+static inline int try_connect(uint16_t port)
 {
     struct sockaddr_in sa = {
         .sin_family = AF_INET, .sin_port = htons(port), .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    struct timeval tv = {BENCH_IO_TIMEOUT_S, 0};
-    int one = 1;
     int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
 
     if (fd < 0)
@@ -222,14 +239,11 @@ static int try_connect(uint16_t port)
         close(fd);
         return -1;
     }
-    if (setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof(tv)) < 0 ||
-        setsockopt(fd, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof(tv)) < 0 ||
-        setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one)) < 0)
-        die("setsockopt: %s", strerror(errno));
+    set_timeouts(fd);
     return fd;
 }
 
-static int connect_loopback(uint16_t port)
+static inline int connect_loopback(uint16_t port)
 {
     int fd = try_connect(port);
     if (fd < 0)
@@ -237,7 +251,7 @@ static int connect_loopback(uint16_t port)
     return fd;
 }
 
-static void wait_listening(uint16_t port, pid_t pid, const char *name)
+static inline void wait_listening(uint16_t port, pid_t pid, const char *name)
 {
     double deadline = now_s() + 30;
     while (now_s() < deadline) {
@@ -251,6 +265,32 @@ static void wait_listening(uint16_t port, pid_t pid, const char *name)
         sleep_s(0.02);
     }
     die("%s does not listen on port %u after 30 s", name, port);
+}
+
+/* A file next to the benchmark (argv0's directory), as a path. */
+static inline const char *sibling(const char *argv0, const char *rel)
+{
+    static char buf[4][2 * PATH_MAX];
+    static unsigned used;
+    char dir[PATH_MAX];
+
+    snprintf(dir, sizeof(dir), "%s", argv0);
+    char *slash = strrchr(dir, '/');
+    if (slash)
+        *slash = '\0';
+    else
+        snprintf(dir, sizeof(dir), ".");
+    char *b = buf[used++ % 4];
+    snprintf(b, sizeof(buf[0]), "%s/%s", dir, rel);
+    return b;
+}
+
+/* SIGINT, SIGTERM: no child outlives the benchmark. */
+static inline void on_fatal_signal(int sig)
+{
+    (void)sig;
+    stop_children();
+    _exit(1);
 }
 
 #endif

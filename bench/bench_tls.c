@@ -320,24 +320,6 @@ static void measure_memory(struct setup *s)
 
 /* ---- main ---- */
 
-static const char *sibling(const char *argv0, const char *rel)
-{
-    static char paths[2][PATH_MAX];
-    static unsigned next;
-    char *p = paths[next++ % 2];
-    const char *slash = strrchr(argv0, '/');
-    int dir = slash ? (int)(slash - argv0) : 1;
-    snprintf(p, PATH_MAX, "%.*s/%s", dir, slash ? argv0 : ".", rel);
-    return p;
-}
-
-static void on_fatal_signal(int sig)
-{
-    stop_children();
-    signal(sig, SIG_DFL);
-    raise(sig);
-}
-
 int main(int argc, char **argv)
 {
     struct setup s = {.pki_script = "tests/tls/make-pki.sh"};
