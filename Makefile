@@ -202,7 +202,7 @@ test-can: all
 valgrind: all unit-tests
 	@BUILDS=build VALGRIND=1 tests/run.sh unit
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_status_map.py
-	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_modbus_server.py
+	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_modbus_server.py valgrind
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_jakasim.py
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_link_faults.py soak
 	JAKAGW_VALGRIND=1 /usr/bin/python3 tests/integration/test_service.py

@@ -7,6 +7,7 @@ import signal
 import socket
 import struct
 import subprocess
+import sys
 import threading
 import time
 
@@ -487,11 +488,17 @@ def test_mbpoll_reads_live_status():
 
 
 if __name__ == "__main__":
-    run([test_stalled_half_request_delays_nobody, test_pipelined_requests_answered_in_order,
-         test_exceptions_for_bad_requests, test_writes_heartbeat_and_clear_counters,
-         test_identification_17_and_43, test_full_server_evicts_the_longest_idle,
-         test_bad_header_closes_only_that_connection, test_unit_id_filter_and_idle_timeout,
-         test_mbpoll_reads_live_status, test_active_poller_survives_connect_bursts,
-         test_buffered_requests_and_closed_peers_before_eviction,
-         test_reserved_function_codes_close_the_connection, test_frame_deadline_is_precise,
-         test_idle_timeout_is_precise])
+    tests = [test_stalled_half_request_delays_nobody, test_pipelined_requests_answered_in_order,
+             test_exceptions_for_bad_requests, test_writes_heartbeat_and_clear_counters,
+             test_identification_17_and_43, test_full_server_evicts_the_longest_idle,
+             test_bad_header_closes_only_that_connection, test_unit_id_filter_and_idle_timeout,
+             test_mbpoll_reads_live_status, test_active_poller_survives_connect_bursts,
+             test_buffered_requests_and_closed_peers_before_eviction,
+             test_reserved_function_codes_close_the_connection, test_frame_deadline_is_precise,
+             test_idle_timeout_is_precise]
+    if sys.argv[1:] == ["valgrind"]:
+        # make valgrind: the two deadline-precision tests measure +-100 ms,
+        # which valgrind's 20-50x slowdown cannot keep; make test runs them.
+        tests = [t for t in tests
+                 if t not in (test_frame_deadline_is_precise, test_idle_timeout_is_precise)]
+    run(tests)
