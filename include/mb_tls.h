@@ -6,6 +6,9 @@
  * A new connection is pending while its handshake runs: it is not a Modbus
  * client yet (it neither counts toward max_clients nor keeps the policy's
  * "a client is connected" true), and no byte it sends reaches the framer.
+ * Handshake work is rationed to one step per turn of the loop, so that a
+ * flood of handshakes delays other handshakes, not the clients already
+ * served on either port.
  * At most 'max_handshakes' run at once; a connection beyond them is closed
  * at once, counted, and logged at most once a second. A handshake not done
  * within 'handshake_timeout_ms' is closed and counted. A failed handshake
@@ -58,6 +61,8 @@ struct mb_tls {
     /* Where every connection's ciphertext is read into: each read is fed
      * to its connection's engine before anything else runs. */
     uint8_t read_buf[16384];
+    /* Handshake steps waiting for their turn of the loop (mb_tls.c). */
+    struct mb_tls_steps *steps;
 };
 
 /* The transport; its 'state' is a struct mb_tls. */

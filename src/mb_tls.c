@@ -10,6 +10,27 @@
 struct mb_tls_conn {
     struct tls_conn *tls;
     bool admitted;
+    struct mb_client *client;
+    bool queued;               /* waits for its handshake step */
+    struct mb_tls_conn *next;  /* in the step queue */
+};
+
+/*
+ * Handshake work is rationed: one handshake step (a key exchange, a
+ * signature, a certificate check: about 2 ms here, ten times that on a
+ * small ARM core) per turn of the loop. A connection whose handshake has
+ * new input joins a queue; an idle handle keeps the loop turning without
+ * waiting in poll while the queue is not empty, so between two steps
+ * every established client, on either port, is read and answered. A flood
+ * of handshakes then delays other handshakes, not the polling PLCs.
+ *
+ * The queue is allocated with its handle and freed by the handle's close
+ * callback, so it may outlive the struct mb_tls that started closing it.
+ */
+struct mb_tls_steps {
+    uv_idle_t idle;
+    struct mb_tls *t;
+    struct mb_tls_conn *head, *tail;
 };
 
 static struct mb_tls_conn *conn_of(struct mb_client *c)
@@ -35,10 +56,20 @@ void mb_tls_set_context(struct mb_tls *t, struct tls_context *ctx)
     t->ctx = ctx;
 }
 
+static void on_steps_closed(uv_handle_t *h)
+{
+    free(h->data);
+}
+
 void mb_tls_free(struct mb_tls *t)
 {
     tls_context_unref(t->ctx);
     t->ctx = NULL;
+    if (t->steps) {
+        /* Every connection has gone: the queue is empty. */
+        uv_close((uv_handle_t *)&t->steps->idle, on_steps_closed);
+        t->steps = NULL;
+    }
 }
 
 uint64_t mb_tls_failed_total(const struct mb_tls_stats *s)
@@ -156,30 +187,101 @@ static void read_plaintext(struct mb_client *c, struct mb_tls_conn *conn)
     }
 }
 
+/* Advances one connection's handshake with what it was fed. */
+static void step_handshake(struct mb_tls *t, struct mb_client *c, struct mb_tls_conn *conn)
+{
+    char why[200];
+    int rc = tls_conn_handshake(conn->tls);
+
+    flush(c, conn); /* our flight, or the alert that says no */
+    if (!mb_client_is_open(c) || rc == TLS_AGAIN)
+        return;
+    if (rc == TLS_ERROR) {
+        enum tls_failure f = tls_conn_failure(conn->tls, why, sizeof(why));
+        handshake_failed(t, c, f, why, &t->fail_log);
+        mb_client_close(c, NULL);
+        return;
+    }
+    admit(t, c, conn);
+    read_plaintext(c, conn); /* a request sent with the client's Finished */
+}
+
+static void unqueue(struct mb_tls_steps *q, struct mb_tls_conn *conn)
+{
+    struct mb_tls_conn *prev = NULL;
+
+    for (struct mb_tls_conn *p = q->head; p; prev = p, p = p->next) {
+        if (p != conn)
+            continue;
+        if (prev)
+            prev->next = p->next;
+        else
+            q->head = p->next;
+        if (q->tail == p)
+            q->tail = prev;
+        break;
+    }
+    conn->next = NULL;
+    conn->queued = false;
+}
+
+/* One turn of the loop: one handshake step. */
+static void on_step_turn(uv_idle_t *idle)
+{
+    struct mb_tls_steps *q = idle->data;
+    struct mb_tls_conn *conn = q->head;
+
+    if (conn) {
+        unqueue(q, conn);
+        step_handshake(q->t, conn->client, conn);
+    }
+    if (!q->head)
+        uv_idle_stop(&q->idle);
+}
+
+/* Queues a handshake step; 0, or -ENOMEM when the queue cannot be made. */
+static int queue_step(struct mb_tls *t, struct mb_client *c, struct mb_tls_conn *conn)
+{
+    struct mb_tls_steps *q = t->steps;
+
+    if (conn->queued)
+        return 0;
+    if (!q) {
+        q = calloc(1, sizeof(*q));
+        if (!q)
+            return -ENOMEM;
+        uv_idle_init(mb_client_loop(c), &q->idle);
+        q->idle.data = q;
+        q->t = t;
+        t->steps = q;
+    }
+    conn->client = c;
+    conn->queued = true;
+    conn->next = NULL;
+    if (q->tail)
+        q->tail->next = conn;
+    else
+        q->head = conn;
+    q->tail = conn;
+    uv_idle_start(&q->idle, on_step_turn);
+    return 0;
+}
+
 static void tls_input(void *state, struct mb_client *c, const uint8_t *data, size_t size)
 {
     struct mb_tls *t = state;
     struct mb_tls_conn *conn = conn_of(c);
-    char why[200];
 
     if (tls_conn_feed(conn->tls, data, size) < 0) {
         mb_client_close(c, "out of memory for TLS input");
         return;
     }
-    if (!conn->admitted) {
-        int rc = tls_conn_handshake(conn->tls);
-        flush(c, conn); /* our flight, or the alert that says no */
-        if (!mb_client_is_open(c) || rc == TLS_AGAIN)
-            return;
-        if (rc == TLS_ERROR) {
-            enum tls_failure f = tls_conn_failure(conn->tls, why, sizeof(why));
-            handshake_failed(t, c, f, why, &t->fail_log);
-            mb_client_close(c, NULL);
-            return;
-        }
-        admit(t, c, conn);
+    if (conn->admitted) {
+        read_plaintext(c, conn);
+        return;
     }
-    read_plaintext(c, conn);
+    if (queue_step(t, c, conn) < 0)
+        mb_client_close(c, "out of memory for the handshake queue");
 }
 
 static void tls_output(void *state, struct mb_client *c, const uint8_t *data, size_t size)
@@ -221,6 +323,8 @@ static void tls_closed(void *state, struct mb_client *c, bool was_pending)
     (void)was_pending; /* the connection knows better: admitted or not */
     if (!conn)
         return; /* refused at open */
+    if (conn->queued)
+        unqueue(t->steps, conn);
     if (conn->admitted)
         t->stats.clients--;
     else
