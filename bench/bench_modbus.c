@@ -202,45 +202,17 @@ struct servers {
     pid_t sim, pid[LAT_SERVERS];
 };
 
+/* Room for the loaded clients, the latency client and the poller. */
 static void write_config(struct servers *s)
 {
-    snprintf(s->conf, sizeof(s->conf), "%s/jakagw.conf", bench_tmp_dir);
-    FILE *f = fopen(s->conf, "w");
-    if (!f)
-        die("%s: %s", s->conf, strerror(errno));
-    /* Room for the loaded clients, the latency client and the poller. */
-    fprintf(f,
-            "[modbus]\nmax_clients = %d\nidle_timeout_ms = 0\n"
-            "[robot]\nstatus_timeout_ms = 600000\n"
-            "[log]\nlevel = warning\n",
-            MAX_CLIENTS + 4);
-    fclose(f);
+    write_jakagw_config(s->conf, sizeof(s->conf), MAX_CLIENTS + 4, "");
 }
 
 static pid_t start_jakagw(struct servers *s, const char *name, uint16_t status_port,
                           uint16_t modbus_port)
 {
-    char sp[8], cp[8], mp[8];
-    snprintf(sp, sizeof(sp), "%u", status_port);
-    snprintf(cp, sizeof(cp), "%u", s->command_port);
-    snprintf(mp, sizeof(mp), "%u", modbus_port);
-    char *argv[] = {(char *)s->jakagw,
-                    "-c",
-                    s->conf,
-                    "--robot-host",
-                    "127.0.0.1",
-                    "--status-port",
-                    sp,
-                    "--command-port",
-                    cp,
-                    "--modbus-bind",
-                    "127.0.0.1",
-                    "--modbus-port",
-                    mp,
-                    NULL};
-    pid_t pid = spawn(name, argv, server_cpu);
-    wait_listening(modbus_port, pid, name);
-    return pid;
+    return spawn_jakagw(name, s->jakagw, s->conf, status_port, s->command_port, modbus_port,
+                        server_cpu);
 }
 
 static void start_servers(struct servers *s, const struct regmap *map)

@@ -267,6 +267,47 @@ static inline void wait_listening(uint16_t port, pid_t pid, const char *name)
     die("%s does not listen on port %u after 30 s", name, port);
 }
 
+/*
+ * Writes TMP/jakagw.conf into 'path': the settings every benchmark's
+ * jakagw shares (room for 'max_clients', no idle closing, a status link
+ * that never times out, quiet logs), then 'extra' (more sections, or "").
+ */
+static inline void write_jakagw_config(char *path, size_t size, unsigned max_clients,
+                                       const char *extra)
+{
+    snprintf(path, size, "%s/jakagw.conf", bench_tmp_dir);
+    FILE *f = fopen(path, "w");
+    if (!f)
+        die("%s: %s", path, strerror(errno));
+    fprintf(f,
+            "[modbus]\nmax_clients = %u\nidle_timeout_ms = 0\n"
+            "[robot]\nstatus_timeout_ms = 600000\n"
+            "[log]\nlevel = warning\n%s",
+            max_clients, extra);
+    fclose(f);
+}
+
+/*
+ * Starts jakagw with configuration 'conf', robot ports 'status_port' and
+ * 'command_port' on 127.0.0.1, Modbus on 127.0.0.1:'modbus_port', on 'cpu';
+ * returns once it listens.
+ */
+static inline pid_t spawn_jakagw(const char *name, const char *jakagw, const char *conf,
+                                 uint16_t status_port, uint16_t command_port,
+                                 uint16_t modbus_port, int cpu)
+{
+    char sp[8], cp[8], mp[8];
+    snprintf(sp, sizeof(sp), "%u", status_port);
+    snprintf(cp, sizeof(cp), "%u", command_port);
+    snprintf(mp, sizeof(mp), "%u", modbus_port);
+    char *argv[] = {(char *)jakagw, "-c", (char *)conf, "--robot-host", "127.0.0.1",
+                    "--status-port", sp, "--command-port", cp, "--modbus-bind", "127.0.0.1",
+                    "--modbus-port", mp, NULL};
+    pid_t pid = spawn(name, argv, cpu);
+    wait_listening(modbus_port, pid, name);
+    return pid;
+}
+
 /* A file next to the benchmark (argv0's directory), as a path. */
 static inline const char *sibling(const char *argv0, const char *rel)
 {

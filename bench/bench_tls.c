@@ -162,36 +162,26 @@ static void client_context(struct setup *s)
 static void start(struct setup *s)
 {
     uint16_t status_port = free_port(), command_port = free_port();
-    char sp[8], cp[8], mp[8];
+    char sp[8], cp[8];
 
     s->modbus_port = free_port();
     s->tls_port = free_port();
     snprintf(sp, sizeof(sp), "%u", status_port);
     snprintf(cp, sizeof(cp), "%u", command_port);
-    snprintf(mp, sizeof(mp), "%u", s->modbus_port);
     char *sim_argv[] = {(char *)s->jakasim, "--status-port", sp, "--command-port", cp,
                         "--period-ms", "8", NULL};
     pid_t sim = spawn("jakasim", sim_argv, -1);
     wait_listening(status_port, sim, "jakasim");
 
-    snprintf(s->conf, sizeof(s->conf), "%s/jakagw.conf", bench_tmp_dir);
-    FILE *f = fopen(s->conf, "w");
-    if (!f)
-        die("%s: %s", s->conf, strerror(errno));
-    fprintf(f,
-            "[modbus]\nmax_clients = %d\nidle_timeout_ms = 0\n"
-            "[robot]\nstatus_timeout_ms = 600000\n"
-            "[log]\nlevel = warning\n"
-            "[tls]\nenabled = true\nbind = 127.0.0.1\nport = %u\n"
-            "certificate = %s/gateway.crt\nprivate_key = %s/gateway.key\n"
-            "client_ca = %s/ca.crt\nmax_handshakes = 64\n",
-            2 * MEMORY_CLIENTS + 8, s->tls_port, s->pki, s->pki, s->pki);
-    fclose(f);
-    char *gw_argv[] = {(char *)s->jakagw, "-c", s->conf, "--robot-host", "127.0.0.1",
-                       "--status-port", sp, "--command-port", cp, "--modbus-bind",
-                       "127.0.0.1", "--modbus-port", mp, NULL};
-    s->gw = spawn("jakagw", gw_argv, -1);
-    wait_listening(s->modbus_port, s->gw, "jakagw");
+    char tls[4 * sizeof(s->pki) + 256];
+    snprintf(tls, sizeof(tls),
+             "[tls]\nenabled = true\nbind = 127.0.0.1\nport = %u\n"
+             "certificate = %s/gateway.crt\nprivate_key = %s/gateway.key\n"
+             "client_ca = %s/ca.crt\nmax_handshakes = 64\n",
+             s->tls_port, s->pki, s->pki, s->pki);
+    write_jakagw_config(s->conf, sizeof(s->conf), 2 * MEMORY_CLIENTS + 8, tls);
+    s->gw = spawn_jakagw("jakagw", s->jakagw, s->conf, status_port, command_port,
+                         s->modbus_port, -1);
     wait_listening(s->tls_port, s->gw, "jakagw (mbaps)");
 }
 

@@ -1054,7 +1054,7 @@ int mb_server_listen(struct mb_server *srv, const char *bind, uint16_t port, int
 
     if (srv->extra_transport || srv->closing)
         return -EBUSY;
-    if (!listen_fd && uv_ip4_addr(bind, port, (struct sockaddr_in *)&addr) != 0 &&
+    if (listen_fd <= 0 && uv_ip4_addr(bind, port, (struct sockaddr_in *)&addr) != 0 &&
         uv_ip6_addr(bind, port, (struct sockaddr_in6 *)&addr) != 0) {
         log_err("%s: bind address '%s' is not an IPv4 or IPv6 address", name, bind);
         return -EINVAL;

@@ -2,8 +2,10 @@
 /*
  * test_tls.c - the TLS engine: contexts, handshakes between a server and a
  * client connection in memory, roles, refusals and their reasons, the
- * fingerprint pin, renegotiation, key file permissions. The certificates
- * come from tests/tls/make-pki.sh (the commands of docs/security.md).
+ * fingerprint pin, renegotiation, key file permissions; and the mbaps
+ * transport on a real loop and real sockets, for how it schedules
+ * handshakes. The certificates come from tests/tls/make-pki.sh (the
+ * commands of docs/security.md).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -11,7 +13,10 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <arpa/inet.h>
 #include <errno.h>
+#include <netinet/in.h>
+#include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -22,6 +27,10 @@
 
 /* The .c itself: the tests reach a connection's SSL (resumption, renegotiation). */
 #include "tls.c"
+
+#include "mb_server.h"
+#include "mb_tls.h"
+#include "regmap.h"
 
 static char pki[256];
 
@@ -415,6 +424,109 @@ static void context_outlives_its_owner(void **state)
     tls_conn_free(c);
 }
 
+/* ---- the mbaps transport on a loop ---- */
+
+static uint32_t rights_read_only(void *user, const char *role, bool valid, bool *listed)
+{
+    (void)user, (void)role, (void)valid;
+    *listed = false;
+    return 0;
+}
+
+static bool server_closed;
+static void on_server_closed(struct mb_server *srv)
+{
+    (void)srv;
+    server_closed = true;
+}
+
+#define SHAKERS 4
+
+/*
+ * Handshake work goes one step per turn of the loop: four ClientHellos that
+ * all arrive in one turn are answered over four turns, not in one (which,
+ * with many at once, would keep the loop from the PLCs already served).
+ */
+static void handshakes_take_one_step_per_loop_turn(void **state)
+{
+    uv_loop_t loop;
+    struct regmap map;
+    struct regmap_image img;
+    static struct mb_server srv;
+    static struct mb_tls t;
+    struct mb_server_config cfg = {.bind = "127.0.0.1", .port = 0, .max_clients = 8,
+                                   .frame_timeout_ms = 1000, .unit_id = -1};
+    struct mb_server_hooks hooks = {0};
+    struct mb_tls_config tc = {.handshake_timeout_ms = 10000, .max_handshakes = 16,
+                               .rights_for_role = rights_read_only};
+    struct tls_context *cctx = client_ctx("operator", 0);
+    struct tls_conn *client[SHAKERS];
+    int fd[SHAKERS];
+    bool answered[SHAKERS] = {false};
+    (void)state;
+
+    memset(&srv, 0, sizeof(srv));
+    assert_int_equal(uv_loop_init(&loop), 0);
+    assert_int_equal(regmap_init(&map), 0);
+    assert_int_equal(regmap_image_init(&img, &map, REGMAP_HIGH_WORD_FIRST), 0);
+    assert_int_equal(mb_server_start(&loop, &srv, &cfg, &img, &hooks), 0);
+    assert_int_equal(mb_tls_init(&t, server_ctx(), &tc), 0);
+    assert_int_equal(mb_server_listen(&srv, "127.0.0.1", 0, 0, &mb_transport_tls, &t), 0);
+
+    /* Every connection accepted and read from before any hello is sent. */
+    struct sockaddr_in a = {.sin_family = AF_INET,
+                            .sin_port = htons((uint16_t)mb_server_listen_port(&srv))};
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    for (int i = 0; i < SHAKERS; i++) {
+        fd[i] = socket(AF_INET, SOCK_STREAM, 0);
+        assert_int_equal(connect(fd[i], (struct sockaddr *)&a, sizeof(a)), 0);
+        client[i] = tls_conn_new(cctx, "127.0.0.1");
+        assert_non_null(client[i]);
+    }
+    for (int turn = 0; turn < 1000 && t.stats.handshakes < SHAKERS; turn++)
+        uv_run(&loop, UV_RUN_NOWAIT);
+    assert_int_equal(t.stats.handshakes, SHAKERS);
+
+    /* Four hellos, all readable by the next turn's poll. */
+    for (int i = 0; i < SHAKERS; i++) {
+        uint8_t hello[4096];
+        assert_int_equal(tls_conn_handshake(client[i]), TLS_AGAIN);
+        size_t n = tls_conn_take(client[i], hello, sizeof(hello));
+        assert_true(n > 0);
+        assert_int_equal(write(fd[i], hello, n), (ssize_t)n);
+    }
+    unsigned done = 0;
+    for (int turn = 0; turn < 50 && done < SHAKERS; turn++) {
+        uv_run(&loop, UV_RUN_NOWAIT);
+        unsigned now = 0;
+        for (int i = 0; i < SHAKERS; i++) {
+            struct pollfd p = {.fd = fd[i], .events = POLLIN};
+            if (!answered[i] && poll(&p, 1, 0) == 1) {
+                answered[i] = true;
+                now++;
+            }
+        }
+        assert_true(now <= 1); /* one server flight per turn at most */
+        done += now;
+    }
+    assert_int_equal(done, SHAKERS); /* and every one in its turn */
+
+    for (int i = 0; i < SHAKERS; i++) {
+        close(fd[i]);
+        tls_conn_free(client[i]);
+    }
+    tls_context_unref(cctx);
+    server_closed = false;
+    mb_server_close(&srv, on_server_closed);
+    while (!server_closed)
+        uv_run(&loop, UV_RUN_ONCE);
+    mb_tls_free(&t);
+    uv_run(&loop, UV_RUN_DEFAULT); /* the handshake queue's handle closes */
+    regmap_image_free(&img);
+    regmap_free(&map);
+    assert_int_equal(uv_loop_close(&loop), 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -428,6 +540,7 @@ int main(void)
         cmocka_unit_test(client_checks_the_server_name),
         cmocka_unit_test(bad_files_name_their_key),
         cmocka_unit_test(context_outlives_its_owner),
+        cmocka_unit_test(handshakes_take_one_step_per_loop_turn),
     };
     return cmocka_run_group_tests(tests, make_pki, remove_pki);
 }
