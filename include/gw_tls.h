@@ -29,6 +29,14 @@ int gw_tls_robot_context(const struct gw_config *cfg, struct tls_context **out, 
                          size_t why_size);
 
 /*
+ * [robot] tls: the client context both robot links use (*ctx NULL when
+ * tls is false), logged as 'what' ("robot links"): which CA or pinned
+ * fingerprint verifies the controller, or why it cannot be loaded.
+ * Returns 0 or -EINVAL.
+ */
+int gw_tls_robot_links(const struct gw_config *cfg, struct tls_context **ctx, const char *what);
+
+/*
  * Loads every TLS file 'cfg' names, as the daemon would: for --check-config,
  * at start and on reload. Returns 0 or -EINVAL with the first error in
  * 'why' (one line naming the key).

@@ -294,31 +294,11 @@ void gateway_describe(const struct gateway *gw, char *buf, size_t size)
              names[gw->command.link.state], gw->modbus.stats.clients);
 }
 
-/* [robot] tls: the client context both links use. */
-static int robot_tls_context(struct gateway *gw, struct tls_context **ctx)
-{
-    const struct gw_config *cfg = &gw->cfg;
-    char why[600];
-
-    *ctx = NULL;
-    if (!cfg->robot_tls)
-        return 0;
-    if (gw_tls_robot_context(cfg, ctx, why, sizeof(why)) != 0) {
-        log_err("robot links: %s", why);
-        return -EINVAL;
-    }
-    log_notice("robot links: TLS, the controller verified with %s%s%s",
-               cfg->robot_tls_ca[0] ? cfg->robot_tls_ca : "",
-               cfg->robot_tls_ca[0] && cfg->robot_tls_fingerprint[0] ? " and " : "",
-               cfg->robot_tls_fingerprint[0] ? "the pinned SHA-256 fingerprint" : "");
-    return 0;
-}
-
 static int start_links(struct gateway *gw)
 {
     const struct gw_config *cfg = &gw->cfg;
     struct tls_context *tls;
-    int rc = robot_tls_context(gw, &tls);
+    int rc = gw_tls_robot_links(&gw->cfg, &tls, "robot links");
     if (rc)
         return rc;
     struct robot_link_config lc = {

@@ -136,30 +136,40 @@ int gw_tls_start(struct gateway *gw)
                             gw->mbaps);
 }
 
+int gw_tls_robot_links(const struct gw_config *cfg, struct tls_context **ctx, const char *what)
+{
+    char why[600];
+
+    *ctx = NULL;
+    if (!cfg->robot_tls)
+        return 0;
+    if (gw_tls_robot_context(cfg, ctx, why, sizeof(why)) != 0) {
+        log_err("%s: %s", what, why);
+        return -EINVAL;
+    }
+    log_notice("%s: TLS, the controller verified with %s%s%s", what,
+               cfg->robot_tls_ca[0] ? cfg->robot_tls_ca : "",
+               cfg->robot_tls_ca[0] && cfg->robot_tls_fingerprint[0] ? " and " : "",
+               cfg->robot_tls_fingerprint[0] ? "the pinned SHA-256 fingerprint" : "");
+    return 0;
+}
+
 /*
  * [robot] tls (its own value needs a restart): tls_ca and tls_fingerprint,
  * already applied to gw->cfg, and the CA file as it is now, for the robot
- * links' next connections.
+ * links' next connections; a file that does not load changes nothing.
  */
 static void reload_robot_context(struct gateway *gw)
 {
     struct tls_context *ctx;
-    char why[600];
 
-    if (!gw->cfg.robot_tls || !(gw->parts & GATEWAY_PART_COMMAND_LINK))
+    if (!(gw->parts & GATEWAY_PART_COMMAND_LINK) ||
+        gw_tls_robot_links(&gw->cfg, &ctx, "reload: robot links (next connections)") != 0 ||
+        !ctx)
         return;
-    if (gw_tls_robot_context(&gw->cfg, &ctx, why, sizeof(why)) != 0) {
-        log_err("reload: robot links: %s; new connections keep the CA and fingerprint in force",
-                why);
-        return;
-    }
     robot_link_set_tls(&gw->status_link, ctx);
     robot_link_set_tls(&gw->command.link, ctx);
     tls_context_unref(ctx);
-    log_notice("reload: robot links: new connections verify the controller with %s%s%s",
-               gw->cfg.robot_tls_ca[0] ? gw->cfg.robot_tls_ca : "",
-               gw->cfg.robot_tls_ca[0] && gw->cfg.robot_tls_fingerprint[0] ? " and " : "",
-               gw->cfg.robot_tls_fingerprint[0] ? "the pinned fingerprint" : "");
 }
 
 void gw_tls_reload(struct gateway *gw, const struct gw_config *next)

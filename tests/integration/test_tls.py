@@ -515,6 +515,25 @@ def test_robot_over_tls():
                 check(len(sim_commands(sim)) == sent, "nothing reached the robot")
             finally:
                 gw.stop()
+        # SIGHUP: a CA file that does not load changes nothing; then the
+        # right fingerprint brings both links up, without a restart.
+        gw = Gateway(sim, robot_config(tls_fingerprint="00" * 32))
+        try:
+            wait_until(lambda: links(gw)[2:] == (8, 8), 10 * SLOW, "the wrong pin reported")
+            with open(gw.conf.name, "w") as f:
+                f.write(robot_config(tls_ca=pki("missing-ca.crt")))
+            gw.proc.send_signal(1)
+            wait_until(lambda: [l for l in log_lines(gw, "reload refused") if "[robot] tls_ca:" in l],
+                       5 * SLOW, "the refused reload to name [robot] tls_ca")
+            check(links(gw)[2:] == (8, 8) and gw.alive(), "a failed reload changed nothing")
+            with open(gw.conf.name, "w") as f:
+                f.write(robot_config(tls_fingerprint=fingerprint("robot.crt")))
+            gw.proc.send_signal(1)
+            wait_until(lambda: links(gw) == (2, 2, 0, 0), 10 * SLOW,
+                       "both links up with the reloaded pin")
+            check(log_lines(gw, "reload: robot links (next connections): TLS"), gw.output())
+        finally:
+            gw.stop()
     finally:
         sim.stop()
     # A controller that speaks plain TCP to a gateway that expects TLS: its
