@@ -21,26 +21,20 @@ the document; the frame period's jitter is measured and reported.
     JAKAGW_BIN_DIR=build              which build's binaries
     JAKAGW_CAN_KEEP=1                 keep the work directory and print it
 """
-import base64
-import glob
-import gzip
-import io
 import json
-import lzma
 import os
 import re
-import shutil
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, "..", ".."))
 sys.path.insert(0, os.path.join(ROOT, "tests", "integration"))
 
-from harness import BIN, JAKAGW, JAKASIM, TestFailure, check, run  # noqa: E402
+import vm  # noqa: E402
+from harness import JAKAGW, JAKASIM, TestFailure, check, run  # noqa: E402
 
 PERIOD_MS = 20
 CAPTURE_S = 5
@@ -50,145 +44,7 @@ BOOT_TIMEOUT_S = 240
 DBC = os.path.join(ROOT, "docs", "jakagw.dbc")
 
 
-# ---- the venv with cantools ----
-
-def ensure_cantools():
-    """Runs this script again under a venv that has cantools, made once."""
-    try:
-        import cantools  # noqa: F401
-        return
-    except ImportError:
-        pass
-    venv = os.path.abspath(os.environ.get("JAKAGW_CAN_VENV", os.path.join(BIN, "can-venv")))
-    python = os.path.join(venv, "bin", "python")
-    if os.environ.get("JAKAGW_CAN_IN_VENV") == "1":
-        raise SystemExit("cantools is missing from %s" % venv)
-    if not os.path.exists(python):
-        print("making a venv with cantools in %s" % venv, flush=True)
-        subprocess.run([sys.executable, "-m", "venv", venv], check=True)
-    ok = subprocess.run([python, "-c", "import cantools"], capture_output=True).returncode == 0
-    if not ok:
-        subprocess.run([python, "-m", "pip", "install", "-q", "--disable-pip-version-check",
-                        "cantools"], check=True)
-    env = dict(os.environ, JAKAGW_CAN_IN_VENV="1")
-    os.execve(python, [python, os.path.abspath(__file__)] + sys.argv[1:], env)
-
-
 # ---- the initramfs ----
-
-def find_kernel():
-    """The newest /boot/vmlinuz-VERSION with its /lib/modules/VERSION."""
-    for path in sorted(glob.glob("/boot/vmlinuz-*"), reverse=True):
-        version = path[len("/boot/vmlinuz-"):]
-        if os.path.exists("/lib/modules/%s/modules.dep" % version):
-            return path, version
-    raise TestFailure("no /boot/vmlinuz-* with modules: apt-get install linux-image-amd64")
-
-
-def module_order(version):
-    """The CAN modules and what they need, dependencies first."""
-    base = "/lib/modules/%s" % version
-    paths, deps = {}, {}
-    with open(os.path.join(base, "modules.dep")) as f:
-        for line in f:
-            target, _, needs = line.partition(":")
-            name = re.sub(r"\.ko(\.\w+)?$", "", os.path.basename(target)).replace("_", "-")
-            paths[name] = os.path.join(base, target)
-            deps[name] = [re.sub(r"\.ko(\.\w+)?$", "", os.path.basename(n)).replace("_", "-")
-                          for n in needs.split()]
-    order = []
-
-    def visit(name):
-        if name in order:
-            return
-        if name not in paths:
-            raise TestFailure("kernel %s has no module %s" % (version, name))
-        for d in deps[name]:
-            visit(d)
-        order.append(name)
-
-    for m in MODULES:
-        visit(m)
-    return [(m, paths[m]) for m in order]
-
-
-def module_bytes(path):
-    with open(path, "rb") as f:
-        data = f.read()
-    if path.endswith(".xz"):
-        return lzma.decompress(data)
-    if path.endswith(".ko"):
-        return data
-    raise TestFailure("cannot unpack module %s" % path)
-
-
-def shared_libraries(binary):
-    """Every library ldd lists for 'binary', and its program interpreter."""
-    out = subprocess.run(["ldd", binary], capture_output=True, text=True)
-    if "not a dynamic executable" in out.stdout + out.stderr:
-        return []
-    check(out.returncode == 0, "ldd %s: %s" % (binary, out.stderr))
-    libs = []
-    for line in out.stdout.splitlines():
-        m = re.search(r"(/\S+) \(0x", line)
-        if m:
-            libs.append(m.group(1))
-    return libs
-
-
-class Cpio:
-    """A newc cpio archive, as the kernel unpacks an initramfs."""
-
-    def __init__(self):
-        self.out = io.BytesIO()
-        self.ino = 1
-        self.dirs = set()
-
-    def _entry(self, name, mode, data=b"", nlink=1):
-        name_b = name.encode() + b"\0"
-        header = "070701" + "".join("%08X" % v for v in (
-            self.ino, mode, 0, 0, nlink, 0, len(data), 0, 0, 0, 0, len(name_b), 0))
-        self.ino += 1
-        self.out.write(header.encode() + name_b)
-        self.out.write(b"\0" * (-(110 + len(name_b)) % 4))
-        self.out.write(data)
-        self.out.write(b"\0" * (-len(data) % 4))
-
-    def directory(self, path):
-        path = path.strip("/")
-        parts = path.split("/")
-        for i in range(1, len(parts) + 1):
-            d = "/".join(parts[:i])
-            if d and d not in self.dirs:
-                self.dirs.add(d)
-                self._entry(d, 0o040755, nlink=2)
-
-    def file(self, path, data, mode=0o644):
-        path = path.strip("/")
-        self.directory(os.path.dirname(path))
-        self._entry(path, 0o100000 | mode, data)
-
-    def symlink(self, path, target):
-        path = path.strip("/")
-        self.directory(os.path.dirname(path))
-        self._entry(path, 0o120777, target.encode())
-
-    def finish(self):
-        self._entry("TRAILER!!!", 0)
-        return self.out.getvalue()
-
-
-def add_program(cpio, src, dest, added):
-    with open(src, "rb") as f:
-        cpio.file(dest, f.read(), 0o755)
-    for lib in shared_libraries(src):
-        if lib in added:
-            continue
-        added.add(lib)
-        real = os.path.realpath(lib)
-        with open(real, "rb") as f:
-            cpio.file(lib, f.read(), 0o755)
-
 
 def test_document():
     """The simulator's test pattern with fields left out, one joint short and
@@ -210,18 +66,7 @@ def test_document():
         n = len(text)
 
 
-INIT = r"""#!/bin/busybox sh
-/bin/busybox --install -s /bin
-export PATH=/bin:/usr/bin
-mount -t proc proc /proc
-mount -t sysfs sys /sys
-mount -t devtmpfs dev /dev
-mount -t tmpfs tmp /tmp
-echo 1 > /proc/sys/kernel/printk
-event() { echo "@@event $1 $(cut -d' ' -f1 /proc/uptime)"; }
-counters() { mbpoll -m tcp -p @PORT@ -t 3 -0 -r 50 -c 8 -1 127.0.0.1 > /tmp/mb-$1.txt 2>&1; }
-for m in @MODULES@; do insmod /lib/modules/test/$m.ko || echo "@@error insmod $m"; done
-ip link set lo up
+INIT = r"""counters() { mbpoll -m tcp -p @PORT@ -t 3 -0 -r 50 -c 8 -1 127.0.0.1 > /tmp/mb-$1.txt 2>&1; }
 ip link add vcan0 type vcan && ip link set vcan0 up || echo "@@error vcan0"
 event booted
 cd /tmp
@@ -262,12 +107,8 @@ counters again
 kill $CD
 kill $GW; wait $GW; echo "@@exit jakagw $?"
 kill $SIM; wait $SIM; echo "@@exit jakasim $?"
-for f in capture.log outage.log gw.log sim.log mb-*.txt; do
-    echo "@@begin $f"; gzip -c $f | base64; echo "@@end $f"
-done
-echo "@@done"
-poweroff -f
 """
+FILES = "capture.log outage.log gw.log sim.log mb-*.txt"
 
 CONF = """[robot]
 host = 127.0.0.1
@@ -282,40 +123,20 @@ period_ms = %d
 
 
 def build_initramfs(version, document_text):
-    cpio = Cpio()
-    added = set()
-    for d in ("proc", "sys", "dev", "tmp", "usr/bin"):
-        cpio.directory(d)
-    busybox = shutil.which("busybox") or "/bin/busybox"
-    add_program(cpio, busybox, "/bin/busybox", added)
-    for src, dest in ((JAKAGW, "/bin/jakagw"), (JAKASIM, "/bin/jakasim")):
-        add_program(cpio, src, dest, added)
+    fs = vm.Initramfs(version)
+    fs.program(JAKAGW, "/bin/jakagw")
+    fs.program(JAKASIM, "/bin/jakasim")
     for tool in ("candump", "mbpoll"):
-        path = shutil.which(tool)
-        check(path, "%s is not installed (make deps)" % tool)
-        add_program(cpio, path, "/usr/bin/" + tool, added)
-    names = []
-    for name, path in module_order(version):
-        cpio.file("/lib/modules/test/%s.ko" % name, module_bytes(path))
-        names.append(name)
-    init = INIT.replace("@MODULES@", " ".join(names)).replace("@PORT@", str(MODBUS_PORT))
-    init = init.replace("@CAPTURE@", str(CAPTURE_S))
-    cpio.file("/init", init.encode(), 0o755)
-    cpio.file("/test/jakagw.conf", CONF.encode())
-    cpio.file("/test/status.json", document_text.encode())
-    return gzip.compress(cpio.finish(), compresslevel=1)
+        fs.tool(tool)
+    fs.kernel_modules(MODULES)
+    fs.init(INIT.replace("@PORT@", str(MODBUS_PORT)).replace("@CAPTURE@", str(CAPTURE_S)),
+            FILES)
+    fs.file("/test/jakagw.conf", CONF)
+    fs.file("/test/status.json", document_text)
+    return fs.image()
 
 
 # ---- the run ----
-
-class VmRun:
-    def __init__(self):
-        self.files = {}
-        self.events = {}
-        self.exits = {}
-        self.console = ""
-        self.wall_s = 0.0
-
 
 RESULT = None
 DOCUMENT = None
@@ -323,68 +144,14 @@ DOCUMENT = None
 
 def boot():
     global RESULT, DOCUMENT
-    qemu = shutil.which("qemu-system-x86_64")
-    check(qemu, "qemu-system-x86_64 is not installed (make deps)")
-    kernel, version = find_kernel()
+    kernel, version = vm.find_kernel()
     DOCUMENT, text = test_document()
-    work = tempfile.mkdtemp(prefix="jakagw-can-vm-")
-    initrd = os.path.join(work, "initrd.gz")
-    with open(initrd, "wb") as f:
-        f.write(build_initramfs(version, text))
-    argv = [qemu, "-accel", "tcg", "-nographic", "-m", "512", "-smp", os.environ.get("JAKAGW_CAN_SMP", "2"), "-no-reboot",
-            "-nic", "none", "-kernel", kernel, "-initrd", initrd,
-            "-append", "console=ttyS0 quiet loglevel=3 panic=-1"]
-    start = time.monotonic()
-    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT)
-    try:
-        out, _ = proc.communicate(timeout=BOOT_TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-        raise TestFailure("the VM did not finish within %d s; console:\n%s"
-                          % (BOOT_TIMEOUT_S, out.decode(errors="replace")[-3000:]))
-    r = VmRun()
-    r.wall_s = time.monotonic() - start
-    r.console = out.decode(errors="replace").replace("\r", "")
-    if os.environ.get("JAKAGW_CAN_KEEP") == "1":
-        with open(os.path.join(work, "console.txt"), "w") as f:
-            f.write(r.console)
-        print("  work directory: %s" % work)
-    else:
-        shutil.rmtree(work)
-    name, chunks = None, []
-    for line in r.console.splitlines():
-        if line.startswith("@@begin "):
-            name, chunks = line.split()[1], []
-        elif line.startswith("@@end ") and name:
-            r.files[name] = gzip.decompress(base64.b64decode("".join(chunks))).decode()
-            name = None
-        elif name:
-            chunks.append(line.strip())
-        elif line.startswith("@@event "):
-            _, what, uptime = line.split()
-            r.events[what] = float(uptime)
-        elif line.startswith("@@exit "):
-            _, prog, code = line.split()
-            r.exits[prog] = int(code)
-    errors = [l for l in r.console.splitlines() if l.startswith("@@error")]
-    check(not errors and "@@done" in r.console,
-          "the VM run failed: %s\nconsole:\n%s" % (errors, r.console[-3000:]))
-    RESULT = r
+    RESULT = vm.boot(kernel, build_initramfs(version, text), BOOT_TIMEOUT_S, "JAKAGW_CAN_KEEP")
     print("  kernel %s; VM wall time %.1f s (boot to capture %.1f s)"
-          % (version, r.wall_s, r.events.get("capture", 0)))
+          % (version, RESULT.wall_s, RESULT.events.get("capture", 0)))
 
 
-def candump_frames(text):
-    """(time, interface, id, data) from candump -L lines."""
-    frames = []
-    for line in text.splitlines():
-        m = re.match(r"\((\d+\.\d+)\) (\S+) ([0-9A-F]+)#([0-9A-F]*)$", line.strip())
-        if m:
-            frames.append((float(m.group(1)), m.group(2), int(m.group(3), 16),
-                           bytes.fromhex(m.group(4))))
-    return frames
+candump_frames = vm.candump_frames
 
 
 def modbus_counters(name):
@@ -549,7 +316,7 @@ def test_interface_down_up_deleted_created():
 
 
 if __name__ == "__main__":
-    ensure_cantools()
+    vm.ensure_cantools(__file__)
     started = time.monotonic()
     try:
         run([test_vm_runs_gateway_and_simulator, test_every_frame_decodes_to_the_document,
