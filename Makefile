@@ -95,7 +95,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o)
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: all deps demo test unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
+.PHONY: all deps demo test soak test-netem unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -117,6 +117,12 @@ $(BUILD)/tests/%: tests/%.c $(BUILD)/libjakagw.a
 	$(CC) $(ALL_CFLAGS) -Isrc -DSAMPLES_DIR="\"$(SAMPLES_DIR)\"" -DCONFIG_FILE="\"$(abspath config/jakagw.conf)\"" $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
 
 unit-tests: $(UNIT_TESTS:%=$(BUILD)/tests/%)
+
+# The PLC of the netem VM test (tests/can/test_netem_vm.py), which has no
+# Python: a libmodbus master with a heartbeat thread.
+$(BUILD)/tests/netem_plc: tests/can/netem_plc.c
+	@mkdir -p $(dir $@)
+	$(CC) $(ALL_CFLAGS) $< -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) -lpthread
 
 $(BUILD)/bench/%: bench/%.c $(BUILD)/libjakagw.a
 	@mkdir -p $(dir $@)
@@ -185,6 +191,17 @@ LOAD_SECONDS ?= 60
 test-load: all
 	JAKAGW_BIN_DIR=$(BUILD) LOAD_SECONDS=$(LOAD_SECONDS) /usr/bin/python3 tests/integration/test_load.py
 
+# The chaos soak (not part of make test): jakasim, the sanitizer build of
+# jakagw and a PLC running the command recipe in a loop for SOAK_S seconds,
+# under a random schedule of silent pulls, RSTs and random loss on every
+# link, in a private network namespace with nftables (needs root).
+# SOAK_SEED=N repeats a schedule. Prints faults, commands, violations (0
+# passes) and detection times per fault kind (README, "Faults").
+SOAK_S ?= 600
+soak:
+	$(MAKE) BUILD=build-san CFLAGS="$(SAN_FLAGS)" EXTRA_LDFLAGS="-fsanitize=address,undefined" all
+	JAKAGW_BIN_DIR=build-san SOAK_S=$(SOAK_S) /usr/bin/python3 tests/soak/soak.py
+
 # docs/register-map.md is generated from the table in src/regmap_table.c.
 docs: $(BUILD)/jakagw man
 	$(BUILD)/jakagw --print-map md > docs/register-map.md
@@ -196,6 +213,11 @@ docs: $(BUILD)/jakagw man
 # tests/run.sh (make test) runs it too.
 test-can: all
 	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/can/test_can_vm.py
+
+# Latency, jitter, reordering, duplication and a rate limit with sch_netem,
+# in a VM of Debian's kernel (tests/can/vm.py). tests/run.sh runs it too.
+test-netem: all $(BUILD)/tests/netem_plc
+	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/can/test_netem_vm.py
 
 # Unit tests, then jakagw and jakasim themselves under valgrind in the
 # integration suites that do not depend on timing (valgrind runs 20-50x slower).

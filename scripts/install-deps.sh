@@ -31,8 +31,8 @@ group tests "to run the tests: cmocka; python3 with pymodbus and serial_asyncio 
     libcmocka-dev \
     python3 python3-pymodbus python3-serial-asyncio \
     mbpoll systemd valgrind openssl
-group can "to test the CAN mirror on a real kernel CAN stack in a VM: qemu, Debian's kernel and its can/vcan modules, busybox, candump, a venv for cantools" \
-    qemu-system-x86 linux-image-amd64 busybox-static can-utils python3-venv
+group can "to test the CAN mirror on a real kernel CAN stack, and netem on single links, in a VM: qemu, Debian's kernel and its can/vcan/netem modules, busybox, candump and cansend, iproute2's tc, a venv for cantools" \
+    qemu-system-x86 linux-image-amd64 busybox-static can-utils iproute2 python3-venv
 group package "to build the Debian package and test it and the units (make deb, make test-package): debhelper, dpkg-dev, lintian, mmdebstrap for a fresh root filesystem to install it in, man-db and groff-base to check the man pages, procps for the kill the units' ExecReload runs (systemd-analyze verify looks for it)" \
     debhelper dpkg-dev lintian mmdebstrap man-db groff-base procps
 group cross "to build, package and test for ARM boards (make ARCH=arm64|armhf): Debian's cross compilers, and qemu-user to run their binaries (the sysroot comes from mmdebstrap, group package)" \

@@ -87,7 +87,8 @@ for build in $BUILDS; do
     done
 done
 
-# The CAN mirror on a real kernel CAN stack, in a VM: once, with the first build.
+# The CAN mirror on a real kernel CAN stack, and netem on single links, in
+# VMs: once, with the first build.
 if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
     build=${BUILDS%% *}
     echo "== tests/can/test_can_vm.py ($build)"
@@ -98,6 +99,16 @@ if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
     bad=${line#*, }
     bad=${bad%% failed}
     record "tests/can/test_can_vm.py($build)" "$status" "${ok:-0}" "${bad:-0}"
+    # Latency, jitter, reordering, duplication and a rate limit (sch_netem),
+    # in one more boot of the same kernel: about 2.5 minutes.
+    echo "== tests/can/test_netem_vm.py ($build)"
+    JAKAGW_BIN_DIR="$build" "$PYTHON" tests/can/test_netem_vm.py 2>&1 | tee "$log"
+    status=${PIPESTATUS[0]}
+    line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
+    ok=${line%% passed*}
+    bad=${line#*, }
+    bad=${bad%% failed}
+    record "tests/can/test_netem_vm.py($build)" "$status" "${ok:-0}" "${bad:-0}"
 fi
 
 # The Debian package, built and installed into a fresh Debian 12 root file

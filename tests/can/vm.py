@@ -40,6 +40,7 @@ mount -t sysfs sys /sys
 mount -t devtmpfs dev /dev
 mount -t tmpfs tmp /tmp
 echo 1 > /proc/sys/kernel/printk
+echo  # the firmware's last line has no end
 event() { echo "@@event $1 $(cut -d' ' -f1 /proc/uptime)"; }
 for m in @MODULES@; do insmod /lib/modules/test/$m.ko || echo "@@error insmod $m"; done
 ip link set lo up
