@@ -42,6 +42,7 @@ import collections
 import json
 import os
 import random
+import re
 import socket
 import statistics
 import struct
@@ -152,6 +153,7 @@ class RawPlc:
         self.sock = None
         self.tid = 0
         self.reconnects = 0
+        self.errors = 0     # requests and connects that failed
 
     def _connect(self):
         s = socket.socket()
@@ -163,6 +165,7 @@ class RawPlc:
             s.connect(("127.0.0.1", self.port))
         except OSError as e:
             s.close()
+            self.errors += 1
             raise LinkLost("connect: %s" % e)
         self.sock = s
         self.reconnects += 1
@@ -184,6 +187,7 @@ class RawPlc:
                     return reply
         except (OSError, TestFailure) as e:
             self.drop()
+            self.errors += 1
             raise LinkLost(str(e))
 
     def write_regs(self, address, values):
@@ -231,12 +235,8 @@ def result_states():
     check(rows, "no result_power_on_state in the register map")
     kinds = {}
     text = rows[0]["description"].split(":", 1)[1]
-    for part in text.split(","):
-        part = part.strip()
-        number, _, name = part.partition(" ")
-        if not number.isdigit():
-            continue
-        name = name.lower()
+    for m in re.finditer(r"(\d+) (.*?)(?=,? \d+ |, \d+|$)", text.strip()):
+        number, name = m.group(1), m.group(2).lower()
         if "not sent" in name:
             kind = "not_sent"
         elif "unknown" in name or "timeout" in name or "link down" in name or "lost" in name:
@@ -260,7 +260,8 @@ def result_states():
 class Soak:
     def __init__(self, seconds, seed):
         self.seconds = seconds
-        self.rng = random.Random(seed)
+        self.rng = random.Random(seed)           # the fault schedule
+        self.plc_rng = random.Random(seed + 1)   # the PLC's pauses and values
         self.violations = []
         self.stop = threading.Event()
         self.commands = []          # dicts, in order
@@ -311,7 +312,7 @@ class Soak:
                          "fault": regs[0], "handle": regs[4], "owner": any(owner),
                          "status_reconnects": counts[0] << 16 | counts[1],
                          "command_reconnects": counts[2] << 16 | counts[3],
-                         "plc_reconnects": self.plc.reconnects if self.plc else 0}
+                         "plc_reconnects": self.plc.errors if self.plc else 0}
             except (OSError, TestFailure):
                 if s:
                     s.close()
@@ -369,7 +370,7 @@ class Soak:
             cycle += 1
             recipe = [("power_on", []), ("enable_robot", []),
                       ("load_program", ["soak_%05d" % cycle]), ("play_program", []),
-                      ("rapid_rate", [round(self.rng.uniform(0.2, 1.0), 3)]),
+                      ("rapid_rate", [round(self.plc_rng.uniform(0.2, 1.0), 3)]),
                       ("pause_program", []), ("resume_program", []), ("stop_program", [])]
             if cycle % 5 == 0:
                 recipe += [("disable_robot", []), ("power_off", [])]
@@ -377,7 +378,7 @@ class Soak:
                 if self.stop.is_set():
                     break
                 seq = self.run_command(plc, heartbeat, name, args, seq)
-                pause(self.rng.uniform(0.05, 0.4))
+                pause(self.plc_rng.uniform(0.05, 0.4))
         plc.drop()
 
     def ready(self, plc, heartbeat):
@@ -524,7 +525,8 @@ class Soak:
             t_restore = time.monotonic()
             if kind != "loss":
                 t = self.first_after(t0, lambda st: self.detected(link, st, before))
-                if t is not None and t <= t_restore + 0.2:
+                late = 2.0 if kind == "rst" else 0.2
+                if t is not None and t <= t_restore + late:
                     self.detect[label].append(t - t0)
                 else:
                     self.undetected[label] += 1
