@@ -58,6 +58,13 @@ struct mb_tls {
     struct mb_tls_stats stats;
     struct log_ratelimit fail_log;
     struct log_ratelimit limit_log;
+    struct log_ratelimit close_log;
+    /* The session lines (one per handshake done), rate-limited (mb_tls.c). */
+    uint64_t session_window_ms;
+    unsigned session_lines;
+    uint64_t sessions_unlogged;
+    /* Pending handshakes, oldest first (mb_tls.c). */
+    struct mb_tls_conn *pending_oldest, *pending_newest;
     /* Where every connection's ciphertext is read into: each read is fed
      * to its connection's engine before anything else runs. */
     uint8_t read_buf[16384];

@@ -532,23 +532,25 @@ static bool is_continuation(const struct load_state *st, const char *value)
 }
 
 /*
- * A [roles] line: a role name as certificates carry it (printable, no
- * spaces, at most 63 bytes), each named once, and its rights.
+ * A [roles] line: a role name as certificates carry it (UTF-8, any
+ * language, no spaces or control characters, at most 63 bytes: see
+ * tls_role_name_problem), each named once, and its rights.
  */
 static int add_role(struct gw_config *cfg, const char *name, const char *value, char *why,
                     size_t why_size)
 {
     struct config_role *r;
 
+    const char *problem = tls_role_name_problem(name, strlen(name));
+
     if (strlen(name) >= sizeof(r->name)) {
-        snprintf(why, why_size, "a role name is at most %zu characters", sizeof(r->name) - 1);
+        snprintf(why, why_size, "a role name is at most %zu bytes", sizeof(r->name) - 1);
         return -EINVAL;
     }
-    for (const char *p = name; *p; p++) {
-        if (!isgraph((unsigned char)*p)) {
-            snprintf(why, why_size, "a role name has no spaces or control characters");
-            return -EINVAL;
-        }
+    if (problem) {
+        snprintf(why, why_size,
+                 "a role name is UTF-8 without spaces or control characters: %s", problem);
+        return -EINVAL;
     }
     for (unsigned i = 0; i < cfg->role_count; i++) {
         if (strcmp(cfg->roles[i].name, name) == 0) {

@@ -11,6 +11,7 @@ real jakagw in front of the real jakasim.
 import os
 import re
 import socket
+import multiprocessing
 import ssl
 import statistics
 import struct
@@ -373,16 +374,192 @@ def test_handshake_flood_does_not_starve_pollers():
         # TLS 1.3 client is done before the gateway has checked its
         # certificate: the clients' own count cannot be compared.)
         print("  flood: %d of 200 handshakes completed, %d refused at max_handshakes, "
-              "%d closed at the deadline; %d of 64 stalled closed at the deadline" % (
+              "%d closed at the deadline; %d of 64 stalled closed (deadline or room made)" % (
                   sum(results), over, timeouts - 64 if timeouts >= 64 else 0, closed))
         check(closed == 64, "stalled handshakes closed: %d of 64" % closed)
-        check(timeouts >= 64, "timeouts counted")
-        # One handshake more than the flood: the TLS poller's own.
-        check(ok + over + (timeouts - 64) >= 201,
-              "every flood handshake completed, was refused at the limit or timed out: "
-              "%d + %d + %d" % (ok, over, timeouts - 64))
+        # The stalled ones are closed at the deadline or, the oldest
+        # pending, to make room for the flood: each counted once. One
+        # handshake more than the flood: the TLS poller's own.
+        check(ok + over + timeouts >= 201 + 64,
+              "every handshake completed, was refused or closed at the limit, or timed out: "
+              "%d + %d + %d" % (ok, over, timeouts))
 
         check(m.plain().ir(IR_HANDSHAKES_RUNNING)[0] == 0, "no handshake left running")
+
+
+EMULATED = bool(os.environ.get("JAKAGW_RUNNER"))
+
+
+def has_asan():
+    from harness import JAKAGW
+    return b"libasan" in subprocess.run(["ldd", JAKAGW], capture_output=True).stdout
+
+
+# A record of handshake type opening a ClientHello of 128 KiB (OpenSSL takes
+# up to 131396 bytes), then records of zeros that go on filling it: bytes a
+# handshake must buffer, from a client that needs no certificate.
+STREAM_FIRST = b"\x16\x03\x01\x40\x00" + b"\x01\x02\x00\x00" + bytes(16380)
+STREAM_NEXT = b"\x16\x03\x01\x40\x00" + bytes(16384)
+
+
+def add(counter, n):
+    with counter.get_lock():
+        counter.value += n
+
+
+class Attackers:
+    """'count' threads running worker(port, stop, counter), in a process of
+    their own: the Python lock they hold does not delay the test's clients
+    and pollers, as another host's would not."""
+
+    def __init__(self, worker, port, count):
+        mp = multiprocessing.get_context("fork")
+        self.stop, self.counter = mp.Event(), mp.Value("q", 0)
+        self.proc = mp.Process(target=self._main, args=(worker, port, count))
+        self.proc.start()
+
+    def _main(self, worker, port, count):
+        threads = [threading.Thread(target=worker, args=(port, self.stop, self.counter))
+                   for _ in range(count)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+
+    def end(self):
+        self.stop.set()
+        self.proc.join(10)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        return self.counter.value
+
+
+def stream_into_handshakes(port, stop, sent):
+    """Connects, streams records into its pending handshake until the
+    gateway closes it, and connects again, until 'stop'."""
+    while not stop.is_set():
+        try:
+            s = socket.create_connection(("127.0.0.1", port), timeout=2)
+        except OSError:
+            time.sleep(0.01)
+            continue
+        try:
+            s.sendall(STREAM_FIRST)
+            while not stop.is_set():
+                s.sendall(STREAM_NEXT * 4)
+                add(sent, 4 * len(STREAM_NEXT))
+        except OSError:
+            pass
+        finally:
+            s.close()
+
+
+def streaming_flood(clients, seconds):
+    """'clients' streaming into pending handshakes (max_handshakes as many)
+    for 'seconds', while a plain poller reads every 10 ms: the gateway's
+    peak RSS and the poller's latencies."""
+    edit = lambda c: c.replace("max_handshakes = 16", "max_handshakes = %d" % clients)  # noqa: E731
+    with Mbaps(edit=edit) as m:
+        pid = m.gw.proc.pid
+        plain = raw_client(m.gw.modbus_port)
+        read_input_registers(plain, 18, 2)
+        base = rss_kb(pid)
+        poll_stop = threading.Event()
+        lat, fails = [], []
+        poller = threading.Thread(target=poll_loop, args=(
+            lambda: read_input_registers(plain, 18, 2), poll_stop, lat, fails))
+        poller.start()
+        streamers = Attackers(stream_into_handshakes, m.tls_port, clients)
+        peak = base
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            peak = max(peak, rss_kb(pid))
+            time.sleep(0.02)
+        poll_stop.set()
+        poller.join()
+        sent = streamers.end()
+        plain.close()
+        q = statistics.quantiles(lat, n=100)
+        print("  %d streaming clients, %.1f s: %.0f MiB written; RSS %.1f -> peak %.1f MiB; "
+              "plain poller: %d reads, %d failures, p50 %.1f ms, p99 %.1f ms" % (
+                  clients, seconds, sent / 1048576, base / 1024, peak / 1024, len(lat),
+                  len(fails), q[49] * 1000, q[98] * 1000))
+        check(not fails, "the poller failed: %s" % fails[:3])
+        check(m.gw.alive(), "the gateway died")
+        return base, peak, q[98]
+
+
+def check_flood(clients):
+    base, peak, p99 = streaming_flood(clients, 4)
+    # The bound is the issue's for the plain build. ASan's shadow memory
+    # and quarantine, qemu-user's own memory and its 10-15x slower crypto:
+    # the growth is judged there, and the latency bound grows with the
+    # emulation.
+    if has_asan() or EMULATED:
+        check(peak - base < 48 * 1024, "RSS grew by %d KiB" % (peak - base))
+    else:
+        check(peak < 48 * 1024, "peak RSS %d KiB" % peak)
+    check(p99 < (0.5 if EMULATED else 0.05), "plain poller p99 %.1f ms" % (p99 * 1000))
+
+
+def test_16_streaming_handshakes_bounded():
+    """16 unauthenticated clients streaming bytes into pending handshakes
+    (max_handshakes 16): memory stays bounded and the plain port answered."""
+    check_flood(16)
+
+
+def test_64_streaming_handshakes_bounded():
+    check_flood(64)
+
+
+def churn_idle(port, stop, connects):
+    """A TCP connection that sends nothing, reopened as soon as it closes."""
+    while not stop.is_set():
+        try:
+            s = socket.create_connection(("127.0.0.1", port), timeout=2)
+        except OSError:
+            time.sleep(0.005)
+            continue
+        add(connects, 1)
+        s.settimeout(0.5)
+        try:
+            while not stop.is_set():
+                try:
+                    if not s.recv(10):
+                        break
+                except socket.timeout:
+                    continue
+        except OSError:
+            pass
+        finally:
+            s.close()
+
+
+def test_idle_sockets_do_not_lock_out_tls_clients():
+    """16 silent sockets that reconnect as soon as they are closed hold
+    every handshake slot (max_handshakes 16); new TLS clients still get in,
+    from the same address, because a silent one makes room for them."""
+    with Mbaps() as m:
+        churners = Attackers(churn_idle, m.tls_port, 16)
+        try:
+            wait_until(lambda: m.plain().ir(IR_HANDSHAKES_RUNNING)[0] == 16, 5 * SLOW,
+                       "16 silent sockets holding the handshake slots")
+            served = 0
+            for _ in range(10):
+                try:
+                    s = tls_socket(m.tls_port, "operator", timeout=5 * SLOW)
+                    try:
+                        served += read_input_registers(s, 0, 1) == [0x4A4B]
+                    finally:
+                        s.close()
+                except (ssl.SSLError, OSError, TestFailure):
+                    pass
+        finally:
+            connects = churners.end()
+        print("  %d of 10 TLS clients served among 16 churning silent sockets (%d connects)"
+              % (served, connects))
+        check(served >= 8, "only %d of 10 TLS clients served" % served)
 
 
 def test_sighup_rotates_the_certificate():
@@ -596,14 +773,22 @@ if __name__ == "__main__":
     tests = [test_security_doc_word_for_word, test_roles_decide_writes,
              test_refused_handshakes_answer_nothing, test_old_versions_and_plaintext_refused,
              test_renegotiation_refused, test_handshake_flood_does_not_starve_pollers,
+             test_16_streaming_handshakes_bounded, test_64_streaming_handshakes_bounded,
+             test_idle_sockets_do_not_lock_out_tls_clients,
              test_sighup_rotates_the_certificate, test_no_growth_over_1000_handshakes,
              test_robot_over_tls, test_check_config_names_the_key]
     if sys.argv[1:] == ["valgrind"]:
-        # make valgrind: every TLS path but the two load tests, whose
+        # make valgrind: every TLS path but the load tests, whose
         # handshakes cannot finish within their deadline 20-50x slower
         # (valgrind's own leak check at exit stands for the growth test).
         tests = [t for t in tests if t not in (test_handshake_flood_does_not_starve_pollers,
+                                               test_16_streaming_handshakes_bounded,
+                                               test_64_streaming_handshakes_bounded,
+                                               test_idle_sockets_do_not_lock_out_tls_clients,
                                                test_no_growth_over_1000_handshakes)]
+    elif sys.argv[1:]:
+        # Named tests only: test_tls.py test_renegotiation_refused ...
+        tests = [t for t in tests if t.__name__ in sys.argv[1:]]
     try:
         run(tests)
     finally:
