@@ -293,6 +293,70 @@ def test_renegotiation_refused():
         wait_until(lambda: log_lines(m.gw, "renegotiation refused"), 5 * SLOW,
                    "the gateway to refuse and close")
         wait_until(lambda: m.plain().ir(IR_TLS_CLIENTS)[0] == 0, 5 * SLOW, "the client closed")
+        # Counted as the map says: a failed handshake, protocol (IR 5508).
+        check(m.counter(IR_FAILED["protocol"]) == 1 and m.counter(IR_FAILED_TOTAL) == 1,
+              "renegotiation counted: protocol %d, total %d" % (
+                  m.counter(IR_FAILED["protocol"]), m.counter(IR_FAILED_TOTAL)))
+
+
+def strict_tls_socket(port, name):
+    """A TLS client that tells close_notify from a bare end of stream:
+    recv() gives b"" only after close_notify; an end of stream without it
+    raises SSLEOFError (Python ignores that by default)."""
+    raw = socket.create_connection(("127.0.0.1", port), timeout=5 * SLOW)
+    ctx = client_context(name)
+    ctx.options &= ~ssl.OP_IGNORE_UNEXPECTED_EOF
+    return ctx.wrap_socket(raw, server_hostname="127.0.0.1", suppress_ragged_eofs=False)
+
+
+def ends_with_close_notify(s):
+    try:
+        while True:
+            if s.recv(4096) == b"":
+                return True
+    except ssl.SSLError as e:
+        print("  no close_notify: %s" % e)
+        return False
+    finally:
+        s.close()
+
+
+def test_gateway_closes_end_with_close_notify():
+    """A session the gateway ends (a bad MBAP header, the idle timeout, a
+    stop) ends with close_notify, not a bare end of stream."""
+    with Mbaps(extra="\n[modbus]\nidle_timeout_ms = %d\n" % (500 * SLOW)) as m:
+        s = strict_tls_socket(m.tls_port, "operator")
+        check(read_input_registers(s, 0, 1) == [0x4A4B], "a read first")
+        s.sendall(b"\x00\x02\x00\x07\x00\x06\x01\x04\x00\x00\x00\x01")  # protocol id 7
+        check(ends_with_close_notify(s), "bad MBAP header: close_notify")
+        s = strict_tls_socket(m.tls_port, "operator")
+        read_input_registers(s, 0, 1)
+        check(ends_with_close_notify(s), "idle timeout: close_notify")
+        s = strict_tls_socket(m.tls_port, "operator")
+        read_input_registers(s, 0, 1)
+        m.gw.proc.terminate()
+        check(ends_with_close_notify(s), "stop: close_notify")
+        m.gw.proc.wait(10 * SLOW)  # a second SIGTERM would end it at once
+
+
+def test_session_lines_rate_limited():
+    """A handshake loop does not fill the log: at most 10 session lines in
+    10 s, the rest counted; each says whether the session is new."""
+    with Mbaps() as m:
+        start = time.monotonic()
+        for _ in range(60):
+            s = tls_socket(m.tls_port, "operator")
+            read_input_registers(s, 0, 1)
+            s.close()
+        elapsed = time.monotonic() - start
+        lines = log_lines(m.gw, 'certificate "CN=plc-operator"')
+        print("  60 sessions in %.1f s: %d session lines" % (elapsed, len(lines)))
+        check(len(lines) <= 10 * (int(elapsed / 10) + 1), "\n".join(lines))
+        check(all("TLSv1.3, new session" in l or "TLSv1.3, session resumed" in l for l in lines),
+              "\n".join(lines))
+        wait_until(lambda: m.counter(IR_HANDSHAKES_OK) == 60, 5 * SLOW, "60 handshakes counted")
+        if elapsed < 10:
+            check(len(lines) == 10, "the first 10 sessions logged:\n" + "\n".join(lines))
 
 
 def poll_loop(read, stop, latencies, failures):
@@ -772,7 +836,8 @@ def test_check_config_names_the_key():
 if __name__ == "__main__":
     tests = [test_security_doc_word_for_word, test_roles_decide_writes,
              test_refused_handshakes_answer_nothing, test_old_versions_and_plaintext_refused,
-             test_renegotiation_refused, test_handshake_flood_does_not_starve_pollers,
+             test_renegotiation_refused, test_gateway_closes_end_with_close_notify,
+             test_session_lines_rate_limited, test_handshake_flood_does_not_starve_pollers,
              test_16_streaming_handshakes_bounded, test_64_streaming_handshakes_bounded,
              test_idle_sockets_do_not_lock_out_tls_clients,
              test_sighup_rotates_the_certificate, test_no_growth_over_1000_handshakes,
