@@ -138,8 +138,10 @@ struct mb_client;
  * A transport. Every function gets the transport's own state (the 'state'
  * given to mb_server_listen) and the connection. The server calls them
  * from its loop callbacks; a transport calls back into the server only
- * through the mb_client_* functions below, and must not touch a
- * connection again once mb_client_is_open() says false.
+ * through the mb_client_* functions below. It feeds a connection no more
+ * input once mb_client_is_open() says false, and writes to it no more once
+ * mb_client_can_send() does (a flushing connection still takes its last
+ * words, a TLS close_notify).
  */
 struct mb_transport {
     const char *name; /* "modbus", "mbaps": for logs */

@@ -841,7 +841,8 @@ static void refuse_connection(struct mb_server *srv, struct mb_listener *l)
 
 /*
  * TCP keepalive and TCP_USER_TIMEOUT (mb_server.h): a peer gone without a
- * word is noticed in seconds, not the kernel's two hours and more.
+ * word is let go in about 5 s (libuv's own keepalive, 10 s and then 10
+ * probes a second apart, took 20 s; the kernel's defaults, over two hours).
  */
 static void tune_keepalive(struct mb_client *c)
 {
