@@ -659,21 +659,21 @@ static void gate_refuses_under_a_fault_and_without_motion_enable(void **state)
     start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
     /* Motion enable required and at 0: motion, program starts and unknown
      * names (judged as motion) are refused; the rest passes. */
-    assert_int_equal(policy_gate_command(&p, power_on, why, sizeof(why)), 0);
-    assert_int_equal(policy_gate_command(&p, play, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0, power_on, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0, play, why, sizeof(why)), 1);
     assert_string_equal(why, "motion enable is 0");
-    assert_int_equal(policy_gate_command(&p, joint_move, why, sizeof(why)), 1);
-    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0, joint_move, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0, NULL, why, sizeof(why)), 1);
     policy_motion_enable(&p, T0, true, IDLE);
-    assert_int_equal(policy_gate_command(&p, play, why, sizeof(why)), 0);
-    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0, play, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0, NULL, why, sizeof(why)), 0);
     /* A latched fault refuses everything but stop_program. */
     policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
     policy_check(&p, T0 + LIMIT, MOVING);
-    assert_int_equal(policy_gate_command(&p, power_on, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0 + LIMIT, power_on, why, sizeof(why)), 1);
     assert_string_equal(why, "network-exception fault 1 latched: reset it first");
-    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 1);
-    assert_int_equal(policy_gate_command(&p, stop, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0 + LIMIT, NULL, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0 + LIMIT, stop, why, sizeof(why)), 0);
 }
 
 static void sink_without_a_callback(void **state)
