@@ -81,23 +81,26 @@ static const struct regmap_written *element_of(const struct plc_write *pw,
     return NULL;
 }
 
-/* Step 4 for one element; the motion-enable drop was taken already. */
+/* The fault-reset coil written 1. */
+static void reset_fault(struct plc_write *pw)
+{
+    if (pw->policy->fault != POLICY_FAULT_NONE)
+        log_notice("network-exception fault %d reset by %s", pw->policy->fault, pw->w->client);
+    policy_reset(pw->policy);
+}
+
+/* Step 4 for one element; a motion-enable drop and the reset with it were
+ * taken already. */
 static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_t now,
-                   uint64_t faults_before)
+                   bool drops_enable)
 {
     const struct plc_write_rows *rows = &pw->rows;
 
     if (e->row == rows->heartbeat) {
         policy_heartbeat(pw->policy, now, pw->w->client_id, pw->w->client, e->value);
     } else if (e->row == rows->fault_reset) {
-        /* It clears the fault latched before the write, never one this
-         * write's own motion-enable drop latched. */
-        if (e->value != 0 && pw->policy->faults == faults_before) {
-            if (pw->policy->fault != POLICY_FAULT_NONE)
-                log_notice("network-exception fault %d reset by %s", pw->policy->fault,
-                           pw->w->client);
-            policy_reset(pw->policy);
-        }
+        if (e->value != 0 && !drops_enable)
+            reset_fault(pw);
     } else if (e->row == rows->motion_enable) {
         if (e->value != 0)
             policy_motion_enable(pw->policy, now, true,
@@ -134,14 +137,19 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
         return ex;
     }
     uint64_t now = pw->hooks.now_ms(pw->hooks.user);
-    uint64_t faults_before = pw->policy->faults;
     /* A drop of motion enable goes first, whatever its address: nothing
      * else the write holds is judged before the policy has seen it, and
-     * nothing refuses it. */
+     * nothing refuses it. A reset in the same write goes just before it:
+     * it acknowledges the fault latched before the write, and the drop
+     * latches fault 3 if the robot runs or may run. */
     const struct regmap_written *enable = element_of(pw, pw->rows.motion_enable);
+    const struct regmap_written *reset = element_of(pw, pw->rows.fault_reset);
     bool drops_enable = enable && enable->value == 0;
-    if (drops_enable)
+    if (drops_enable) {
+        if (reset && reset->value != 0)
+            reset_fault(pw);
         policy_motion_enable(pw->policy, now, false, pw->hooks.robot_may_move(pw->hooks.user));
+    }
     /* Step 3: every command checked with the new values in place, against
      * the fault as it was before the write (a reset in it starts nothing). */
     plc_commands_begin(pw->commands);
@@ -158,7 +166,7 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
         return ex;
     }
     for (unsigned i = 0; i < pw->element_count; i++)
-        act_on(pw, &pw->elements[i], now, faults_before);
+        act_on(pw, &pw->elements[i], now, drops_enable);
     plc_commands_discard(pw->commands);
     policy_check(pw->policy, now, pw->hooks.robot_may_move(pw->hooks.user));
     /* 'w' is the server's and lives only for this call. */
