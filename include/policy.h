@@ -25,7 +25,7 @@
  * running, or a stale status: blind, the worst is assumed), and also a
  * start the gateway sent that the status cannot show yet
  * (policy_start_sent): until a status document received after its reply,
- * or start_unshown_max_ms at most. A command that would start motion while
+ * or start_unshown_max_ms after the reply at most. A command that would start motion while
  * a signal is lost is refused, and counts as the robot about to run: the
  * fault is latched and the action sent, so a PLC that starts and drops
  * motion enable ends the same way in either order.
@@ -75,10 +75,10 @@ struct policy_config {
     bool motion_enable;  /* the motion-enable coil is required */
     bool single_owner;   /* one write owner at a time */
     /*
-     * How long a start the gateway sent counts as "may run" at most when
-     * no status document after its reply comes (0: 10 s). The gateway
-     * sets reply_timeout_ms + status_timeout_ms: by then the start was
-     * answered or failed, and the status is fresh or judged stale.
+     * How long after its reply a start the gateway sent counts as "may
+     * run" at most when no status document comes (0: 10 s). The gateway
+     * sets status_timeout_ms: by then the status is judged stale, and
+     * blind, the worst is assumed anyway.
      */
     uint32_t start_unshown_max_ms;
 };
@@ -113,8 +113,7 @@ struct policy {
     /* Starts the gateway sent that the status may not show yet. */
     unsigned starts_unanswered; /* sent or queued, no reply yet */
     bool start_unshown;         /* answered, no status document since */
-    uint64_t start_sent_ms;     /* the last one's */
-    uint64_t start_answered_ms;
+    uint64_t start_answered_ms; /* the last reply */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;
@@ -157,7 +156,8 @@ void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
  * came, or it failed (any outcome: a timeout or a dropped link leaves its
  * fate unknown). From the first until a status document received after
  * the last reply (policy_status_document), the robot may run whatever the
- * status says; start_unshown_max_ms after the last start at most.
+ * status says: while one is unanswered (the command queue answers every
+ * one in bounded time), then start_unshown_max_ms after the reply at most.
  */
 void policy_start_sent(struct policy *p, uint64_t now_ms);
 void policy_start_answered(struct policy *p, uint64_t now_ms);

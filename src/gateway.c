@@ -428,7 +428,7 @@ static int start_policy(struct gateway *gw)
         .watch = (enum policy_watch)(cfg->ne_watch + 1),
         .motion_enable = cfg->ne_motion_enable,
         .single_owner = cfg->ne_single_owner,
-        .start_unshown_max_ms = cfg->reply_timeout_ms + cfg->status_timeout_ms,
+        .start_unshown_max_ms = cfg->status_timeout_ms,
     };
     struct policy_sink sink = {.send_action = send_policy_action, .user = gw};
 

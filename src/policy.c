@@ -95,8 +95,8 @@ void policy_reset(struct policy *p)
 
 void policy_start_sent(struct policy *p, uint64_t now_ms)
 {
+    (void)now_ms;
     p->starts_unanswered++;
-    p->start_sent_ms = now_ms;
 }
 
 void policy_start_answered(struct policy *p, uint64_t now_ms)
@@ -121,7 +121,11 @@ bool policy_start_unshown(const struct policy *p, uint64_t now_ms)
 {
     uint32_t max = p->cfg.start_unshown_max_ms ? p->cfg.start_unshown_max_ms
                                                : START_UNSHOWN_MAX_MS_DEFAULT;
-    return (p->starts_unanswered > 0 || p->start_unshown) && now_ms - p->start_sent_ms < max;
+    /* Unanswered, it may start any moment: the command queue bounds that
+     * (a reply, a reply timeout or the link's loss answers every one). */
+    if (p->starts_unanswered > 0)
+        return true;
+    return p->start_unshown && now_ms - p->start_answered_ms < max;
 }
 
 /* Does the robot run, or may it run: what the status shows, or a start
