@@ -89,7 +89,7 @@ static void reset_fault(struct plc_write *pw)
     policy_reset(pw->policy);
 }
 
-/* Step 4 for one element; a motion-enable drop and the reset with it were
+/* Step 5 for one element; a motion-enable drop and the reset with it were
  * taken already. */
 static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_t now,
                    bool drops_enable)
@@ -150,7 +150,7 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
             reset_fault(pw);
         policy_motion_enable(pw->policy, now, false, pw->hooks.robot_may_move(pw->hooks.user));
     }
-    /* Step 3: every command checked with the new values in place, against
+    /* Step 4: every command checked with the new values in place, against
      * the fault as it was before the write (a reset in it starts nothing). */
     plc_commands_begin(pw->commands);
     for (unsigned i = 0; i < pw->element_count && ex == 0; i++)
