@@ -24,8 +24,10 @@
  * age. "May run" is what the status shows (moving, a program loading or
  * running, or a stale status: blind, the worst is assumed), and also a
  * start the gateway sent that the status cannot show yet
- * (policy_start_sent): until a status document received after its reply,
- * or start_unshown_max_ms after the reply at most. A command that would start motion while
+ * (policy_start_sent): until a status document received at least
+ * POLICY_START_SETTLE_MS after its reply (the controller's status may lag
+ * its reply by a few pushes), or start_unshown_max_ms after the reply at
+ * most. A command that would start motion while
  * a signal is lost is refused, and counts as the robot about to run: the
  * fault is latched and the action sent, so a PLC that starts and drops
  * motion enable ends the same way in either order.
@@ -51,6 +53,10 @@
 
 #include "command.h"
 #include "status.h"
+
+/* How long after a start's reply a status document must arrive to show
+ * whether the start ran. */
+#define POLICY_START_SETTLE_MS 200
 
 enum policy_action { POLICY_KEEP = 0, POLICY_PAUSE = 1, POLICY_STOP = 2 };
 

@@ -111,9 +111,12 @@ void policy_start_answered(struct policy *p, uint64_t now_ms)
 
 void policy_status_document(struct policy *p, uint64_t now_ms)
 {
-    /* Only a document received after the reply can show the start: one
-     * read in the same millisecond may have left the robot before it. */
-    if (p->starts_unanswered == 0 && p->start_unshown && now_ms > p->start_answered_ms)
+    /* Only a document received well after the reply can show the start: a
+     * controller answers before its next status push reflects the new
+     * program state, and jakasim's 8 ms push is no promise for a real
+     * one, so the first documents after the reply prove nothing. */
+    if (p->starts_unanswered == 0 && p->start_unshown &&
+        now_ms >= p->start_answered_ms + POLICY_START_SETTLE_MS)
         p->start_unshown = false;
 }
 
