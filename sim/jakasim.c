@@ -80,8 +80,11 @@ struct peer {
     bool handler_set;
     unsigned handler_ms;
     enum sim_net_motion handler_motion;
-    uint64_t last_rx_ms; /* when bytes last arrived */
-    uv_timer_t silence;  /* command clients: --link-check-ms + timeLimit */
+    /* Since when the client has had nothing to wait for and has sent
+     * nothing: the later of its last bytes and our last reply. */
+    uint64_t quiet_since_ms;
+    unsigned replies_owed; /* held by --reply-delay-ms */
+    uv_timer_t silence;    /* command clients: --link-check-ms + timeLimit */
     int open_handles;    /* the peer is freed when the last one closes */
     struct peer *next;
 };
@@ -108,6 +111,7 @@ struct sim {
     uint64_t next_peer_id;
     struct delayed_reply *delayed; /* replies waiting for --reply-delay-ms */
     struct link_loss *losses;      /* handlers waiting out their timeLimit */
+    struct log_ratelimit handler_log; /* a client may open and drop many */
     struct tls_context *tls;
 };
 
@@ -187,6 +191,17 @@ static void drop_loss(struct link_loss *l)
     uv_close((uv_handle_t *)&l->timer, loss_closed);
 }
 
+/* The rate limiter's count, as the end of the line that passes. */
+static const char *held_back(uint64_t suppressed)
+{
+    static char text[64];
+    text[0] = '\0';
+    if (suppressed)
+        snprintf(text, sizeof(text), " (%llu handler lines held back)",
+                 (unsigned long long)suppressed);
+    return text;
+}
+
 static const char *motion_name(enum sim_net_motion m)
 {
     return m == SIM_NET_PAUSE ? "pause" : m == SIM_NET_STOP ? "stop" : "keep";
@@ -198,12 +213,15 @@ static void handler_act(struct sim *sim, uint64_t peer_id, enum sim_net_motion m
                         unsigned time_limit_ms, const char *why, uint64_t waited_ms)
 {
     char done[192];
+    uint64_t suppressed;
 
     sim_robot_network_lost(&sim->robot, motion, done, sizeof(done));
-    log_notice("jakasim: network exception on command connection %llu: %s; waited %llu ms "
-               "(timeLimit %u ms); motType %d (%s): %s",
-               (unsigned long long)peer_id, why, (unsigned long long)waited_ms,
-               time_limit_ms, (int)motion, motion_name(motion), done);
+    if (log_ratelimit_pass(&sim->handler_log, uv_now(sim->loop), &suppressed))
+        log_notice("jakasim: network exception on command connection %llu: %s; waited %llu "
+                   "ms (timeLimit %u ms); motType %d (%s): %s%s",
+                   (unsigned long long)peer_id, why, (unsigned long long)waited_ms,
+                   time_limit_ms, (int)motion, motion_name(motion), done,
+                   held_back(suppressed));
 }
 
 static void on_loss_timer(uv_timer_t *t)
@@ -249,15 +267,16 @@ static void lose_peer(struct peer *p, const char *why)
 
 /*
  * Nothing from a client with a handler set for --link-check-ms plus
- * timeLimit: a link check did not come, and timeLimit has passed since.
- * The handler acts now, and the connection is reset: a client whose link
- * comes back finds it gone instead of a robot that no longer watches it.
+ * timeLimit, while it waited for no reply: a link check did not come, and
+ * timeLimit has passed since. The handler acts now, and the connection is
+ * reset: a client whose link comes back finds it gone instead of a robot
+ * that no longer watches it.
  */
 static void on_silence(uv_timer_t *t)
 {
     struct peer *p = t->data;
     struct sim *sim = p->sim;
-    uint64_t silent_ms = uv_now(sim->loop) - p->last_rx_ms;
+    uint64_t silent_ms = uv_now(sim->loop) - p->quiet_since_ms;
     uint64_t check_ms = sim->opt.link_check_ms;
     char why[128];
 
@@ -268,13 +287,20 @@ static void on_silence(uv_timer_t *t)
     close_peer_how(p, true);
 }
 
-/* Bytes arrived: the silence starts again. */
+/*
+ * Bytes arrived, or a reply left: the silence starts again. A client
+ * waiting for a delayed reply sends no link check (the gateway never
+ * checks a link with a command in flight), so its silence is not counted
+ * until the reply has gone.
+ */
 static void peer_alive(struct peer *p)
 {
-    p->last_rx_ms = uv_now(p->sim->loop);
-    if (p->handler_set && p->sim->opt.link_check_ms)
+    p->quiet_since_ms = uv_now(p->sim->loop);
+    if (p->handler_set && p->sim->opt.link_check_ms && p->replies_owed == 0)
         uv_timer_start(&p->silence, on_silence,
                        (uint64_t)p->sim->opt.link_check_ms + p->handler_ms, 0);
+    else if (!p->status)
+        uv_timer_stop(&p->silence);
 }
 
 /* Bytes as they go on the wire. */
@@ -494,8 +520,10 @@ static void on_delayed_reply(uv_timer_t *t)
     bool sent = false;
     for (struct peer *p = d->sim->peers; p && !sent; p = p->next)
         if (p->id == d->peer_id && !p->closing) {
+            p->replies_owed--;
             send_to(p, d->data, d->size);
             sent = true;
+            peer_alive(p);
         }
     if (d->sim->opt.log_commands)
         log_info("jakasim: delayed reply to %s %s", d->name,
@@ -507,14 +535,17 @@ static void on_delayed_reply(uv_timer_t *t)
 static void arm_handler(struct peer *p)
 {
     const struct sim_robot *r = &p->sim->robot;
+    uint64_t suppressed;
 
     p->handler_set = true;
     p->handler_ms = (unsigned)r->net_exception_ms;
     p->handler_motion = (enum sim_net_motion)r->net_exception_motion;
     peer_alive(p);
-    log_info("jakasim: command connection %llu: network exception handler set: "
-             "timeLimit %u ms, motType %d (%s)", (unsigned long long)p->id, p->handler_ms,
-             (int)p->handler_motion, motion_name(p->handler_motion));
+    if (log_ratelimit_pass(&p->sim->handler_log, uv_now(p->sim->loop), &suppressed))
+            log_info("jakasim: command connection %llu: network exception handler set: "
+                 "timeLimit %u ms, motType %d (%s)%s", (unsigned long long)p->id,
+                 p->handler_ms, (int)p->handler_motion, motion_name(p->handler_motion),
+                 held_back(suppressed));
 }
 
 static void on_command_object(void *user, enum framer_event ev, const char *data,
@@ -547,6 +578,12 @@ static void on_command_object(void *user, enum framer_event ev, const char *data
                      answer ? reply.buf : "(no reply)");
     }
     const char *delayed = sim->opt.delay_command;
+    if (!answer) {
+        /* The client waits for a reply that never comes, sending nothing:
+         * only its reply timeout, a close, can end that. */
+        p->replies_owed++;
+        peer_alive(p);
+    }
     if (answer && !reply.failed) {
         if (sim->opt.reply_delay_ms && (!delayed || strcmp(delayed, name) == 0)) {
             struct delayed_reply *d = malloc(sizeof(*d) + reply.len);
@@ -561,9 +598,12 @@ static void on_command_object(void *user, enum framer_event ev, const char *data
                 uv_timer_init(sim->loop, &d->timer);
                 d->timer.data = d;
                 uv_timer_start(&d->timer, on_delayed_reply, sim->opt.reply_delay_ms, 0);
+                p->replies_owed++;
+                peer_alive(p);
             }
         } else {
             send_to(p, reply.buf, reply.len);
+            peer_alive(p);
         }
     }
     pyjson_free(&reply);
@@ -663,7 +703,7 @@ static void accept_peer(uv_stream_t *server, bool status)
         uv_close((uv_handle_t *)&p->tcp, peer_closed);
         return;
     }
-    p->last_rx_ms = uv_now(sim->loop);
+    p->quiet_since_ms = uv_now(sim->loop);
     if (!status) {
         uv_timer_init(sim->loop, &p->silence);
         p->silence.data = p;
@@ -966,6 +1006,7 @@ int main(int argc, char **argv)
         return 2;
     }
     sim_robot_init(&sim.robot, sim.opt.test_pattern);
+    sim.handler_log.interval_ms = 100;
     sim.robot.profile = sim.profile;
     sim.robot.fail_message = sim.opt.fail_message;
     if (sim.opt.auto_run) {

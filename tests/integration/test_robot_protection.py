@@ -318,6 +318,36 @@ def test_handler_belongs_to_its_connection():
         sim.stop()
 
 
+def test_waiting_for_a_reply_is_not_silence():
+    """A client waiting for a slow reply sends no link check (the gateway
+    never checks a link with a command in flight): its silence counts from
+    the reply on."""
+    delay_ms = 3 * (LINK_CHECK_MS + TIME_LIMIT_MS)
+    sim = Sim("--link-check-ms", str(LINK_CHECK_MS), "--reply-delay-ms", str(delay_ms),
+              "--delay-command", "get_version")
+    status = StatusStream(sim)
+    try:
+        c = Client(sim)
+        start_program(c, status)
+        c.ok("set_network_exception_handle", timeLimit=TIME_LIMIT_MS, motType=PAUSE)
+        c.ok("get_version")
+        replied = time.monotonic()
+        waited = replied - c.sent_at
+        check(waited >= delay_ms / 1000 - EARLY_S, "the reply came after %.3f s" % waited)
+        check(status.latest()["interp_state"] == RUNNING and action_lines(sim) == [],
+              "paused while the client waited %.1f s for a reply" % waited)
+        at, doc = status.wait(lambda d: d["interp_state"] != RUNNING,
+                              (LINK_CHECK_MS + TIME_LIMIT_MS) / 1000 + SLACK_S,
+                              "the pause after the reply")
+        check(doc["interp_state"] == PAUSED, "interp_state %d" % doc["interp_state"])
+        check(at - replied >= (LINK_CHECK_MS + TIME_LIMIT_MS) / 1000 - EARLY_S,
+              "paused %.3f s after the reply" % (at - replied))
+        c.close()
+    finally:
+        status.close()
+        sim.stop()
+
+
 def test_move_paused_and_resumed_or_stopped():
     """A move (joint_move) is paused where it is and goes on to its target
     after resume_program; stopped, it ends where it is."""
@@ -462,4 +492,5 @@ def test_silent_gateway_pauses_the_program():
 
 if __name__ == "__main__":
     run([test_program_kept_paused_stopped_on_each_loss, test_handler_belongs_to_its_connection,
-         test_move_paused_and_resumed_or_stopped, test_silent_gateway_pauses_the_program])
+         test_waiting_for_a_reply_is_not_silence, test_move_paused_and_resumed_or_stopped,
+         test_silent_gateway_pauses_the_program])
