@@ -85,7 +85,7 @@ struct peer {
     uint64_t quiet_since_ms;
     unsigned replies_owed; /* held by --reply-delay-ms */
     uv_timer_t silence;    /* command clients: --link-check-ms + timeLimit */
-    int open_handles;    /* the peer is freed when the last one closes */
+    int open_handles;      /* the peer is freed when the last one closes */
     struct peer *next;
 };
 
@@ -299,7 +299,7 @@ static void peer_alive(struct peer *p)
     if (p->handler_set && p->sim->opt.link_check_ms && p->replies_owed == 0)
         uv_timer_start(&p->silence, on_silence,
                        (uint64_t)p->sim->opt.link_check_ms + p->handler_ms, 0);
-    else if (!p->status)
+    else
         uv_timer_stop(&p->silence);
 }
 
@@ -542,7 +542,7 @@ static void arm_handler(struct peer *p)
     p->handler_motion = (enum sim_net_motion)r->net_exception_motion;
     peer_alive(p);
     if (log_ratelimit_pass(&p->sim->handler_log, uv_now(p->sim->loop), &suppressed))
-            log_info("jakasim: command connection %llu: network exception handler set: "
+        log_info("jakasim: command connection %llu: network exception handler set: "
                  "timeLimit %u ms, motType %d (%s)%s", (unsigned long long)p->id,
                  p->handler_ms, (int)p->handler_motion, motion_name(p->handler_motion),
                  held_back(suppressed));
