@@ -270,6 +270,7 @@ class Soak:
         self.faults = collections.Counter()
         self.detect = collections.defaultdict(list)
         self.undetected = collections.Counter()
+        self.loss_trips = collections.Counter()
         self.recover = collections.defaultdict(list)
         self.samples = []           # (t, fds, rss)
         self.monitor_state = {}
@@ -531,7 +532,13 @@ class Soak:
             time.sleep(duration)
             nft_clear()
             t_restore = time.monotonic()
-            if kind != "loss":
+            if kind == "loss":
+                # Not a fault the gateway should act on: whether the link
+                # read down or stale all the same is counted, not judged.
+                t = self.first_after(t0, lambda st: self.detected(link, st, before))
+                if t is not None and t <= t_restore:
+                    self.loss_trips[label] += 1
+            else:
                 t = self.first_after(t0, lambda st: self.detected(link, st, before))
                 late = 2.0 if kind == "rst" else 0.2
                 if t is not None and t <= t_restore + late:
@@ -679,10 +686,11 @@ class Soak:
                                            "undetected", "recovery median/max"))
         for label in sorted(self.faults):
             d, r = self.detect.get(label, []), self.recover.get(label, [])
-            print("%-28s %6d %22s %10d %22s" % (
+            print("%-28s %6d %22s %10s %22s" % (
                 label, self.faults[label],
-                "%.2f / %.2f s" % (statistics.median(d), max(d)) if d else "-",
-                self.undetected[label],
+                "%.2f / %.2f s" % (statistics.median(d), max(d)) if d else
+                "read down/stale %d" % self.loss_trips[label] if "loss" in label else "-",
+                self.undetected[label] if "loss" not in label else "",
                 "%.2f / %.2f s" % (statistics.median(r), max(r)) if r else "-"))
         fds = [s[1] for s in self.samples]
         rss = [s[2] for s in self.samples]
