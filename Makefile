@@ -136,13 +136,17 @@ $(BUILD)/bench/ref_slave: bench/ref_slave.c
 # server CPU, the stream's cost and memory. About 5 minutes: the memory
 # figure feeds a million documents (BENCH_MODBUS_FLAGS="--documents N" for
 # fewer). Then Modbus/TCP Security against plain Modbus TCP in one jakagw:
-# CPU per request, handshakes, memory per TLS connection.
+# CPU per request, handshakes, memory per TLS connection. Last, Modbus RTU
+# over socat ptys at 115200 baud against a bare libmodbus RTU slave, and
+# Modbus TCP alone and with an RTU master polling (bench_rtu, socat).
 bench: all $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands \
-       $(BUILD)/bench/bench_modbus $(BUILD)/bench/ref_slave $(BUILD)/bench/bench_tls
+       $(BUILD)/bench/bench_modbus $(BUILD)/bench/ref_slave $(BUILD)/bench/bench_tls \
+       $(BUILD)/bench/bench_rtu
 	@$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
 	@$(BUILD)/bench/bench_commands
 	@$(BUILD)/bench/bench_modbus --document tests/data/status-controller-a.json $(BENCH_MODBUS_FLAGS)
 	@$(BUILD)/bench/bench_tls
+	@$(BUILD)/bench/bench_rtu
 
 # Installs the Debian packages the build and the tests need, if missing,
 # saying which and why. DEPS_GROUPS="build tests ..." picks groups

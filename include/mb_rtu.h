@@ -111,6 +111,7 @@ struct mb_rtu {
     uint64_t request_end_ns; /* the frame being answered: its last read */
     uint8_t tx[MB_RTU_TX_SIZE]; /* what the port did not take at once */
     size_t tx_used;
+    bool tx_waiting;         /* polling for writable: tx_used was > 0 */
     uint16_t transaction;
     struct mb_rtu_stats stats;
     struct log_ratelimit log_limit;

@@ -147,6 +147,7 @@ static int open_line(struct mb_rtu *rtu, char *why, size_t why_size)
     rtu->gap_count = 0;
     rtu->rx_overrun = false;
     rtu->tx_used = 0;
+    rtu->tx_waiting = false;
     uv_poll_start(&rtu->serial, UV_READABLE, on_serial);
     return 0;
 }
@@ -230,6 +231,8 @@ static void line_fault(struct mb_rtu *rtu, const char *why)
 /* Writes what is queued; the rest waits for the port to be writable. */
 static void flush_tx(struct mb_rtu *rtu)
 {
+    bool was_waiting = rtu->tx_waiting;
+
     while (rtu->tx_used) {
         ssize_t n = write(rtu->fd, rtu->tx, rtu->tx_used);
         if (n > 0) {
@@ -244,8 +247,12 @@ static void flush_tx(struct mb_rtu *rtu)
         line_fault(rtu, n < 0 ? strerror(errno) : "write failed");
         return;
     }
-    uv_poll_start(&rtu->serial, rtu->tx_used ? UV_READABLE | UV_WRITABLE : UV_READABLE,
-                  on_serial);
+    /* The poll changes only when a reply waits, or waited: nearly every
+     * reply goes out whole and costs no epoll_ctl. */
+    rtu->tx_waiting = rtu->tx_used > 0;
+    if (rtu->tx_waiting != was_waiting)
+        uv_poll_start(&rtu->serial, rtu->tx_waiting ? UV_READABLE | UV_WRITABLE : UV_READABLE,
+                      on_serial);
 }
 
 /* The server's reply (an MBAP frame) goes out as an RTU frame. */
@@ -397,6 +404,10 @@ static ssize_t read_line(struct mb_rtu *rtu)
         }
         rtu->last_rx_ns = t;
         total += n;
+        /* A terminal gives all it holds, up to the size asked: less means
+         * nothing is left, and the poll says when more comes. */
+        if ((size_t)n < sizeof(buf))
+            break;
     }
     if (total > 0)
         set_silence_timer(rtu, rtu->last_rx_ns + rtu->t35_ns);
@@ -408,7 +419,10 @@ static void on_serial(uv_poll_t *p, int status, int events)
     struct mb_rtu *rtu = p->data;
 
     if (status < 0) {
-        line_fault(rtu, uv_strerror(status));
+        /* libuv says EBADF for any POLLERR: a read tells what happened (EIO
+         * when the other end of a pty went, or a USB adapter was pulled). */
+        if (read_line(rtu) >= 0)
+            line_fault(rtu, "the device reports an error");
         return;
     }
     if (events & UV_WRITABLE)

@@ -33,6 +33,7 @@ IR_FOREIGN = 5546
 IR_BROADCASTS = 5548
 IR_GAP_DISCARDS = 5552
 IR_TURNAROUND = 5554
+IR_MODBUS_CLIENTS = 40
 LINE_IDLE, LINE_POLLED, LINE_FAULT = 1, 2, 3
 NO_REPLY_S = 0.4  # how long a master waits before it calls a request unanswered
 
@@ -408,9 +409,41 @@ def test_rtu_and_tcp_at_once():
         check(not errors and tcp_reads[0] > 50, "TCP: %d reads, %s" % (tcp_reads[0], errors))
 
 
+def test_line_counts_as_a_client_while_polled():
+    """For the policy's watch = connection, the line is a connected client
+    while a request for this unit came within time_limit_ms, and no longer
+    once none came for that long; frames for other units do not count."""
+    with rig() as r:
+        r.gw.stop()
+        r.gw = Gateway(r.sim, rtu_config(r.line.device) +
+                       "[network_exception]\nwatch = connection\ntime_limit_ms = 600\n")
+        r.plc.close()
+        r.plc = ModbusPlc(r.gw.modbus_port)
+        wait_until(lambda: r.plc.ir(IR_LINE_STATE)[0] == LINE_IDLE, 10, "the line open")
+        check(r.plc.ir(IR_MODBUS_CLIENTS)[0] == 1, "only the TCP client")
+        m = r.master()
+        try:
+            for _ in range(5):
+                m.send(frame(UNIT + 1, read_ir_pdu(0, 1)))
+                time.sleep(0.1)
+            check(r.plc.ir(IR_MODBUS_CLIENTS)[0] == 1, "foreign frames do not count")
+            check(m.read_ir(IR_MAGIC) == [MAGIC], "a request for this unit")
+            check(r.plc.ir(IR_MODBUS_CLIENTS)[0] == 2 and
+                  r.plc.ir(IR_LINE_STATE)[0] == LINE_POLLED, "the line counted")
+            start = time.monotonic()
+            wait_until(lambda: r.plc.ir(IR_MODBUS_CLIENTS)[0] == 1, 10, "the line let go")
+            check(time.monotonic() - start >= 0.4, "not before time_limit_ms")
+            check(r.plc.ir(IR_LINE_STATE)[0] == LINE_IDLE, "idle again")
+            check(m.read_ir(IR_MAGIC) == [MAGIC], "served again")
+            check(r.plc.ir(IR_MODBUS_CLIENTS)[0] == 2, "counted again")
+        finally:
+            m.close()
+
+
 if __name__ == "__main__":
     run([test_mbpoll_and_pymodbus_read_the_map, test_command_once_with_rights_and_01_outside,
          test_bad_crc_and_mid_frame_gap_are_not_answered, test_multidrop_keeps_sync,
          test_broadcast_is_counted_never_acted_on, test_device_removed_and_restored,
          test_absent_device_at_start_is_a_link_fault,
-         test_rs485_refused_exits_2_naming_the_device, test_rtu_and_tcp_at_once])
+         test_rs485_refused_exits_2_naming_the_device, test_rtu_and_tcp_at_once,
+         test_line_counts_as_a_client_while_polled])
