@@ -31,6 +31,7 @@ IR_FRAMES = 5542
 IR_CRC_ERRORS = 5544
 IR_FOREIGN = 5546
 IR_BROADCASTS = 5548
+IR_OVERRUNS = 5550
 IR_GAP_DISCARDS = 5552
 IR_TURNAROUND = 5554
 IR_MODBUS_CLIENTS = 40
@@ -440,10 +441,31 @@ def test_line_counts_as_a_client_while_polled():
             m.close()
 
 
+def test_overrun_drops_to_the_next_silence():
+    """More bytes without a silence than the receive buffer holds (1024):
+    counted as an overrun, dropped up to the next silence, no reply; the
+    next frame is answered. 1024 bytes of frames glued together still fit."""
+    with rig() as r:
+        m = r.master()
+        try:
+            m.send(bytes((i * 7 + 3) & 0xFF for i in range(1100)))
+            m.no_reply()
+            wait_until(lambda: r.plc.u32(IR_OVERRUNS) == 1, 5, "the overrun counted")
+            check(m.read_ir(IR_MAGIC) == [MAGIC], "the next frame answered")
+            # 127 foreign requests and ours, 1024 bytes in one write: all cut.
+            glued = b"".join(frame(UNIT + 1, read_ir_pdu(i, 1)) for i in range(127))
+            m.send(glued + frame(UNIT, read_ir_pdu(0, 1)))
+            check(m.reply() == frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)), "ours answered")
+            check(r.plc.u32(IR_OVERRUNS) == 1, "no second overrun")
+            check(r.plc.u32(IR_FOREIGN) == 127, "127 foreign frames")
+        finally:
+            m.close()
+
+
 if __name__ == "__main__":
     run([test_mbpoll_and_pymodbus_read_the_map, test_command_once_with_rights_and_01_outside,
          test_bad_crc_and_mid_frame_gap_are_not_answered, test_multidrop_keeps_sync,
          test_broadcast_is_counted_never_acted_on, test_device_removed_and_restored,
          test_absent_device_at_start_is_a_link_fault,
          test_rs485_refused_exits_2_naming_the_device, test_rtu_and_tcp_at_once,
-         test_line_counts_as_a_client_while_polled])
+         test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence])
