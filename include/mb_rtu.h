@@ -24,7 +24,10 @@
  * What is answered: a frame with a good CRC addressed to unit_id. A frame
  * for another unit is counted and skipped; a broadcast (unit 0) is counted
  * and never acted on, because no reply could tell the master whether a
- * command was carried out. For [network_exception] watch = connection, the
+ * command was carried out. An RS-485 adapter that hears its own
+ * transmitter gives each reply back: the frame equal to the last reply,
+ * arriving within its wire time and 100 ms, is skipped, not taken for a
+ * request (which would be answered, and heard again). For [network_exception] watch = connection, the
  * line counts as a connected client while a valid request addressed to
  * this unit arrived within 'active_ms'.
  *
@@ -76,6 +79,7 @@ struct mb_rtu_stats {
     uint64_t broadcasts;     /* good frames for unit 0, not acted on */
     uint64_t overruns;       /* chunks longer than the receive buffer */
     uint64_t gap_discards;   /* good frames with a silence inside them */
+    uint64_t echoes;         /* our own replies read back, skipped */
     uint64_t replies;
     uint32_t turnaround_us;     /* the last reply: request's last byte to write */
     uint32_t turnaround_max_us;
@@ -109,6 +113,12 @@ struct mb_rtu {
     size_t gap_count;
     uint64_t last_rx_ns;     /* when the last bytes were read */
     uint64_t request_end_ns; /* the frame being answered: its last read */
+    /* The last reply, as an adapter that hears its own transmitter gives
+     * it back: skipped when it comes back whole before echo_until_ns. */
+    uint8_t echo[RTU_MAX_ADU];
+    size_t echo_size;
+    uint64_t echo_until_ns;
+    uint32_t char_ns;        /* one character on the wire */
     uint8_t tx[MB_RTU_TX_SIZE]; /* what the port did not take at once */
     size_t tx_used;
     bool tx_waiting;         /* polling for writable: tx_used was > 0 */

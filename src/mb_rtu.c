@@ -17,6 +17,9 @@
 
 #define MBAP_SIZE 7
 #define RETRY_MS 1000
+/* How late an adapter's echo of our reply may come after its wire time
+ * (a USB adapter's latency timer is 16 ms by default). */
+#define ECHO_SLACK_NS 100000000ull
 
 static uint64_t now_ns(void)
 {
@@ -281,6 +284,9 @@ static void rtu_output(void *state, struct mb_client *c, const uint8_t *data, si
     memcpy(rtu->tx + rtu->tx_used, frame, n);
     rtu->tx_used += n;
     uint64_t t = now_ns();
+    memcpy(rtu->echo, frame, n);
+    rtu->echo_size = n;
+    rtu->echo_until_ns = t + n * (uint64_t)rtu->char_ns + ECHO_SLACK_NS;
     uint64_t us = t > rtu->request_end_ns ? (t - rtu->request_end_ns) / 1000 : 0;
     rtu->stats.turnaround_us = us > UINT32_MAX ? UINT32_MAX : (uint32_t)us;
     if (rtu->stats.turnaround_us > rtu->stats.turnaround_max_us)
@@ -322,6 +328,14 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
         rtu->stats.foreign_frames++;
         return;
     }
+    if (size == rtu->echo_size && memcmp(frame, rtu->echo, size) == 0 &&
+        now_ns() <= rtu->echo_until_ns) {
+        rtu->echo_size = 0; /* our reply, heard back */
+        rtu->stats.echoes++;
+        return;
+    }
+    if (rtu->fd < 0)
+        return; /* the line failed while this chunk was being cut */
     if (!rtu->client) {
         int rc = mb_server_attach(rtu->srv, rtu->peer, &rtu_transport, rtu, rtu->cfg.rights,
                                   rtu->cfg.active_ms, &rtu->client);
@@ -474,6 +488,8 @@ int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
     rtu->log_limit.interval_ms = 1000;
     rtu_char_times(cfg->baud, cfg->parity != MB_RTU_PARITY_NONE, cfg->stop_bits, &rtu->t15_ns,
                    &rtu->t35_ns);
+    rtu->char_ns = (uint32_t)((1 + 8 + (cfg->parity != MB_RTU_PARITY_NONE) + cfg->stop_bits) *
+                              1000000000ull / (cfg->baud ? cfg->baud : 19200));
 
     uv_timer_init(loop, &rtu->retry);
     rtu->retry.data = rtu;

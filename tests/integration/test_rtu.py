@@ -35,6 +35,7 @@ IR_OVERRUNS = 5550
 IR_GAP_DISCARDS = 5552
 IR_TURNAROUND = 5554
 IR_MODBUS_CLIENTS = 40
+IR_MODBUS_EXCEPTIONS_LOW = 39
 LINE_IDLE, LINE_POLLED, LINE_FAULT = 1, 2, 3
 NO_REPLY_S = 0.4  # how long a master waits before it calls a request unanswered
 
@@ -462,10 +463,30 @@ def test_overrun_drops_to_the_next_silence():
             m.close()
 
 
+def test_own_reply_heard_back_is_not_a_request():
+    """An adapter that hears its own transmitter gives every reply back to
+    the gateway: that frame is not taken for a request (answering it would
+    be heard again); a real request after it is answered."""
+    with rig() as r:
+        m = r.master()
+        try:
+            req = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
+            for _ in range(3):
+                m.send(req)
+                rsp = m.reply()
+                check(rsp == frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)), "reply %r" % rsp)
+                m.send(rsp)  # the echo
+                m.no_reply()
+            check(r.plc.ir(IR_MODBUS_EXCEPTIONS_LOW)[0] == 0, "no exception answered")
+        finally:
+            m.close()
+
+
 if __name__ == "__main__":
     run([test_mbpoll_and_pymodbus_read_the_map, test_command_once_with_rights_and_01_outside,
          test_bad_crc_and_mid_frame_gap_are_not_answered, test_multidrop_keeps_sync,
          test_broadcast_is_counted_never_acted_on, test_device_removed_and_restored,
          test_absent_device_at_start_is_a_link_fault,
          test_rs485_refused_exits_2_naming_the_device, test_rtu_and_tcp_at_once,
-         test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence])
+         test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence,
+         test_own_reply_heard_back_is_not_a_request])
