@@ -215,7 +215,7 @@ valgrind: all unit-tests
 # libFuzzer targets (clang; 'make deps DEPS_GROUPS=fuzz'), with ASan and
 # UBSan: the robot's status stream, Modbus requests through the write path,
 # the configuration parser, the command queue and its reply parser, the PLC
-# mailboxes. make fuzz runs each for FUZZ_SECONDS, growing a corpus in
+# mailboxes, the RTU framer. make fuzz runs each for FUZZ_SECONDS, growing a corpus in
 # $(FUZZ_BUILD)/corpus-*; make fuzz-ci runs each from the committed seeds
 # with a 10 s hang limit, and a crash or hang fails it with one line naming
 # the target and the input that caused it (CI runs it from make test).
@@ -224,10 +224,11 @@ FUZZ_SECONDS ?= 60
 # whole CI run has 20 minutes; make fuzz is for longer runs).
 CI_FUZZ_SECONDS ?= 20
 FUZZ_BUILD ?= build-fuzz
-FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox
+FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox fuzz_rtu
 FUZZ_SRCS := src/framer.c src/status.c src/json_arena.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c \
              src/command.c src/plc_commands.c src/config.c src/can_map.c src/can_map_table.c \
-             src/plc_write.c src/policy.c src/ip_allow.c src/regmap_rights.c src/tls.c
+             src/plc_write.c src/policy.c src/ip_allow.c src/regmap_rights.c src/tls.c \
+             src/rtu_frame.c
 FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' -g -O1 -Iinclude \
               $(PKG_CFLAGS) -fno-sanitize-recover=all
 FUZZ_OBJS := $(FUZZ_SRCS:%.c=$(FUZZ_BUILD)/obj/%.o)
