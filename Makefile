@@ -215,8 +215,8 @@ valgrind: all unit-tests
 # libFuzzer targets (clang; 'make deps DEPS_GROUPS=fuzz'), with ASan and
 # UBSan: the robot's status stream, Modbus requests through the write path,
 # the configuration parser, the command queue and its reply parser, the PLC
-# mailboxes, the RTU framer. make fuzz runs each for FUZZ_SECONDS, growing a corpus in
-# $(FUZZ_BUILD)/corpus-*; make fuzz-ci runs each from the committed seeds
+# mailboxes, the RTU framer. make fuzz runs each for FUZZ_SECONDS, growing a
+# corpus in $(FUZZ_BUILD)/corpus-*; make fuzz-ci runs each from the committed seeds
 # with a 10 s hang limit, and a crash or hang fails it with one line naming
 # the target and the input that caused it (CI runs it from make test).
 FUZZ_SECONDS ?= 60
