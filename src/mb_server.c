@@ -718,7 +718,11 @@ static void on_client_timer(uv_timer_t *t)
     } else if (c->idle_timeout_ms && now - c->last_activity_ms >= c->idle_timeout_ms) {
         snprintf(why, sizeof(why), "idle for %llu ms",
                  (unsigned long long)(now - c->last_activity_ms));
-        release_client(c, why);
+        /* A line (no socket) whose master pauses is no news: it counts
+         * again with its next request. */
+        if (c->no_socket)
+            log_debug("modbus: client %s no longer counted: %s", c->peer, why);
+        release_client(c, c->no_socket ? NULL : why);
     } else {
         arm_deadline(c);
     }

@@ -438,6 +438,8 @@ def test_line_counts_as_a_client_while_polled():
             check(r.plc.ir(IR_LINE_STATE)[0] == LINE_IDLE, "idle again")
             check(m.read_ir(IR_MAGIC) == [MAGIC], "served again")
             check(r.plc.ir(IR_MODBUS_CLIENTS)[0] == 2, "counted again")
+            # A master's pause is no news: no warning for it.
+            check(not log_lines(r.gw, "rtu:" + r.line.device), r.gw.output())
         finally:
             m.close()
 
