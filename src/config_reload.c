@@ -56,6 +56,8 @@ static void apply_status_timeout(struct gateway *gw, const struct gw_config *nex
     /* The freshness the PLC reads, and the status link's silence limit. */
     gw->cfg.status_timeout_ms = next->status_timeout_ms;
     gw->status_link.cfg.silence_timeout_ms = next->status_timeout_ms;
+    /* The kernel's bound follows it, from the next connection. */
+    gw->status_link.cfg.user_timeout_ms = next->status_timeout_ms + 1000;
 }
 
 static void apply_link_check(struct gateway *gw, const struct gw_config *next)
