@@ -88,9 +88,14 @@ static void on_check_timer(uv_timer_t *t)
                                                               : cp->link_check_ms;
     int rc = cmd_queue_submit_check(&cp->queue, query, sizeof(query) - 1, bound,
                                     on_check_done, cp);
+    if (rc == -ENOMEM) {
+        arm_check(cp); /* the gateway's trouble, not the link's: later */
+        return;
+    }
     if (rc < 0 && rc != -ENOTCONN) {
-        /* Could not even be written (the robot does not read, memory):
-         * a command link that cannot take 30 bytes is not usable. */
+        /* Could not be written (the robot does not read what was sent
+         * before, a write error): a command link that cannot take a
+         * 30-byte request is not usable. */
         char why[96];
         snprintf(why, sizeof(why), "link check not sent: %s", strerror(-rc));
         robot_link_restart(&cp->link, why);
