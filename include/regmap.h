@@ -113,6 +113,8 @@ enum regmap_word_order {
     X(tls_failed_over_limit)                                                   \
     X(status_link_tls_failure)                                                 \
     X(command_link_tls_failure)                                                \
+    X(link_checks)                                                             \
+    X(link_checks_failed)                                                      \
     X(rtu_line_state)                                                          \
     X(rtu_frames)                                                              \
     X(rtu_crc_errors)                                                          \
