@@ -120,6 +120,20 @@ static void on_command_state(struct command_port *cp, enum robot_link_state stat
     notify_change(gw);
 }
 
+static void on_command_answering(struct command_port *cp, bool answering)
+{
+    (void)answering;
+    notify_change(cp->user);
+}
+
+/* A link check's reply: what it says about the robot shows in the map. */
+static void on_link_check_reply(struct command_port *cp, const char *query,
+                                const struct cmd_result *r)
+{
+    struct gateway *gw = cp->user;
+    plc_commands_link_check_reply(&gw->commands, query, r);
+}
+
 bool gateway_status_fresh(const struct gateway *gw)
 {
     return gw->last_document_ms != 0 &&
@@ -150,6 +164,24 @@ static void show_policy(struct gateway *gw)
     regmap_set_text(img, rows->write_owner, 0, p->owner_address);
 }
 
+/* The serial line's state and counters. */
+static void refresh_rtu_values(struct gateway *gw, double *v)
+{
+    static const struct mb_rtu_stats none;
+    bool on = gw->parts & GATEWAY_PART_RTU;
+    const struct mb_rtu_stats *s = on ? &gw->rtu.stats : &none;
+
+    v[GW_rtu_line_state] = on ? mb_rtu_state(&gw->rtu) : MB_RTU_OFF;
+    v[GW_rtu_frames] = (double)s->frames;
+    v[GW_rtu_crc_errors] = (double)s->crc_errors;
+    v[GW_rtu_foreign_frames] = (double)s->foreign_frames;
+    v[GW_rtu_broadcasts] = (double)s->broadcasts;
+    v[GW_rtu_overruns] = (double)s->overruns;
+    v[GW_rtu_gap_discards] = (double)s->gap_discards;
+    v[GW_rtu_turnaround_us] = s->turnaround_us;
+    v[GW_rtu_turnaround_max_us] = s->turnaround_max_us;
+}
+
 void gateway_refresh_values(struct gateway *gw)
 {
     double *v = gw->gw_values;
@@ -159,12 +191,14 @@ void gateway_refresh_values(struct gateway *gw)
 
     /* The constant values are set once, in set_constant_values(). */
     v[GW_status_link_up] = gw->status_link.state == ROBOT_LINK_CONNECTED;
-    v[GW_command_link_up] = gw->command.link.state == ROBOT_LINK_CONNECTED;
+    v[GW_command_link_up] = command_port_answering(&gw->command);
     v[GW_status_fresh] = fresh;
     v[GW_status_link_state] =
         gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh ? 3
                                                                 : gw->status_link.state;
-    v[GW_command_link_state] = gw->command.link.state;
+    v[GW_command_link_state] = command_port_state(&gw->command);
+    v[GW_link_checks] = (double)gw->command.queue.stats.checks;
+    v[GW_link_checks_failed] = (double)gw->command.queue.stats.checks_failed;
     v[GW_status_age_ms] = age_ms(gw, gw->last_document_ms);
     v[GW_documents_parsed] = (double)c->documents_parsed;
     v[GW_parse_errors] = (double)c->parse_errors;
@@ -187,6 +221,7 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
     v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
     gw_tls_refresh_values(gw, v);
+    refresh_rtu_values(gw, v);
     regmap_encode_gw(&gw->image, v);
     plc_commands_refresh(&gw->commands);
     if (gw->parts & GATEWAY_PART_POLICY)
@@ -198,12 +233,16 @@ static void clear_counters(void *user)
     struct gateway *gw = user;
 
     memset(&gw->counters, 0, sizeof(gw->counters));
+    gw->command.queue.stats.checks = 0;
+    gw->command.queue.stats.checks_failed = 0;
     gw->modbus.stats.requests = 0;
     gw->modbus.stats.exceptions = 0;
     gw->modbus.stats.evictions = 0;
     gw->modbus.stats.bad_frames = 0;
     can_mirror_clear_stats(&gw->can);
     gw_tls_clear_counters(gw);
+    if (gw->parts & GATEWAY_PART_RTU)
+        mb_rtu_clear_stats(&gw->rtu);
     log_notice("counters cleared by a Modbus client");
 }
 
@@ -299,13 +338,15 @@ static bool is_running(void *user)
 void gateway_describe(const struct gateway *gw, char *buf, size_t size)
 {
     static const char *const names[] = {"disconnected", "connecting", "connected"};
-    snprintf(buf, size, "status link %s%s, command link %s, %u Modbus clients",
+    snprintf(buf, size, "status link %s%s, command link %s%s, %u Modbus clients",
              names[gw->status_link.state],
              gw->status_link.state == ROBOT_LINK_CONNECTED &&
                      !gateway_status_fresh(gw)
                  ? " (silent)"
                  : "",
-             names[gw->command.link.state], gw->modbus.stats.clients);
+             names[gw->command.link.state],
+             command_port_state(&gw->command) == 3 ? " (not answering yet)" : "",
+             gw->modbus.stats.clients);
 }
 
 static int start_links(struct gateway *gw)
@@ -323,6 +364,9 @@ static int start_links(struct gateway *gw)
         .reconnect_min_ms = cfg->reconnect_min_ms,
         .reconnect_max_ms = cfg->reconnect_max_ms,
         .silence_timeout_ms = cfg->status_timeout_ms,
+        /* The kernel's bounds come a second after the gateway's own, so
+         * that what the PLC reads is the gateway's decision. */
+        .user_timeout_ms = cfg->status_timeout_ms + 1000,
         .max_object = cfg->max_document_bytes,
         .tls = tls,
     };
@@ -339,10 +383,18 @@ static int start_links(struct gateway *gw)
     gw->parts |= GATEWAY_PART_STATUS_LINK;
     lc.name = "command";
     lc.port = (uint16_t)cfg->command_port;
-    /* Replies come only when asked; silence is normal there. */
+    /* Replies come only when asked; silence is normal there, and the link
+     * check (link_check_ms) asks when it lasts. */
     lc.silence_timeout_ms = 0;
+    lc.user_timeout_ms = cfg->reply_timeout_ms + 1000;
+    struct command_port_hooks hooks = {
+        .on_state = on_command_state,
+        .on_answering = on_command_answering,
+        .on_check_reply = on_link_check_reply,
+        .user = gw,
+    };
     rc = command_port_init(gw->loop, &gw->command, &lc, cfg->reply_timeout_ms,
-                           on_command_state, gw);
+                           cfg->link_check_ms, &hooks);
     tls_context_unref(tls); /* each link holds its own reference */
     if (rc)
         return rc;
@@ -490,6 +542,31 @@ static void set_constant_values(struct gateway *gw)
     v[GW_version_patch] = patch;
 }
 
+/* [rtu] enabled: the serial line, one more client of the Modbus server. */
+static int start_rtu(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    int rc;
+
+    if (!cfg->rtu_enabled)
+        return 0;
+    struct mb_rtu_config rc_cfg = {
+        .device = cfg->rtu_device,
+        .baud = cfg->rtu_baud,
+        .parity = (enum mb_rtu_parity)cfg->rtu_parity,
+        .stop_bits = cfg->rtu_stop_bits,
+        .unit_id = cfg->rtu_unit_id,
+        .rs485 = cfg->rtu_rs485,
+        .rights = cfg->rtu_rights_mask,
+        .active_ms = cfg->ne_time_limit_ms,
+    };
+    gw->parts |= GATEWAY_PART_RTU;
+    rc = mb_rtu_start(gw->loop, &gw->rtu, &gw->modbus, &rc_cfg);
+    if (rc == -ENOTTY)
+        gw->config_error = true;
+    return rc;
+}
+
 int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *cfg)
 {
     int rc;
@@ -547,6 +624,9 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = gw_tls_start(gw);
     if (rc)
         return rc;
+    rc = start_rtu(gw);
+    if (rc)
+        return rc;
     rc = start_links(gw);
     if (rc)
         return rc;
@@ -596,6 +676,11 @@ static void on_can_closed(struct can_mirror *m)
     part_closed(m->user);
 }
 
+static void on_rtu_closed(struct mb_rtu *rtu)
+{
+    part_closed(rtu->user);
+}
+
 void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
 {
     gw->close_cb = cb;
@@ -621,6 +706,13 @@ void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
     if (gw->parts & GATEWAY_PART_CAN) {
         gw->closing_parts++;
         can_mirror_close(&gw->can, on_can_closed);
+    }
+    if (gw->parts & GATEWAY_PART_RTU) {
+        /* After the server's shutdown began: the line's client has had
+         * its answers. */
+        gw->closing_parts++;
+        gw->rtu.user = gw;
+        mb_rtu_close(&gw->rtu, on_rtu_closed);
     }
     part_closed(gw);
 }
