@@ -8,9 +8,10 @@
  *   netem_plc trials PORTS N TRIAL_MS SETTLE_MS ON OFF
  *       N trials: the shell command ON (netem on), TRIAL_MS of heartbeats,
  *       OFF (netem off), SETTLE_MS; then per port the faults the gateway
- *       latched during the trial (input register 63's change), and a latched
- *       fault reset (coil 130) with the program resumed (coil 109), so that
- *       every trial starts running and unlatched.
+ *       latched during the trial (input register 63's change) and whether
+ *       the program ran at the trial's start and end, and a latched fault
+ *       reset (coil 130); every trial starts with the program running
+ *       (resumed, coil 109, if it is paused).
  *   netem_plc commands PORT N FIRST
  *       N commands through the exactly-once mailbox, one after the other:
  *       rapid_rate (code 20) with rate_value (FIRST + k) / 1000, each waited
@@ -40,6 +41,8 @@
 #define COIL_RESUME 109
 #define IR_FAULT 60
 #define IR_FAULTS 63
+#define IR_INTERP_STATE 102 /* 3 running */
+#define INTERP_RUNNING 3
 #define IR_MAILBOX_DONE 4601
 #define IR_MAILBOX_STATE 4602
 #define MAILBOX_RAPID_RATE 20
@@ -155,6 +158,21 @@ static void unlatch(struct plc *p)
     pulse(p, COIL_RESUME);
 }
 
+/* The program running (resumed if it is paused, by the gateway's policy or
+ * by the robot's own network-exception handler): a trial measures the
+ * policy only while the robot runs a program. */
+static int ensure_running(struct plc *p)
+{
+    for (int i = 0; i < 30; i++) {
+        if (read_ir(p->monitor, IR_INTERP_STATE) == INTERP_RUNNING)
+            return 1;
+        if (i % 10 == 0)
+            pulse(p, COIL_RESUME);
+        sleep_ms(100);
+    }
+    return 0;
+}
+
 static int start(struct plc *p, int port)
 {
     memset(p, 0, sizeof(*p));
@@ -189,8 +207,12 @@ static int run_trials(struct plc *plcs, int n_plcs, int trials, int trial_ms, in
         faults[k] = read_ir(plcs[k].monitor, IR_FAULTS);
     }
     for (int i = 0; i < trials; i++) {
-        for (int k = 0; k < n_plcs; k++)
+        int running[MAX_PORTS];
+        for (int k = 0; k < n_plcs; k++) {
+            running[k] = ensure_running(&plcs[k]);
+            faults[k] = read_ir(plcs[k].monitor, IR_FAULTS);
             atomic_store(&plcs[k].max_gap_ms, 0);
+        }
         if (system(on) != 0)
             printf("@@error tc: %s\n", on);
         sleep_ms(trial_ms);
@@ -199,13 +221,13 @@ static int run_trials(struct plc *plcs, int n_plcs, int trials, int trial_ms, in
         sleep_ms(settle_ms);
         for (int k = 0; k < n_plcs; k++) {
             int now = read_ir(plcs[k].monitor, IR_FAULTS);
-            printf("@@trial %d port %d trips %d max_heartbeat_gap_ms %u writes %u failures %u\n",
+            int running_end = read_ir(plcs[k].monitor, IR_INTERP_STATE) == INTERP_RUNNING;
+            printf("@@trial %d port %d trips %d max_heartbeat_gap_ms %u writes %u failures %u "
+                   "running %d %d\n",
                    i, plcs[k].port, (now - faults[k]) & 0xFFFF,
                    atomic_load(&plcs[k].max_gap_ms), atomic_load(&plcs[k].writes),
-                   atomic_load(&plcs[k].failures));
+                   atomic_load(&plcs[k].failures), running[k], running_end);
             unlatch(&plcs[k]);
-            sleep_ms(100);
-            faults[k] = read_ir(plcs[k].monitor, IR_FAULTS);
         }
         fflush(stdout);
     }
@@ -234,7 +256,8 @@ static int run_commands(struct plc *p, int n, int first)
         int rc = modbus_write_registers(p->owner, REG_MAILBOX, 26, regs);
         pthread_mutex_unlock(&p->lock);
         if (rc != 26) {
-            printf("@@cmd %d seq %d write-failed %s\n", k, seq, modbus_strerror(errno));
+            printf("@@cmd %d seq %d value %.3f write-failed %s\n", k, seq, value,
+                   modbus_strerror(errno));
             continue;
         }
         int state = -1;

@@ -33,9 +33,10 @@ limits under the same network. One boot, in this order:
 3. the false-trip table: 5 trials each at 100 +- 25 ms and 300 +- 75 ms,
    both limits (printed, and the README quotes it);
 4. the CAN mirror through robot-link faults: the status port pulled (100 %
-   loss) for 3 s, the command port for 3 s, the status port at 300 ms: the
+   loss) for 3 s, the command port for 4 s, the status port at 300 ms: the
    frames keep their period, and the health frame says the status is stale
-   during the pull and fresh after it.
+   during the status pull and fresh after it, and the command link down
+   within 3 s of the command pull.
 
     tests/can/test_netem_vm.py        (make test-netem)
     JAKAGW_BIN_DIR=build              which build's binaries
@@ -125,8 +126,11 @@ unlink 3
 link 1 delay 20ms 10ms duplicate 25% reorder 25%
 netem_plc commands 1502 8 108 >> cmd-dup.txt 2>&1
 unlink 1
-link 3 delay 500ms 100ms rate 64kbit
+link 3 delay 300ms 75ms rate 64kbit
 netem_plc commands 1502 8 200 > cmd-slow.txt 2>&1
+unlink 3
+link 3 delay 500ms 100ms
+netem_plc commands 1502 6 300 > cmd-500.txt 2>&1
 unlink 3
 link 1 delay 0ms
 event trials
@@ -151,7 +155,7 @@ unlink 2
 sleep 3
 mark 04 command_pull
 link 3 loss 100%
-sleep 3
+sleep 4
 mark 05 command_back
 unlink 3
 sleep 3
@@ -167,7 +171,8 @@ kill $GWB; wait $GWB; echo "@@exit jakagwB $?"
 kill $SIMA; wait $SIMA; echo "@@exit jakasimA $?"
 kill $SIMB; wait $SIMB; echo "@@exit jakasimB $?"
 """
-FILES = "lines-trials.txt can.log gwA.log gwB.log simA.log simB.log cmd-dup.txt cmd-slow.txt trials.txt table-*.txt"
+FILES = ("lines-trials.txt can.log gwA.log gwB.log simA.log simB.log cmd-dup.txt cmd-slow.txt "
+         "cmd-500.txt trials.txt table-*.txt")
 
 RESULT = None
 
@@ -206,17 +211,30 @@ def require_run():
 
 
 def trials(text):
-    """{port: [(trips, max heartbeat gap ms)]} from netem_plc trials."""
+    """{port: [(trips, max heartbeat gap ms)]} from netem_plc trials; each
+    trial must have begun with the program running."""
     out = {}
-    for m in re.finditer(r"@@trial (\d+) port (\d+) trips (\d+) max_heartbeat_gap_ms (\d+)",
-                         text):
-        out.setdefault(int(m.group(2)), []).append((int(m.group(3)), int(m.group(4))))
+    for m in re.finditer(r"@@trial (\d+) port (\d+) trips (\d+) max_heartbeat_gap_ms (\d+) "
+                         r"writes \d+ failures \d+ running (\d) (\d)", text):
+        check(m.group(5) == "1", "trial %s on port %s began with the program not running"
+              % (m.group(1), m.group(2)))
+        out.setdefault(int(m.group(2)), []).append((int(m.group(3)), int(m.group(4)),
+                                                    int(m.group(6))))
     return out
 
 
 def commands(text):
-    return [(float(m.group(1)), int(m.group(2)), float(m.group(3))) for m in
-            re.finditer(r"@@cmd \d+ seq \d+ value (\S+) state (-?\d+) ms (\S+)", text)]
+    """(value, state, ms) per command; a write refused with an exception
+    (or unanswered) has state None."""
+    out = []
+    for line in text.splitlines():
+        m = re.match(r"@@cmd \d+ seq \d+ value (\S+) state (-?\d+) ms (\S+)", line)
+        if m:
+            out.append((float(m.group(1)), int(m.group(2)), float(m.group(3))))
+        m = re.match(r"@@cmd \d+ seq \d+ value (\S+) write-failed", line)
+        if m:
+            out.append((float(m.group(1)), None, None))
+    return out
 
 
 def sim_rapid_rates(log):
@@ -246,18 +264,41 @@ def test_commands_exactly_once_under_duplication_reordering_and_rate_limit():
     require_run()
     dup = commands(RESULT.files["cmd-dup.txt"])
     slow = commands(RESULT.files["cmd-slow.txt"])
-    check(len(dup) == 16 and len(slow) == 8, "commands run: %d and %d of 16 and 8:\n%s%s"
-          % (len(dup), len(slow), RESULT.files["cmd-dup.txt"], RESULT.files["cmd-slow.txt"]))
-    for what, cmds in (("duplication/reordering", dup), ("500 ms and 64 kbit/s", slow)):
+    far = commands(RESULT.files["cmd-500.txt"])
+    check(len(dup) == 16 and len(slow) == 8 and len(far) == 6,
+          "commands run: %d, %d and %d of 16, 8 and 6:\n%s%s%s"
+          % (len(dup), len(slow), len(far), RESULT.files["cmd-dup.txt"],
+             RESULT.files["cmd-slow.txt"], RESULT.files["cmd-500.txt"]))
+    for what, cmds in (("duplication/reordering", dup), ("300 ms and 64 kbit/s", slow)):
         bad = [c for c in cmds if c[1] != DONE]
         check(not bad, "%s: commands not done (value, state, ms): %s" % (what, bad))
-    sent = [round(c[0], 3) for c in dup + slow]
+    # At 500 +- 100 ms each way a round trip passes the link check's bound
+    # (link_check_ms, 1000): the command link restarts after a check, and
+    # a command is done between two checks, refused (0B) while the link is
+    # down, or, written behind a check that then fails, outcome unknown
+    # (4 or 5: received at most once). Never anything else.
+    far_done = [c for c in far if c[1] == DONE]
+    far_refused = [c for c in far if c[1] is None]
+    far_unknown = [c for c in far if c[1] in (4, 5)]
+    check(len(far_done) + len(far_refused) + len(far_unknown) == len(far),
+          "500 ms: commands neither done, refused nor outcome unknown: %s" % far)
     got = sim_rapid_rates(RESULT.files["simA.log"])
-    check(got == sent, "jakasim received %s, the PLC sent %s" % (got, sent))
+    expected = [(round(c[0], 3), c[1] != DONE) for c in dup + slow + far if c[1] is not None]
+    i = 0
+    for value, optional in expected:
+        if i < len(got) and got[i] == value:
+            i += 1
+        else:
+            check(optional, "jakasim received %s; the PLC's commands (value, may be "
+                  "missing) were %s" % (got, expected))
+    check(i == len(got), "jakasim received %s, the PLC's commands were %s" % (got, expected))
+    sent = got
     print("  %d commands, each received once and in order; time to done: median %.0f ms "
-          "(duplication and reordering), %.0f ms (500 +- 100 ms, 64 kbit/s)"
+          "(duplication and reordering), %.0f ms (300 +- 75 ms, 64 kbit/s); at 500 +- 100 ms "
+          "%d done, %d refused with 0B and never received, %d outcome unknown"
           % (len(sent), statistics.median(c[2] for c in dup),
-             statistics.median(c[2] for c in slow)))
+             statistics.median(c[2] for c in slow), len(far_done), len(far_refused),
+             len(far_unknown)))
 
 
 def test_no_pause_at_200_ms_latency_and_1000_ms_limit():
@@ -268,9 +309,10 @@ def test_no_pause_at_200_ms_latency_and_1000_ms_limit():
           % (len(a), len(b), TRIALS, RESULT.files["trials.txt"]))
     print("  200 +- 50 ms (round trip 400 +- 100 ms), %d trials of %.1f s: time_limit_ms "
           "1000: %d trips (longest heartbeat gap %d ms); time_limit_ms 300: %d trips in %d "
-          "trials" % (TRIALS, TRIAL_MS / 1000, sum(t for t, _ in a), max(g for _, g in a),
-                      sum(t for t, _ in b), sum(1 for t, _ in b if t)))
-    check(sum(t for t, _ in a) == 0, "the gateway tripped at time_limit_ms 1000: %s" % a)
+          "trials" % (TRIALS, TRIAL_MS / 1000, sum(t[0] for t in a), max(t[1] for t in a),
+                      sum(t[0] for t in b), sum(1 for t in b if t[0])))
+    check(sum(t[0] for t in a) == 0, "the gateway tripped at time_limit_ms 1000: %s" % a)
+    check(all(t[2] for t in a), "the program stopped running during a trial: %s" % a)
     # Before the first trial the gateways started with programs running
     # and no heartbeat yet: that trip is not counted.
     first, last = [int(n) for n in RESULT.files["lines-trials.txt"].split()]
@@ -288,7 +330,7 @@ def test_false_trip_table():
             t = by_port.get(port, [])
             check(len(t) == TABLE_TRIALS, "latency %d, port %d: %d trials:\n%s"
                   % (latency, port, len(t), RESULT.files.get("table-%d.txt" % latency)))
-            rows.append((latency, limit, sum(1 for x, _ in t if x), max(g for _, g in t)))
+            rows.append((latency, limit, sum(1 for x in t if x[0]), max(x[1] for x in t)))
     print("  latency (each way) | time_limit_ms | trials of %.1f s with a trip | "
           "longest heartbeat gap" % (TABLE_TRIAL_MS / 1000))
     for r in rows:
@@ -352,12 +394,16 @@ def test_can_mirror_keeps_its_period_through_robot_link_faults():
     check(stale, "the health frame never said stale during the status pull")
     print("  health frame: status stale %.2f s into the pull" % (stale[0] - marks[2]))
     check(fresh_between(marks[3] + 2.5, marks[4]) == {1}, "status not fresh after the pull")
+    # An idle command link silently pulled reads down within 3 s with the
+    # defaults ([robot] link_check_ms 1000).
     down = [t for t, h in health if marks[4] <= t <= marks[5] and h["CommandLinkUp"] == 0]
-    if down:
-        print("  health frame: command link down %.2f s into the command pull"
-              % (down[0] - marks[4]))
-    else:
-        print("  health frame: command link read up through the 3 s command pull")
+    check(down and down[0] - marks[4] <= 3.0,
+          "the health frame did not read the command link down within 3 s of the pull%s"
+          % (" (%.2f s)" % (down[0] - marks[4]) if down else ""))
+    print("  health frame: command link down %.2f s into the command pull"
+          % (down[0] - marks[4]))
+    check(fresh_between(marks[5] + 2.5, marks[6]) == {1}, "status not fresh after the "
+          "command pull")
 
 
 if __name__ == "__main__":

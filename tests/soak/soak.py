@@ -58,8 +58,8 @@ ROOT = os.path.abspath(os.path.join(HERE, "..", ".."))
 sys.path.insert(0, os.path.join(ROOT, "tests", "integration"))
 
 import harness  # noqa: E402
-from harness import (Gateway, Sim, TestFailure, check, is_housekeeping, mbap, open_fds,  # noqa: E402
-                     recv_adu, rss_kb, wait_until)
+from harness import (Gateway, Sim, TestFailure, check, is_housekeeping,  # noqa: E402
+                     mbap, open_fds, recv_adu, rss_kb, wait_until)
 
 PLC_ADDR = "127.0.0.2"
 RECONNECT_MAX_MS = 5000
