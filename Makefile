@@ -65,7 +65,7 @@ BUILD     ?= build
 CC        ?= cc
 SAMPLES_DIR ?= $(abspath tests/data)
 
-PKGS      := libuv libmodbus libcjson inih libsystemd openssl
+PKGS      := libuv libmodbus libcjson inih libsystemd openssl libmicrohttpd
 # deps, demo, test and clean work on a bare machine (demo and test install
 # the packages first); any other goal needs the compiler and the .pc files,
 # and says how to get them instead of failing with compiler errors.
@@ -92,7 +92,7 @@ LIB_SRCS  := $(filter-out src/main.c,$(wildcard src/*.c))
 SIM_SRCS  := $(wildcard sim/*.c)
 UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 
-LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o)
+LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o) $(BUILD)/gen/status_page.o
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
 .PHONY: all deps demo test unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
@@ -100,6 +100,14 @@ all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
 	@mkdir -p $(dir $@)
+	$(CC) $(ALL_CFLAGS) -c $< -o $@
+
+# The status page (www/status.html) as a C array in the binary.
+$(BUILD)/gen/status_page.c: www/status.html scripts/embed.sh
+	@mkdir -p $(dir $@)
+	scripts/embed.sh status_page_html $< > $@.tmp && mv $@.tmp $@
+
+$(BUILD)/gen/status_page.o: $(BUILD)/gen/status_page.c
 	$(CC) $(ALL_CFLAGS) -c $< -o $@
 
 $(BUILD)/libjakagw.a: $(LIB_OBJS)
@@ -223,7 +231,7 @@ FUZZ_BUILD ?= build-fuzz
 FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox
 FUZZ_SRCS := src/framer.c src/status.c src/json_arena.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c \
              src/command.c src/plc_commands.c src/config.c src/can_map.c src/can_map_table.c \
-             src/plc_write.c src/policy.c src/ip_allow.c src/regmap_rights.c src/tls.c
+             src/plc_write.c src/policy.c src/ip_allow.c src/regmap_rights.c src/tls.c src/audit.c
 FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' -g -O1 -Iinclude \
               $(PKG_CFLAGS) -fno-sanitize-recover=all
 FUZZ_OBJS := $(FUZZ_SRCS:%.c=$(FUZZ_BUILD)/obj/%.o)

@@ -93,6 +93,10 @@ struct gw_config {
     uint32_t tls_default_rights_mask;
     /* Not a key: a listening socket for [tls] passed by systemd, 0: none. */
     int tls_listen_fd;
+    /* [http]: metrics, status page */
+    bool http_enabled;
+    char http_bind[64];
+    uint32_t http_port;
     /* [roles] */
     struct config_role roles[CONFIG_MAX_ROLES];
     unsigned role_count;

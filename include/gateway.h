@@ -13,9 +13,11 @@
 #include <stdint.h>
 #include <uv.h>
 
+#include "audit.h"
 #include "can_mirror.h"
 #include "command_port.h"
 #include "config.h"
+#include "http_server.h"
 #include "log.h"
 #include "mb_server.h"
 #include "mb_tls.h"
@@ -44,6 +46,7 @@ enum {
     GATEWAY_PART_CAN = 8,
     GATEWAY_PART_POLICY = 16,
     GATEWAY_PART_WRITES = 32,
+    GATEWAY_PART_HTTP = 64,
 };
 
 /* The policy's rows, as PLCs read its state. */
@@ -66,6 +69,8 @@ struct gateway {
     struct mb_server modbus;
     struct mb_tls *mbaps; /* the Modbus/TCP Security transport, [tls] enabled */
     struct can_mirror can; /* running when [can] enabled */
+    struct audit audit;    /* who commanded the robot (audit.h) */
+    struct http_server http; /* running when [http] enabled (gw_http.h) */
     struct gateway_counters counters;
     double gw_values[GW_VALUE_COUNT];
 

@@ -130,6 +130,9 @@ static const struct key_info keys[] = {
     KEY("tls", "handshake_timeout_ms", KEY_UINT, tls_handshake_timeout_ms, 100, 60000, "3000"),
     KEY("tls", "max_handshakes", KEY_UINT, tls_max_handshakes, 1, 1024, "16"),
     KEY("tls", "default_rights", KEY_RIGHTS, tls_default_rights, 0, 0, "read"),
+    KEY("http", "enabled", KEY_BOOL, http_enabled, 0, 1, "false"),
+    KEY("http", "bind", KEY_IP_ADDRESS, http_bind, 1, 0, "127.0.0.1"),
+    KEY("http", "port", KEY_UINT, http_port, 1, 65535, "10502"),
 };
 
 #define N_KEYS (sizeof(keys) / sizeof(keys[0]))

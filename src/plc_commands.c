@@ -681,6 +681,25 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
 static void on_done(void *user, const struct cmd_result *r);
 static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state);
 
+/* The command's name for the audit trail: the table's, or the JSON's. */
+static void audit_sent(struct plc_commands *pc, struct plc_slot *slot, const char *json,
+                       const struct cmd_def *def, bool own)
+{
+    char name[48] = "";
+
+    if (!pc->cfg.audit)
+        return;
+    if (def) {
+        snprintf(name, sizeof(name), "%s", def->name);
+    } else {
+        cJSON *doc = cJSON_Parse(json);
+        const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+        snprintf(name, sizeof(name), "%s", cJSON_IsString(n) ? n->valuestring : "?");
+        cJSON_Delete(doc);
+    }
+    audit_command_sent(pc->cfg.audit, slot, name, own, pc->sending_frequent);
+}
+
 static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *json,
                    const struct cmd_def *def)
 {
@@ -688,9 +707,13 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
     int rc = def && (def->flags & CMD_HALTS)
                  ? cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot)
                  : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+    audit_sent(pc, slot, json, def, false);
     if (rc < 0) {
         char why[96];
         snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
+        struct cmd_result r = {.outcome = rc == -ENOTCONN ? CMD_LINK_DOWN : CMD_REFUSED};
+        snprintf(r.error_msg, sizeof(r.error_msg), "%s", why);
+        audit_command_done(pc->cfg.audit, slot, &r);
         set_result(slot, rc == -ENOTCONN ? CMD_LINK_DOWN : CMD_REFUSED, 0, why);
         /* The mailbox's sequence number is finished too: a PLC waiting on
          * done_seq must not wait for ever. */
@@ -718,7 +741,9 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
         slot->def = def; /* one pending at a time: its refresh, its log line */
     if (act == ACT_MAILBOX)
         regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
+    pc->sending_frequent = act == ACT_SETPOINT;
     submit(pc, slot, st->json, def);
+    pc->sending_frequent = false;
     free(st->json);
     st->json = NULL;
 }
@@ -835,6 +860,8 @@ static void on_done(void *user, const struct cmd_result *r)
     struct plc_slot *slot = user;
     struct plc_commands *pc = slot->pc;
 
+    if (slot->kind != PLC_SLOT_INFO)
+        audit_command_done(pc->cfg.audit, slot, r);
     slot->pending--;
     /* Several commands of one setpoint (an FC15 of outputs): the result
      * stays pending until the last is answered, and the first failure
@@ -894,6 +921,7 @@ void plc_commands_link_up(struct plc_commands *pc)
                  (unsigned)pc->cfg.robot_time_limit_ms, pc->cfg.robot_mot_type);
         int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, &pc->handle);
         if (rc == 0) {
+            audit_sent(pc, &pc->handle, json, pc->handle.def, true);
             pc->handle.pending++;
             if (pc->handle_state != PLC_HANDLE_FAILED)
                 set_handle_state(pc, PLC_HANDLE_PENDING);
@@ -924,6 +952,7 @@ int plc_commands_send_now(struct plc_commands *pc, const char *name)
     /* Written now, ahead of whatever the PLC queued. */
     int rc = cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot);
     if (rc == 0) {
+        audit_sent(pc, slot, json, def, true);
         slot->pending++;
         if (slot->state)
             set_result(slot, CMD_PENDING, 0, "");
