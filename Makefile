@@ -95,7 +95,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o) $(BUILD)/gen/status_page.o
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: all deps demo test unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
+.PHONY: screenshot all deps demo test unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -192,6 +192,12 @@ endif
 LOAD_SECONDS ?= 60
 test-load: all
 	JAKAGW_BIN_DIR=$(BUILD) LOAD_SECONDS=$(LOAD_SECONDS) /usr/bin/python3 tests/integration/test_load.py
+
+# docs/status-page.png: the status page of a running demo, as headless
+# Chromium shows it on a phone (scripts/screenshot.py; make deps installs
+# chromium, chromium-driver and python3-selenium).
+screenshot: all
+	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 scripts/screenshot.py
 
 # docs/register-map.md is generated from the table in src/regmap_table.c.
 docs: $(BUILD)/jakagw man
