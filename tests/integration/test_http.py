@@ -25,8 +25,8 @@ import time
 
 import contextlib
 
-from harness import (Gateway, ModbusPlc, Sim, TestFailure, check, free_port, log_lines,
-                     map_rows, run, wait_until)
+from harness import (JAKAGW, Gateway, ModbusPlc, Sim, TestFailure, check, free_port,
+                     log_lines, map_rows, port_open, run, wait_until)
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 ALERTS = os.path.join(ROOT, "docs", "jakagw-alerts.yml")
@@ -313,6 +313,95 @@ def test_audit_records_commands_refusals_and_aggregates_outputs():
           % (power[0]["result"], refused[0]["what"], len(outputs)))
 
 
+def journal_fields(datagram):
+    """The fields of one message of journald's native protocol."""
+    fields, i = {}, 0
+    while i < len(datagram):
+        nl = datagram.index(b"\n", i)
+        line = datagram[i:nl]
+        if b"=" in line:
+            key, value = line.split(b"=", 1)
+            i = nl + 1
+        else:  # KEY\n, a 64-bit little-endian length, the value, \n
+            key = line
+            size = struct.unpack("<Q", datagram[nl + 1:nl + 9])[0]
+            value = datagram[nl + 9:nl + 9 + size]
+            i = nl + 9 + size + 1
+        fields[key.decode()] = value.decode("utf-8", "replace")
+    return fields
+
+
+def test_audit_goes_to_the_journal_as_fields():
+    """Under journald (stderr is the journal's stream), a record is a
+    journal entry with JAKAGW_* fields, not a stderr line. journald is
+    stood in for by a datagram socket at /run/systemd/journal/socket in a
+    mount namespace of the gateway's own (unshare -m, as root)."""
+    if os.geteuid() != 0 or subprocess.run(["unshare", "-m", "true"]).returncode != 0:
+        print("  SKIP: needs root and unshare -m for a private /run/systemd/journal")
+        return
+    message = "arm <b>blocked</b>\nline two"
+    journal_dir = tempfile.mkdtemp(prefix="jakagw-journal-")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(os.path.join(journal_dir, "socket"))
+    listener.settimeout(0.2)
+    log = tempfile.NamedTemporaryFile(prefix="jakagw-", suffix=".log", delete=False)
+    conf = tempfile.NamedTemporaryFile("w", suffix=".conf", delete=False)
+    conf.close()
+    st = os.fstat(log.fileno())
+    sim = Sim("--fail-command", "power_on", "--fail-message", message)
+    modbus_port = free_port()
+    script = ('mount -t tmpfs tmpfs /run && mkdir -p /run/systemd/journal && '
+              'mount --bind "$JOURNAL_DIR" /run/systemd/journal && exec "$0" "$@"')
+    argv = ["unshare", "-m", "sh", "-c", script, JAKAGW, "-c", conf.name,
+            "--robot-host", "127.0.0.1", "--status-port", str(sim.status_port),
+            "--command-port", str(sim.command_port), "--modbus-bind", "127.0.0.1",
+            "--modbus-port", str(modbus_port)]
+    env = dict(os.environ, JOURNAL_DIR=journal_dir,
+               JOURNAL_STREAM="%d:%d" % (st.st_dev, st.st_ino))
+    proc = subprocess.Popen(argv, stdout=log, stderr=log, env=env)
+    entries = []
+    try:
+        wait_until(lambda: port_open(modbus_port), 30, "jakagw to listen")
+        plc = ModbusPlc(modbus_port)
+        wait_until(lambda: plc.ir(IR["robot_handle"])[0] == 2, 20, "the robot's handler")
+        check(plc.pulse(COIL["cmd_power_on"]) == 0, "power_on write")
+        plc.close()
+
+        def power_on_entry():
+            try:
+                entries.append(journal_fields(listener.recv(65536)))
+            except socket.timeout:
+                pass
+            return [e for e in entries if e.get("JAKAGW_COMMAND") == "power_on"]
+        found = wait_until(power_on_entry, 10, "power_on's journal entry")[0]
+    finally:
+        proc.send_signal(15)
+        proc.wait(10)
+        sim.stop()
+        listener.close()
+        shutil.rmtree(journal_dir, ignore_errors=True)
+        os.unlink(conf.name)
+        with open(log.name, errors="replace") as f:
+            out = f.read()
+        os.unlink(log.name)
+    check(proc.returncode == 0, "jakagw exited %d:\n%s" % (proc.returncode, out[-2000:]))
+    for mark in ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:"):
+        check(mark not in out, "sanitizer report:\n" + out[-3000:])
+    check(found.get("JAKAGW_CLIENT") == "127.0.0.1" and
+          found.get("JAKAGW_TRANSPORT") == "modbus" and
+          found.get("JAKAGW_RESULT") == "robot error" and
+          found.get("JAKAGW_ERROR_CODE") == "2" and found.get("JAKAGW_ROLE") == "" and
+          found.get("PRIORITY") == "5" and found.get("SYSLOG_IDENTIFIER") == "jakagw",
+          "journal entry %r" % found)
+    check(found.get("JAKAGW_ERROR_MSG") == "arm <b>blocked</b>\\x0aline two",
+          "errorMsg as one escaped line: %r" % found.get("JAKAGW_ERROR_MSG"))
+    handler = [e for e in entries if e.get("JAKAGW_COMMAND") == "set_network_exception_handle"]
+    check(handler and handler[0]["JAKAGW_TRANSPORT"] == "gateway", "the handler's entry")
+    check("audit:" not in out, "audit lines on stderr under journald")
+    print("  journal entry: %s" % " ".join("%s=%s" % kv for kv in sorted(found.items())
+                                          if kv[0].startswith("JAKAGW_")))
+
+
 def sim_sent(sim, name):
     return [l for l in sim.output().splitlines()
             if "jakasim: command {" in l and '"cmdName":"%s"' % name in l.replace(" ", "")]
@@ -589,6 +678,7 @@ TESTS = [
     test_status_json_clients_policy_and_counters,
     test_markup_from_the_robot_stays_text_in_json_and_audit,
     test_audit_records_commands_refusals_and_aggregates_outputs,
+    test_audit_goes_to_the_journal_as_fields,
     test_abuse_leaves_modbus_answering,
     test_non_loopback_bind_logs_one_warning,
     test_disabled_by_default,
