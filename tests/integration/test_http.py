@@ -313,6 +313,45 @@ def test_audit_records_commands_refusals_and_aggregates_outputs():
           % (power[0]["result"], refused[0]["what"], len(outputs)))
 
 
+def test_mbaps_clients_are_audited_with_certificate_and_role():
+    """On Modbus/TCP Security, who is the certificate: its subject and role
+    are in the audit records, /status.json and the transport's metrics."""
+    import test_tls as tls  # makes the test PKI (tests/tls/make-pki.sh)
+    port = free_port()
+    with tls.Mbaps("[http]\nenabled = true\nport = %d\n" % port) as m:
+        web = Http(port)
+        wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
+        op = tls.TlsPlc(m.tls_port, "operator")
+        check(op.coil(COIL["cabinet_do_1"], 1) == 0, "operator sets an output")
+        mon = tls.TlsPlc(m.tls_port, "monitor")
+        check(mon.coil(COIL["cabinet_do_1"], 0) == 1, "monitor may not write: 01")
+        wait_until(lambda: len(web.status()["commands"]) >= 3, 10, "the records")
+        doc = web.status()
+        clients = {c["role"]: c for c in doc["clients"]}
+        check(set(clients) == {"operator", "monitor"} and
+              all(c["transport"] == "mbaps" and "CN=" in c["subject"] for c in clients.values()),
+              "clients %r" % doc["clients"])
+        out = {c["command"]: c for c in doc["commands"]}
+        check(out["set_digital_output"]["role"] == "operator" and
+              out["set_digital_output"]["transport"] == "mbaps" and
+              "CN=" in out["set_digital_output"]["subject"] and
+              out["set_digital_output"]["result"] == "done", "output record %r" % out)
+        check(out["write"]["role"] == "monitor" and out["write"]["result"] == "refused" and
+              out["write"]["what"] == "coil %d" % COIL["cabinet_do_1"], "refusal %r" % out)
+        samples = parse_metrics(web.metrics())
+        check(metric(samples, "jakagw_modbus_clients", transport="mbaps") == 2 and
+              metric(samples, "jakagw_modbus_requests_total", transport="mbaps",
+                     function="5") == 2 and
+              metric(samples, "jakagw_modbus_exceptions_total", transport="mbaps",
+                     code="01") == 1, "mbaps metrics")
+        op.close()
+        mon.close()
+        lines = [l for l in m.gw.output().splitlines() if "audit: command=write" in l]
+        check(len(lines) == 1 and 'role="monitor"' in lines[0] and "transport=mbaps" in lines[0],
+              "the refusal's line: %r" % lines)
+        print("  %s" % lines[0])
+
+
 def journal_fields(datagram):
     """The fields of one message of journald's native protocol."""
     fields, i = {}, 0
@@ -679,6 +718,7 @@ TESTS = [
     test_markup_from_the_robot_stays_text_in_json_and_audit,
     test_audit_records_commands_refusals_and_aggregates_outputs,
     test_audit_goes_to_the_journal_as_fields,
+    test_mbaps_clients_are_audited_with_certificate_and_role,
     test_abuse_leaves_modbus_answering,
     test_non_loopback_bind_logs_one_warning,
     test_disabled_by_default,
