@@ -23,8 +23,8 @@
  * "journalctl -u jakagw JAKAGW_COMMAND=play_program" finds them; elsewhere
  * as one "audit: ..." line on stderr. Frequent records (setpoints and
  * outputs, which send a command on every write, and refused writes) are
- * aggregated per client, command (or refusal) and period: the first of a
- * period is recorded at once, the others as one record with their count
+ * aggregated per client, command (or refusal and its exception) and
+ * period, whatever the address: the first of a period is recorded at once, the others as one record with their count
  * (JAKAGW_COUNT=) when the period ends. The last AUDIT_LAST records are
  * kept for the status page.
  *
@@ -43,7 +43,7 @@
 
 #define AUDIT_LAST 32
 #define AUDIT_PENDING 160
-#define AUDIT_AGGREGATES 32
+#define AUDIT_AGGREGATES 256
 #define AUDIT_PERIOD_MS 10000
 
 struct audit_who {
@@ -90,6 +90,7 @@ struct audit_aggregate {
     uint64_t since_ms;   /* the period's start */
     struct audit_record first; /* identifies it: who, command, what, result */
     unsigned more;       /* after the first, in this period */
+    bool several;        /* they wrote other addresses than the first */
     long last_code;
     char last_msg[128];
 };

@@ -73,13 +73,18 @@ static void record(struct audit *a, struct audit_record *r)
     a->sink.emit(a->sink.user, r);
 }
 
+/*
+ * The same client, command and result (and, for a refusal, exception):
+ * not the address, so that a client writing all over the map is still one
+ * record per period, not one per address.
+ */
 static bool same_kind(const struct audit_record *x, const struct audit_record *y)
 {
     return strcmp(x->who.transport, y->who.transport) == 0 &&
            strcmp(x->who.client, y->who.client) == 0 &&
            strcmp(x->who.subject, y->who.subject) == 0 &&
-           strcmp(x->command, y->command) == 0 && strcmp(x->what, y->what) == 0 &&
-           strcmp(x->result, y->result) == 0;
+           strcmp(x->command, y->command) == 0 && strcmp(x->result, y->result) == 0 &&
+           x->error_code == y->error_code;
 }
 
 /* Ends aggregate 'g': its count, if any after the first, as one record. */
@@ -88,6 +93,8 @@ static void end_aggregate(struct audit *a, struct audit_aggregate *g)
     if (g->more) {
         struct audit_record r = g->first;
         r.count = g->more;
+        if (g->several)
+            copy(r.what, sizeof(r.what), "(several)");
         r.error_code = g->last_code;
         copy(r.error_msg, sizeof(r.error_msg), g->last_msg);
         record(a, &r);
@@ -114,6 +121,8 @@ static void aggregate(struct audit *a, struct audit_record *r)
             continue;
         }
         if (same_kind(&g->first, r)) {
+            if (strcmp(g->first.what, r->what) != 0)
+                g->several = true;
             g->more++;
             g->last_code = r->error_code;
             copy(g->last_msg, sizeof(g->last_msg), r->error_msg);
@@ -130,6 +139,7 @@ static void aggregate(struct audit *a, struct audit_record *r)
     free_slot->used = true;
     free_slot->since_ms = now;
     free_slot->more = 0;
+    free_slot->several = false;
     record(a, r);
     free_slot->first = *r;
 }

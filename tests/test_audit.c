@@ -183,17 +183,27 @@ static void refused_writes_are_aggregated_and_counted(void **state)
     (void)state;
     for (unsigned i = 0; i < 30; i++)
         audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "coil 105", 1);
-    audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "holding register 0", 1);
+    audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "holding register 0", 2);
     assert_int_equal(emitted_count, 2);
     assert_string_equal(emitted[0].command, "write");
     assert_string_equal(emitted[0].what, "coil 105");
     assert_string_equal(emitted[0].result, "refused");
     assert_int_equal(emitted[0].error_code, 1);
     assert_string_equal(emitted[1].what, "holding register 0");
+    assert_int_equal(emitted[1].error_code, 2);
+    /* A client writing all over the map: still one record per period. */
+    char what[32];
+    for (unsigned i = 0; i < 1000; i++) {
+        snprintf(what, sizeof(what), "holding register %u", 1000 + i);
+        audit_write_refused(&a, "modbus", "192.0.2.9", "", "", what, 1);
+    }
+    assert_int_equal(emitted_count, 2);
     audit_finish(&a);
     assert_int_equal(emitted_count, 3);
-    assert_int_equal(emitted[2].count, 29);
-    assert_int_equal(a.refused_writes[1], 31);
+    assert_int_equal(emitted[2].count, 1029);
+    assert_string_equal(emitted[2].what, "(several)");
+    assert_int_equal(a.refused_writes[1], 1030);
+    assert_int_equal(a.refused_writes[2], 1);
 }
 
 static void counters_count_every_command_even_aggregated(void **state)

@@ -124,6 +124,14 @@ def running(sim_args=(), config=""):
             sim.stop()
 
 
+def wait_http(port, gw):
+    """The HTTP port listening; if not, the gateway's log says why."""
+    try:
+        wait_until(lambda: port_open(port), 10, "the HTTP port %d" % port)
+    except TestFailure:
+        raise TestFailure("no HTTP on port %d; jakagw's log:\n%s" % (port, gw.output()[-3000:]))
+
+
 def gateway_with_http(sim_args=(), extra_config=""):
     port = free_port()
     return port, running(list(sim_args), http_config(port, extra_config))
@@ -320,6 +328,7 @@ def test_mbaps_clients_are_audited_with_certificate_and_role():
     port = free_port()
     with tls.Mbaps("[http]\nenabled = true\nport = %d\n" % port) as m:
         web = Http(port)
+        wait_http(port, m.gw)
         wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
         op = tls.TlsPlc(m.tls_port, "operator")
         check(op.coil(COIL["cabinet_do_1"], 1) == 0, "operator sets an output")
