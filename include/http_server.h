@@ -11,7 +11,8 @@
  * What any client may do is bounded here, whatever the handler does:
  * - GET and HEAD only; any other method gets 405 with "Allow: GET, HEAD";
  * - the request line and headers at most HTTP_MAX_HEAD_BYTES (431 past it;
- *   libmicrohttpd answers 431 itself once its buffer is full);
+ *   libmicrohttpd answers 431 itself once its buffer is full, or 414 when
+ *   the request line alone fills it);
  * - at most HTTP_MAX_CONNECTIONS at once (further ones are closed at once);
  * - a connection silent for HTTP_IDLE_TIMEOUT_S is closed, and so is one
  *   that has not sent a whole request head within HTTP_HEAD_DEADLINE_MS of
