@@ -279,7 +279,7 @@ man: $(BUILD)/jakagw $(BUILD)/jakasim
 
 UNITS := jakagw.service jakagw@.service jakagw.socket jakagw-socket.service jakagw-mbaps.socket
 DOCS  := README.md docs/register-map.md docs/register-map.csv \
-         $(wildcard docs/plc-guide.md docs/jakagw.dbc docs/security.md)
+         $(wildcard docs/plc-guide.md docs/jakagw.dbc docs/security.md docs/jakagw-alerts.yml)
 CONF  := $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
 # A configuration already there is the user's: it is never overwritten.
 install: all
