@@ -188,4 +188,10 @@ void metrics_render(const struct gateway *gw, struct strbuf *out)
           "Modbus/TCP Security handshakes failed.", v[GW_tls_failed_total]);
     plain(out, "jakagw_http_requests_total", "counter", "HTTP requests answered.",
           (double)gw->http.requests);
+    plain(out, "jakagw_http_connections_refused_total", "counter",
+          "HTTP connections closed at once: over the connection limit.",
+          (double)gw->http.refused);
+    plain(out, "jakagw_http_slow_closed_total", "counter",
+          "HTTP connections closed for sending a request or reading an answer too slowly.",
+          (double)gw->http.closed_slow);
 }

@@ -578,6 +578,9 @@ def abuse(port, gw):
             break
     slow.close()
     check(closed is not None and 9 <= closed < 25, "slowloris closed after %s s" % closed)
+    samples = parse_metrics(web.metrics())
+    check(metric(samples, "jakagw_http_connections_refused_total") >= 400 and
+          metric(samples, "jakagw_http_slow_closed_total") >= 1, "the abuse counted")
     return ("405 for 7 methods, 431 for 64 KiB, 100 pipelined answers, 500 idle connections: "
             "%d held, %d descriptors; slowloris closed after %.1f s" % (held, fds, closed))
 
