@@ -44,9 +44,9 @@ static void modbus_metrics(const struct gateway *gw, struct strbuf *out)
     const struct mb_server_stats *st = &gw->modbus.stats;
     const struct mb_server_breakdown *by = &st->by;
     /* Index 1 is the second listener's transport (mb_server_listen). */
-    const char *const transports[MB_STATS_TRANSPORTS] = {
-        mb_transport_plain.name,
-        gw->modbus.extra_transport ? gw->modbus.extra_transport->name : "mbaps"};
+    const struct mb_transport *extra = gw->modbus.listeners[MB_LISTENER_EXTRA].transport;
+    const char *const transports[MB_STATS_TRANSPORTS] = {mb_transport_plain.name,
+                                                         extra ? extra->name : "mbaps"};
 
     head(out, "jakagw_modbus_requests_total", "counter",
          "Modbus requests answered, by transport and function code (their sum is input "
