@@ -104,6 +104,10 @@ struct gw_config {
     bool rtu_rs485;         /* TIOCSRS485 */
     char rtu_rights[160];   /* as written */
     uint32_t rtu_rights_mask;
+    /* [http]: metrics, status page */
+    bool http_enabled;
+    char http_bind[64];
+    uint32_t http_port;
     /* [roles] */
     struct config_role roles[CONFIG_MAX_ROLES];
     unsigned role_count;

@@ -32,6 +32,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 
+#include "audit.h"
 #include "command.h"
 #include "log.h"
 #include "regmap.h"
@@ -61,6 +62,8 @@ struct plc_commands_config {
      */
     void (*start_sent)(void *user);
     void (*start_answered)(void *user);
+    /* The audit trail: every command sent and its result (NULL: none). */
+    struct audit *audit;
 };
 
 /* The robot's network-exception handler, as the PLC reads it. */
@@ -112,6 +115,7 @@ struct plc_commands {
         const struct cmd_def *def;
     } staged_cmds[CMD_QUEUE_CAPACITY];
     unsigned staged, applied;
+    bool sending_frequent; /* the command being sent is a setpoint's */
     struct log_ratelimit refuse_log_limit;
     const struct regmap_row *mailbox_ack, *mailbox_done, *mailbox_code,
         *mailbox_arg;

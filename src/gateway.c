@@ -2,6 +2,7 @@
 /* gateway.c - see gateway.h. */
 #include "gateway.h"
 
+#include "gw_http.h"
 #include "gw_tls.h"
 #include "log.h"
 
@@ -239,6 +240,7 @@ static void clear_counters(void *user)
     gw->modbus.stats.exceptions = 0;
     gw->modbus.stats.evictions = 0;
     gw->modbus.stats.bad_frames = 0;
+    memset(&gw->modbus.stats.by, 0, sizeof(gw->modbus.stats.by));
     can_mirror_clear_stats(&gw->can);
     gw_tls_clear_counters(gw);
     if (gw->parts & GATEWAY_PART_RTU)
@@ -272,7 +274,9 @@ static void check_policy(struct gateway *gw)
 
 static void on_policy_timer(uv_timer_t *t)
 {
-    check_policy(t->data);
+    struct gateway *gw = t->data;
+    check_policy(gw);
+    audit_flush(&gw->audit);
 }
 
 /* The policy's action goes out as pause_program or stop_program. */
@@ -315,10 +319,24 @@ static void on_start_answered(void *user)
     policy_start_answered(&gw->policy, uv_now(gw->loop));
 }
 
+/* Every write judged; the commands it sends, and a refusal, audited. */
 static int on_write(void *user, const struct mb_write *w)
 {
+    static const char *const tables[] = {"coil", "discrete input", "input register",
+                                         "holding register"};
     struct gateway *gw = user;
-    return plc_write_judge(&gw->writes, w);
+
+    audit_set_writer(&gw->audit, w->transport, w->client, w->subject, w->role);
+    int ex = plc_write_judge(&gw->writes, w);
+    audit_clear_writer(&gw->audit);
+    if (ex) {
+        char what[48];
+        snprintf(what, sizeof(what), "%s %u%s%.0u", tables[w->table % 4], w->address,
+                 w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
+        audit_write_refused(&gw->audit, w->transport, w->client, w->subject, w->role, what,
+                            ex);
+    }
+    return ex;
 }
 
 static void on_client(void *user, uint64_t client, bool open, unsigned clients)
@@ -464,6 +482,7 @@ static int start_commands(struct gateway *gw)
         .gate_user = gw,
         .start_sent = on_start_sent,
         .start_answered = on_start_answered,
+        .audit = &gw->audit,
     };
     return plc_commands_init(&gw->commands, &gw->image, &gw->command.queue, &pcc,
                              loop_now_ms, gw->loop);
@@ -583,6 +602,8 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = regmap_image_init(&gw->image, &gw->map, (enum regmap_word_order)cfg->word_order);
     if (rc)
         return rc;
+    struct audit_clock clock = {.now_ms = loop_now_ms, .user = loop};
+    audit_init(&gw->audit, &clock, NULL);
     gw->status = &gw->status_buffers[0];
     gw->scratch = &gw->status_buffers[1];
     /* Nothing received yet: every value reads as absent. */
@@ -630,13 +651,18 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = start_links(gw);
     if (rc)
         return rc;
-    return start_can(gw);
+    rc = start_can(gw);
+    if (rc)
+        return rc;
+    return gw_http_start(gw);
 }
 
 static void part_closed(struct gateway *gw)
 {
     if (--gw->closing_parts > 0)
         return;
+    /* The commands failed by the links' close are in: the last counts. */
+    audit_finish(&gw->audit);
     if (gw->parts & GATEWAY_PART_WRITES)
         plc_write_free(&gw->writes);
     if (gw->mbaps) {
@@ -681,6 +707,11 @@ static void on_rtu_closed(struct mb_rtu *rtu)
     part_closed(rtu->user);
 }
 
+static void on_http_closed(struct http_server *srv)
+{
+    part_closed(srv->user);
+}
+
 void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
 {
     gw->close_cb = cb;
@@ -713,6 +744,10 @@ void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
         gw->closing_parts++;
         gw->rtu.user = gw;
         mb_rtu_close(&gw->rtu, on_rtu_closed);
+    }
+    if (gw->parts & GATEWAY_PART_HTTP) {
+        gw->closing_parts++;
+        http_server_close(&gw->http, on_http_closed);
     }
     part_closed(gw);
 }

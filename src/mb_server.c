@@ -65,7 +65,27 @@ struct mb_client {
     /* No socket (mb_server_attach): bytes come and go through the
      * transport alone, and only 'timer' is a handle. */
     bool no_socket;
+    uint64_t requests, exceptions; /* this connection's */
+    char subject[128], role[64];   /* mb_client_set_identity */
 };
+
+const double mb_stats_service_bounds_s[MB_STATS_SERVICE_BUCKETS] = {
+    0.00005, 0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.1};
+
+/* The breakdown's transport index of a connection. */
+static unsigned transport_index(const struct mb_client *c)
+{
+    if (c->no_socket)
+        return 2;
+    return c->transport == &mb_transport_plain ? 0 : 1;
+}
+
+static void count_exception(struct mb_client *c, int code)
+{
+    c->srv->stats.exceptions++;
+    c->srv->stats.by.exceptions[transport_index(c)][(unsigned)code & 15]++;
+    c->exceptions++;
+}
 
 struct reply {
     uv_write_t req;
@@ -282,7 +302,7 @@ static void forward_libmodbus_reply(struct mb_client *c, const uint8_t *req)
             req[MBAP_SIZE], n < 0 ? strerror(errno) : "empty");
     uint8_t pdu[2] = {(uint8_t)(req[MBAP_SIZE] | 0x80),
                       MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE};
-    c->srv->stats.exceptions++;
+    count_exception(c, MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE);
     send_pdu(c, req, pdu, sizeof(pdu));
 }
 
@@ -370,7 +390,7 @@ static void log_refused(struct mb_client *c, const uint8_t *req, size_t size, in
 
 static void reply_exception(struct mb_client *c, const uint8_t *req, int code)
 {
-    c->srv->stats.exceptions++;
+    count_exception(c, code);
     if (modbus_reply_exception(c->srv->ctx, req, (unsigned)code) < 0) {
         /* Build it here rather than leave the client without an answer. */
         uint8_t pdu[2] = {(uint8_t)(req[MBAP_SIZE] | 0x80), (uint8_t)code};
@@ -464,7 +484,7 @@ static void reply_device_id(struct mb_client *c, const uint8_t *req)
     send_pdu(c, req, rsp, n);
 }
 
-static void answer(struct mb_client *c, const uint8_t *req, size_t size)
+static void answer_request(struct mb_client *c, const uint8_t *req, size_t size)
 {
     struct mb_server *srv = c->srv;
     const uint8_t *pdu = req + MBAP_SIZE;
@@ -484,6 +504,8 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         return;
     }
     srv->stats.requests++;
+    srv->stats.by.requests[transport_index(c)][pdu[0] & 127]++;
+    c->requests++;
     if (srv->cfg.unit_id >= 0 && req[6] != srv->cfg.unit_id) {
         /* Nothing stands behind this gateway at that unit id. */
         log_refused(c, req, size, MB_EXCEPTION_GATEWAY_PATH);
@@ -516,7 +538,8 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         static uint16_t values[MODBUS_MAX_WRITE_BITS];
         struct mb_write w = {.client = c->host, .client_addr = c->addr,
                              .client_id = c->accept_seq, .values = values,
-                             .rights = c->rights};
+                             .rights = c->rights, .transport = c->transport->name,
+                             .subject = c->subject, .role = c->role};
         int n = mb_request_written_values(srv->img, pdu, pdu_size, &w.table,
                                           &w.address, values);
         w.count = n > 0 ? (unsigned)n : 0;
@@ -545,6 +568,24 @@ static void answer(struct mb_client *c, const uint8_t *req, size_t size)
         if (mb_request_write_range(pdu, pdu_size, &table, &address, &count) == 0)
             srv->hooks.after_write(srv->hooks.user, table, address, count);
     }
+}
+
+/* Answers one request, its service time into the histogram if counted. */
+static void answer(struct mb_client *c, const uint8_t *req, size_t size)
+{
+    struct mb_server_breakdown *by = &c->srv->stats.by;
+    uint64_t requests = c->srv->stats.requests;
+    uint64_t start_ns = uv_hrtime();
+    unsigned b = 0;
+
+    answer_request(c, req, size);
+    if (c->srv->stats.requests == requests)
+        return; /* not a request: the connection was closed */
+    double seconds = (double)(uv_hrtime() - start_ns) / 1e9;
+    while (b < MB_STATS_SERVICE_BUCKETS && seconds > mb_stats_service_bounds_s[b])
+        b++;
+    by->service_buckets[b]++;
+    by->service_seconds += seconds;
 }
 
 /*
@@ -1322,6 +1363,30 @@ void mb_client_set_deadline(struct mb_client *c, uint64_t ms)
 {
     if (c->state == CLIENT_PENDING)
         uv_timer_start(&c->timer, on_client_timer, ms, 0);
+}
+
+void mb_client_set_identity(struct mb_client *c, const char *subject, const char *role)
+{
+    snprintf(c->subject, sizeof(c->subject), "%s", subject ? subject : "");
+    snprintf(c->role, sizeof(c->role), "%s", role ? role : "");
+}
+
+void mb_server_foreach_client(const struct mb_server *srv,
+                              void (*cb)(void *user, const struct mb_client_info *info),
+                              void *user)
+{
+    for (const struct mb_client *c = srv->clients; c; c = c->next) {
+        if (c->state != CLIENT_OPEN)
+            continue;
+        struct mb_client_info info = {
+            .id = c->accept_seq, .peer = c->peer, .host = c->host, .transport = c->transport->name,
+            .subject = c->subject, .role = c->role, .rights = c->rights,
+            .requests = c->requests, .exceptions = c->exceptions,
+            .accepted_ms = c->accepted_ms,
+            .last_request_ms = c->request_seq ? c->last_request_ms : 0,
+        };
+        cb(user, &info);
+    }
 }
 
 void mb_client_admit(struct mb_client *c, uint32_t rights)

@@ -274,6 +274,7 @@ static void admit(struct mb_tls *t, struct mb_client *c, struct mb_tls_conn *con
                    listed ? "[roles]" : "default_rights", tls_conn_version(conn->tls),
                    tls_conn_resumed(conn->tls) ? "session resumed" : "new session", more);
     }
+    mb_client_set_identity(c, tls_conn_subject(conn->tls), valid ? role : "");
     mb_client_admit(c, rights);
 }
 

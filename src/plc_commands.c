@@ -702,6 +702,25 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
 static void on_done(void *user, const struct cmd_result *r);
 static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state);
 
+/* The command's name for the audit trail: the table's, or the JSON's. */
+static void audit_sent(struct plc_commands *pc, struct plc_slot *slot, const char *json,
+                       const struct cmd_def *def, bool own)
+{
+    char name[48] = "";
+
+    if (!pc->cfg.audit)
+        return;
+    if (def) {
+        snprintf(name, sizeof(name), "%s", def->name);
+    } else {
+        cJSON *doc = cJSON_Parse(json);
+        const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+        snprintf(name, sizeof(name), "%s", cJSON_IsString(n) ? n->valuestring : "?");
+        cJSON_Delete(doc);
+    }
+    audit_command_sent(pc->cfg.audit, slot, name, own, pc->sending_frequent);
+}
+
 static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *json,
                    const struct cmd_def *def)
 {
@@ -709,11 +728,15 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
     int rc = def && (def->flags & CMD_HALTS)
                  ? cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot)
                  : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+    audit_sent(pc, slot, json, def, false);
     if (rc < 0) {
         char why[96];
         snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
         /* The write was accepted: whatever kept the command from going
          * out, the robot never got it. */
+        struct cmd_result r = {.outcome = CMD_NOT_SENT};
+        snprintf(r.error_msg, sizeof(r.error_msg), "%s", why);
+        audit_command_done(pc->cfg.audit, slot, &r);
         set_result(slot, CMD_NOT_SENT, 0, why);
         /* The mailbox's sequence number is finished too: a PLC waiting on
          * done_seq must not wait for ever. */
@@ -748,7 +771,9 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
         slot->def = def; /* one pending at a time: its refresh, its log line */
     if (act == ACT_MAILBOX)
         regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
+    pc->sending_frequent = act == ACT_SETPOINT;
     submit(pc, slot, st->json, def);
+    pc->sending_frequent = false;
     free(st->json);
     st->json = NULL;
 }
@@ -877,6 +902,8 @@ static void on_done(void *user, const struct cmd_result *r)
     struct plc_slot *slot = user;
     struct plc_commands *pc = slot->pc;
 
+    if (slot->kind != PLC_SLOT_INFO)
+        audit_command_done(pc->cfg.audit, slot, r);
     slot->pending--;
     if (slot->starts_pending > 0) {
         /* One pending at a time for these slots: this is the start. */
@@ -942,6 +969,7 @@ void plc_commands_link_up(struct plc_commands *pc)
                  (unsigned)pc->cfg.robot_time_limit_ms, pc->cfg.robot_mot_type);
         int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, &pc->handle);
         if (rc == 0) {
+            audit_sent(pc, &pc->handle, json, pc->handle.def, true);
             pc->handle.pending++;
             if (pc->handle_state != PLC_HANDLE_FAILED)
                 set_handle_state(pc, PLC_HANDLE_PENDING);
@@ -972,6 +1000,7 @@ int plc_commands_send_now(struct plc_commands *pc, const char *name)
     /* Written now, ahead of whatever the PLC queued. */
     int rc = cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot);
     if (rc == 0) {
+        audit_sent(pc, slot, json, def, true);
         slot->pending++;
         if (slot->state)
             set_result(slot, CMD_PENDING, 0, "");
