@@ -17,7 +17,7 @@
 #include "strbuf.h"
 
 /* harden() is static: the module is included whole. */
-#include "../src/status_json.c"
+#include "status_json.c"
 
 static void strbuf_grows_past_its_first_size(void **state)
 {
