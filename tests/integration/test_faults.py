@@ -156,6 +156,7 @@ class RateCommands:
         self.plc = ModbusPlc(port, timeout=5)
         self.pause_s = pause_s
         self.outcomes = []  # (per mille, exception, result state)
+        self.took = []  # seconds from the write to the final result
         self.errors = []
         self.stopping = False
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -166,6 +167,7 @@ class RateCommands:
         result = ir("result_rapid_rate_state")
         try:
             while not self.stopping and value <= 1000:
+                start = time.monotonic()
                 ex = self.plc.reg(RAPID_RATE, value)
                 state = None
                 if ex == 0:
@@ -176,6 +178,7 @@ class RateCommands:
                             break
                         time.sleep(0.005)
                 self.outcomes.append((value, ex, state))
+                self.took.append(time.monotonic() - start)
                 value += 1
                 time.sleep(self.pause_s)
         except Exception as e:  # reported by stop()
@@ -513,7 +516,8 @@ def test_reset_mid_stream():
 
 # ---- random loss ----
 
-LOSS_PERCENT, LOSS_SECONDS = 5, 10
+LOSS_PERCENT = int(os.environ.get("FAULT_LOSS_PERCENT", "10"))
+LOSS_SECONDS = 10
 
 
 def test_random_loss_robot_ports():
@@ -541,6 +545,11 @@ def test_random_loss_robot_ports():
         print("  %d%% loss on both robot ports for %d s: %d reads, %d with a link down or "
               "stale status; status_age_ms at most %d (status_timeout_ms 1000)"
               % (LOSS_PERCENT, LOSS_SECONDS, samples, stale, worst_age), flush=True)
+        took = sorted(commands.took)
+        print("  a command's write to its result: median %.0f ms, p99 %.0f ms, max %.0f ms "
+              "(reply_timeout_ms 2000)" % (1000 * statistics.median(took),
+                                           1000 * took[int(0.99 * (len(took) - 1))],
+                                           1000 * took[-1]), flush=True)
         check(stale == 0, "%d reads showed a link down or stale status" % stale)
         check((plc.u32(STATUS_RECONNECTS), plc.u32(COMMAND_RECONNECTS)) == reconnects,
               "links restarted under loss: %s" % " | ".join(log_lines(gw, "robot")))
@@ -554,46 +563,132 @@ def test_random_loss_robot_ports():
 
 # ---- measurements for the README (not run by make test) ----
 
+class DelayProxy:
+    """A TCP proxy on loopback that holds every chunk it reads for
+    'delay_s' before passing it on, in each direction: latency without
+    netem (this machine's kernel has no sch_netem). The byte stream stays
+    in order, as TCP delivers it."""
+
+    def __init__(self, target_port, delay_s):
+        self.target_port = target_port
+        self.delay_s = delay_s
+        self.listener = socket.socket()
+        self.listener.bind(("127.0.0.1", 0))
+        self.listener.listen(8)
+        self.port = self.listener.getsockname()[1]
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self):
+        while True:
+            try:
+                client, _ = self.listener.accept()
+            except OSError:
+                return
+            server = socket.create_connection(("127.0.0.1", self.target_port))
+            for s in (client, server):
+                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._pipe(client, server)
+            self._pipe(server, client)
+
+    def _pipe(self, src, dst):
+        import queue
+        held = queue.Queue()
+
+        def reader():
+            while True:
+                try:
+                    data = src.recv(65536)
+                except OSError:
+                    data = b""
+                held.put((time.monotonic() + self.delay_s, data))
+                if not data:
+                    return
+
+        def writer():
+            while True:
+                due, data = held.get()
+                time.sleep(max(0.0, due - time.monotonic()))
+                try:
+                    if not data:
+                        dst.shutdown(socket.SHUT_WR)
+                        return
+                    dst.sendall(data)
+                except OSError:
+                    return
+        threading.Thread(target=reader, daemon=True).start()
+        threading.Thread(target=writer, daemon=True).start()
+
+    def close(self):
+        self.listener.close()
+
+
 def measure_false_trips():
-    """Heartbeat false trips per minute with random loss on the PLC's
-    connection: loss 1% and 5%, time_limit_ms 300 and 1000. The PLC writes
-    its heartbeat every 100 ms and waits for each reply (up to 1 s), as a
-    Modbus master does; a program runs, so each expiry latches a fault and
-    sends a pause; the PLC then resets and resumes. FALSE_TRIP_S seconds
-    per case (60 by default)."""
+    """Heartbeat false trips per minute on the PLC's connection, at
+    time_limit_ms 300 and 1000: random loss of 1% and 5% (nftables, both
+    directions), and latency of 100 and 300 ms each way (a delaying proxy;
+    no loss). The PLC writes its heartbeat every 100 ms and waits for each
+    reply (up to 2 s), as a Modbus master does, and nothing else on that
+    connection. A program runs, so each expiry latches a fault and sends a
+    pause; a second client on an unimpaired connection (single_owner off)
+    resets and resumes. FALSE_TRIP_S seconds per case (60 by default)."""
     seconds = float(os.environ.get("FALSE_TRIP_S", "60"))
     for limit_ms in (300, 1000):
-        for percent in (1, 5):
-            config = FAST + "[network_exception]\ntime_limit_ms = %d\n" % limit_ms
+        for kind, amount in (("loss", 1), ("loss", 5), ("latency", 100), ("latency", 300)):
+            config = FAST + ("[network_exception]\ntime_limit_ms = %d\nsingle_owner = false\n"
+                             % limit_ms)
             sim, gw = started(config, ["--auto-run", "--period-ms", "20"])
+            proxy = fault = None
             try:
-                plc = ModbusPlc(gw.modbus_port, timeout=1)
+                plc = ModbusPlc(gw.modbus_port, timeout=2)
                 ready(plc)
                 wait_until(lambda: plc.ir(INTERP_STATE)[0] == RUNNING, 5, "the program running")
-                fault = netfault.loss([gw.modbus_port], percent)
-                value, slow = 0, 0
+                port = gw.modbus_port
+                if kind == "loss":
+                    fault = netfault.loss([gw.modbus_port], amount)
+                else:
+                    proxy = DelayProxy(gw.modbus_port, amount / 1000)
+                    port = proxy.port
+                master = ModbusPlc(port, timeout=2)
+                value, slow, beats = 0, 0, []
+                stop = threading.Event()
+
+                def resetter():
+                    while not stop.wait(0.05):
+                        if plc.ir(FAULT)[0]:
+                            plc.pulse(FAULT_RESET)
+                            plc.pulse(RESUME)
+                helper = threading.Thread(target=resetter, daemon=True)
+                helper.start()
                 end = time.monotonic() + seconds
                 while time.monotonic() < end:
                     value = (value + 1) & 0xFFFF
                     start = time.monotonic()
                     try:
-                        plc.reg(HEARTBEAT, value)
-                        if plc.ir(FAULT)[0]:
-                            plc.pulse(FAULT_RESET)
-                            plc.pulse(RESUME)
+                        master.reg(HEARTBEAT, value)
+                        beats.append(time.monotonic())
                     except Exception:
-                        slow += 1  # a reply later than 1 s: the master goes on
-                        plc.close()
-                        plc = ModbusPlc(gw.modbus_port, timeout=1)
+                        slow += 1  # no reply within 2 s: the master reconnects
+                        master.close()
+                        master = ModbusPlc(port, timeout=2)
                     time.sleep(max(0.0, start + 0.1 - time.monotonic()))
-                fault.restore()
-                trips = len(sim_commands(sim, "pause_program"))
-                print("  time_limit_ms %4d, loss %d%%: %d trips in %.0f s = %.1f per minute "
-                      "(%d requests without a reply within 1 s)"
-                      % (limit_ms, percent, trips, seconds, trips * 60 / seconds, slow),
-                      flush=True)
+                stop.set()
+                helper.join(5)
                 plc.close()
+                if fault:
+                    fault.restore()
+                gaps = sorted(b - a for a, b in zip(beats, beats[1:]))
+                trips = len(sim_commands(sim, "pause_program"))
+                print("  time_limit_ms %4d, %s %d%s: %d trips in %.0f s = %.1f per minute; "
+                      "heartbeat replies %.0f ms apart (median), p99 %.0f ms, max %.0f ms; "
+                      "%d requests without a reply within 2 s"
+                      % (limit_ms, kind, amount, "%" if kind == "loss" else " ms", trips, seconds,
+                         trips * 60 / seconds, 1000 * statistics.median(gaps),
+                         1000 * gaps[int(0.99 * (len(gaps) - 1))], 1000 * gaps[-1], slow),
+                      flush=True)
+                master.close()
             finally:
+                if proxy:
+                    proxy.close()
                 stopped(sim, gw)
 
 
