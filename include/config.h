@@ -137,4 +137,20 @@ uint32_t config_role_rights(const struct gw_config *cfg, const char *role, bool 
 /* Writes the effective configuration as INI (for --check-config). */
 void config_print(const struct gw_config *cfg, FILE *out);
 
+/*
+ * The key table, for comparing two configurations (config_reload.c): key
+ * i (0 .. config_key_count() - 1), its section and name; whether two
+ * configurations hold the same value for it, compared as its type has it
+ * (numbers and choices as numbers, write_allow as the addresses parsed,
+ * default_rights as the rights, a fingerprint as its bytes, names and
+ * paths as text); and its value as --check-config prints it (escaped).
+ * [roles] is not in the table.
+ */
+#define CONFIG_TEXT_SHOWN (6 * 200 + 1) /* any value (at most 199 bytes), escaped */
+size_t config_key_count(void);
+const char *config_key_section(size_t i);
+const char *config_key_name(size_t i);
+bool config_key_equal(const struct gw_config *a, const struct gw_config *b, size_t i);
+void config_key_format(const struct gw_config *cfg, size_t i, char *out, size_t size);
+
 #endif

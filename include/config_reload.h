@@ -5,8 +5,11 @@
  *
  * The new configuration has been read and validated in full before it gets
  * here; a file with any error never reaches these functions, and the
- * running configuration stays in force. Keys are compared one by one, by
- * the text --check-config prints for them. A key in the live table below
+ * running configuration stays in force. Keys are compared one by one,
+ * through the configuration's key table, each as its type has it (a number
+ * as a number, write_allow as its addresses, default_rights as its rights,
+ * a fingerprint as its bytes: config_key_equal), and logged as
+ * --check-config prints them. A key in the live table below
  * (config_reload.c) takes effect at once: the log level, the Modbus
  * limits and timeouts, the robot links' timeouts and backoff. Every other
  * key (addresses, ports, the robot host, the register word order, the
@@ -43,8 +46,7 @@ struct config_reload_result {
  * Applies 'next', a configuration already validated, to the running
  * gateway 'gw': the live keys that differ take effect and are logged; the
  * others that differ are logged as needing a restart and keep their value.
- * Returns 0, or -ENOMEM when the two configurations cannot be compared
- * (nothing is applied then).
+ * Returns 0.
  */
 int config_reload_apply(struct gateway *gw, const struct gw_config *next,
                         struct config_reload_result *result);

@@ -30,7 +30,12 @@
  *   have closed are let go and do not count;
  * - a client that closes its side (or is closed by these rules) still gets
  *   the replies already built, for up to MB_SERVER_FLUSH_MS; one that does
- *   not read its replies (more than 64 KiB queued) is closed at once.
+ *   not read its replies (more than 64 KiB queued) is closed at once;
+ * - TCP keepalive probes a connection silent for MB_SERVER_KEEPALIVE_IDLE_S,
+ *   every MB_SERVER_KEEPALIVE_INTERVAL_S, MB_SERVER_KEEPALIVE_COUNT times,
+ *   and data unacknowledged for MB_SERVER_USER_TIMEOUT_MS ends it: a PLC
+ *   pulled off the network without a word frees its connection (and, as
+ *   any closed client, what it owned) within about 5 s.
  * Function codes 17 (report server id) and 43/14 (device identification)
  * are answered here, because libmodbus 3.1.6 reports its own name for 17
  * and does not know 43.
@@ -60,6 +65,13 @@
 
 /* How long replies may take to leave once a connection is being closed. */
 #define MB_SERVER_FLUSH_MS 5000
+
+/* A silent peer: probed after 2 s, then every second, dropped after 3
+ * unanswered probes (5 s); unacknowledged data: dropped after 5 s. */
+#define MB_SERVER_KEEPALIVE_IDLE_S 2
+#define MB_SERVER_KEEPALIVE_INTERVAL_S 1
+#define MB_SERVER_KEEPALIVE_COUNT 3
+#define MB_SERVER_USER_TIMEOUT_MS 5000
 
 struct mb_server_config {
     const char *bind;
@@ -126,8 +138,10 @@ struct mb_client;
  * A transport. Every function gets the transport's own state (the 'state'
  * given to mb_server_listen) and the connection. The server calls them
  * from its loop callbacks; a transport calls back into the server only
- * through the mb_client_* functions below, and must not touch a
- * connection again once mb_client_is_open() says false.
+ * through the mb_client_* functions below. It feeds a connection no more
+ * input once mb_client_is_open() says false, and writes to it no more once
+ * mb_client_can_send() does (a flushing connection still takes its last
+ * words, a TLS close_notify).
  */
 struct mb_transport {
     const char *name; /* "modbus", "mbaps": for logs */
@@ -158,6 +172,20 @@ struct mb_transport {
 
 #define MB_TRANSPORT_PENDING 1
 
+/* A listening socket and what its connections go through. */
+enum { MB_LISTENER_PLAIN, MB_LISTENER_EXTRA, MB_LISTENER_COUNT };
+
+struct mb_listener {
+    uv_tcp_t handle;
+    struct mb_server *srv;
+    const struct mb_transport *transport; /* NULL: this listener was never made */
+    void *state;                          /* the transport's */
+    bool listening;
+    /* A connection waits on it, unaccepted, for the refusal before it to
+     * close (see mb_server.refused). */
+    bool refuse_waiting;
+};
+
 /* Plain Modbus TCP: the bytes as they are. */
 extern const struct mb_transport mb_transport_plain;
 
@@ -167,7 +195,9 @@ struct mb_server {
     char bind[64];
     struct mb_server_hooks hooks;
     struct regmap_image *img;
-    uv_tcp_t listener;
+    /* [MB_LISTENER_PLAIN]: mb_server_start's; [MB_LISTENER_EXTRA]:
+     * mb_server_listen's. Both take connections by one path. */
+    struct mb_listener listeners[MB_LISTENER_COUNT];
     modbus_t *ctx;
     int pair[2]; /* [0] libmodbus writes replies, [1] we read them */
     /* Doubly linked, newest first: the clients still open or flushing. */
@@ -184,20 +214,13 @@ struct mb_server {
     /*
      * A connection there is no memory for is accepted on this handle and
      * closed: libuv stops polling a listener whose connection is left
-     * unaccepted. One at a time; 'refuse_waiting' marks the next.
+     * unaccepted. One at a time; each listener's 'refuse_waiting' marks
+     * that it holds the next.
      */
     uv_tcp_t refused;
     bool refusing;
-    bool refuse_waiting;
     /* Allocates a client: calloc, which a test may make fail. */
     void *(*calloc_client)(size_t count, size_t size);
-    /* A second listener (mb_server_listen), with its transport. */
-    uv_tcp_t extra_listener;
-    bool extra_listening;
-    const struct mb_transport *extra_transport;
-    void *extra_state;
-    bool plain_listening;
-    bool extra_refuse_waiting; /* refuse_waiting, for the second listener */
 };
 
 /*
@@ -226,6 +249,22 @@ void **mb_client_data(struct mb_client *c);
 const char *mb_client_peer(const struct mb_client *c);
 uv_loop_t *mb_client_loop(const struct mb_client *c);
 bool mb_client_is_open(const struct mb_client *c); /* pending or served */
+/*
+ * Bytes may still be written to the socket: open, pending, or flushing
+ * its last replies (a TLS close_notify goes out then). False once closing.
+ */
+bool mb_client_can_send(const struct mb_client *c);
+/* Bytes have arrived that were not read yet (the kernel holds them). */
+bool mb_client_has_input(const struct mb_client *c);
+/*
+ * A pending connection's reading stops (its transport has enough to work
+ * on) and starts again; neither does anything once it is not pending or
+ * served. 0, or a negative libuv error (the connection is then closed).
+ */
+void mb_client_pause_reading(struct mb_client *c);
+int mb_client_resume_reading(struct mb_client *c);
+/* When the connection was accepted (uv_now). */
+uint64_t mb_client_accepted_ms(const struct mb_client *c);
 /* Where plaintext goes, and how much room is left there. */
 uint8_t *mb_client_space(struct mb_client *c, size_t *room);
 /* 'n' bytes of plaintext were put there: frame and answer them. */

@@ -9,16 +9,25 @@
  * Handshake work is rationed to one step per turn of the loop, so that a
  * flood of handshakes delays other handshakes, not the clients already
  * served on either port.
- * At most 'max_handshakes' run at once; a connection beyond them is closed
- * at once, counted, and logged at most once a second. A handshake not done
+ * A pending connection stops reading while it waits for its step, and may
+ * hold at most 64 KiB of ciphertext before it (more is a protocol failure):
+ * what unauthenticated peers make the gateway hold is bounded.
+ * At most 'max_handshakes' run at once; a new connection beyond them is
+ * admitted and a pending one closed, by the plain port's rule: the oldest
+ * that has sent nothing, else the oldest pending handshake (counted as
+ * over_limit, logged at most once a second). Silent sockets, however fast
+ * they come back, then only displace one another. A handshake not done
  * within 'handshake_timeout_ms' is closed and counted. A failed handshake
- * (no certificate, another CA, expired, revoked, not TLS, an old version)
- * is counted by reason and logged, rate-limited. A handshake that succeeds
- * gets one log line (the peer, the certificate's subject, its role and the
- * rights it gives) and the connection becomes a client of the server, with
- * the rights its role has: from then on the decrypted stream goes through
- * the server's framing, limits, deadlines and write checks, exactly as on
- * plain TCP. A renegotiation attempt closes the connection.
+ * (no certificate, another CA, expired, revoked, not TLS, an old version, a
+ * renegotiation attempt later on) is counted by reason and logged,
+ * rate-limited. A handshake that succeeds gets a log line (the peer, the
+ * certificate's subject, its role or why it was not taken, the rights it
+ * gives; at most 10 such lines in 10 s, the rest counted in the next) and
+ * the connection becomes a client of the server, with the rights its role
+ * has: from then on the decrypted stream goes through the server's framing,
+ * limits, deadlines and write checks, exactly as on plain TCP. Every close
+ * the gateway starts (a bad MBAP header, the idle timeout, an eviction, a
+ * stop) sends close_notify first.
  *
  * The context new connections use can be replaced at any time
  * (mb_tls_set_context, on reload); established ones keep theirs.
@@ -58,6 +67,13 @@ struct mb_tls {
     struct mb_tls_stats stats;
     struct log_ratelimit fail_log;
     struct log_ratelimit limit_log;
+    struct log_ratelimit close_log;
+    /* The session lines (one per handshake done), rate-limited (mb_tls.c). */
+    uint64_t session_window_ms;
+    unsigned session_lines;
+    uint64_t sessions_unlogged;
+    /* Pending handshakes, oldest first (mb_tls.c). */
+    struct mb_tls_conn *pending_oldest, *pending_newest;
     /* Where every connection's ciphertext is read into: each read is fed
      * to its connection's engine before anything else runs. */
     uint8_t read_buf[16384];

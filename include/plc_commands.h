@@ -54,6 +54,13 @@ struct plc_commands_config {
      */
     int (*gate)(void *user, const struct cmd_def *def, char *why, size_t size);
     void *gate_user;
+    /*
+     * A command that starts motion (policy_command_starts_motion) was
+     * sent or queued for a PLC; its result came (any outcome). Called
+     * with 'gate_user'; either may be NULL.
+     */
+    void (*start_sent)(void *user);
+    void (*start_answered)(void *user);
 };
 
 /* The robot's network-exception handler, as the PLC reads it. */
@@ -80,6 +87,7 @@ struct plc_slot {
     const struct cmd_def *def; /* PLC_SLOT_COMMAND, PLC_SLOT_INFO */
     const struct regmap_row *state, *error_code, *error_msg;
     unsigned pending;
+    unsigned starts_pending;   /* of them, commands that start motion */
     bool failed;               /* a failure among the pending ones */
     struct cmd_result failure; /* the first of them */
 };

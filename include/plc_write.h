@@ -14,15 +14,20 @@
  * 2. the new values go into the image and are decoded once, element by
  *    element (regmap_decode_write): 02 for an address no writable row owns
  *    or a split value, 03 for a value out of range;
- * 3. every element is checked with the new values in place (a command
+ * 3. a drop of the motion-enable coil is taken now, whatever its address
+ *    (with the fault reset just before it, if the write holds one): the
+ *    policy sees it before anything else in the write is judged, and
+ *    nothing refuses it: the coil stays 0 even if step 4 refuses the rest;
+ * 4. every element is checked with the new values in place (a command
  *    sees the parameters written with it): the command rows by
  *    plc_commands_check(), which builds each command once; the policy's
- *    gates apply through it. One refusal refuses the whole write: the
- *    image is restored and nothing is sent;
- * 4. every element is acted on, in address order: the heartbeat and the
+ *    gates apply through it, against the fault as it was before the write
+ *    (a reset starts nothing). One refusal refuses the whole write: the
+ *    image is restored (but for a motion-enable drop) and nothing is sent;
+ * 5. every element is acted on, in address order: the heartbeat and the
  *    fault reset and motion-enable coils go to the policy, command rows
- *    send what step 3 built; then the policy is re-evaluated;
- * 5. after libmodbus applied the write: command coils (fault reset, clear
+ *    send what step 4 built; then the policy is re-evaluated;
+ * 6. after libmodbus applied the write: command coils (fault reset, clear
  *    counters) read 0 again, and clear counters clears them.
  *
  * Time, the robot's motion and the counters reach the transaction through
@@ -95,13 +100,13 @@ void plc_write_free(struct plc_write *pw);
 int plc_write_authorize(const struct plc_write *pw, const struct mb_write *w);
 
 /*
- * Steps 1-4 for write 'w'. Returns 0 (acted on: libmodbus applies and
+ * Steps 1-5 for write 'w'. Returns 0 (acted on: libmodbus applies and
  * answers it), or the Modbus exception that refuses it (the image is as
- * before and nothing was sent).
+ * before, but for a motion-enable drop, and nothing was sent).
  */
 int plc_write_judge(struct plc_write *pw, const struct mb_write *w);
 
-/* Step 5, after a write plc_write_judge() accepted was applied. */
+/* Step 6, after a write plc_write_judge() accepted was applied. */
 void plc_write_after(struct plc_write *pw);
 
 #endif

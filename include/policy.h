@@ -13,14 +13,28 @@
  * - the connection: at least one Modbus client connected (armed once one
  *   has connected);
  * - the motion-enable coil, when required: the PLC holds it at 1 for the
- *   robot to run; dropping it pauses the program at once.
- * When a watched signal is lost while the robot moves or a program runs
- * (or while the gateway cannot tell, its status being stale), the action
- * (keep: flag only; pause: pause_program; stop: stop_program) is sent once
- * and a fault is latched, visible on Modbus with its reason and age. While
- * it is latched, commands are refused, except stop and the reset; the
- * action is never repeated. Only an explicit reset by the PLC clears it.
- * A loss while the robot is idle sends nothing and latches nothing.
+ *   robot to run (armed once it has been written 1); at 0 the program is
+ *   paused at once.
+ * Every signal is judged by one rule (lost_signals() in policy.c), as a
+ * level, at every check period, at every write that changes one, and at
+ * every command that would start motion: when a watched signal is lost
+ * while the robot runs or may run, the action (keep: flag only; pause:
+ * pause_program; stop: stop_program; always pause for motion enable) is
+ * sent once and a fault is latched, visible on Modbus with its reason and
+ * age. "May run" is what the status shows (moving, a program loading or
+ * running, or a stale status: blind, the worst is assumed), and also a
+ * start the gateway sent that the status cannot show yet
+ * (policy_start_sent): until a status document received at least
+ * POLICY_START_SETTLE_MS after its reply (the controller's status may lag
+ * its reply by a few pushes), or start_unshown_max_ms after the reply at
+ * most. A command that would start motion while
+ * a signal is lost is refused, and counts as the robot about to run: the
+ * fault is latched and the action sent, so a PLC that starts and drops
+ * motion enable ends the same way in either order.
+ * While a fault is latched, commands are refused, except stop and the
+ * reset; the action is never repeated, except motion enable's pause, sent
+ * once for each drop. Only an explicit reset by the PLC clears it. A loss
+ * while the robot is idle sends nothing and latches nothing.
  *
  * Write ownership, when configured: the client that feeds the heartbeat
  * owns the write side; other clients' writes are refused (exception 01).
@@ -39,6 +53,10 @@
 
 #include "command.h"
 #include "status.h"
+
+/* How long after a start's reply a status document must arrive to show
+ * whether the start ran. */
+#define POLICY_START_SETTLE_MS 200
 
 enum policy_action { POLICY_KEEP = 0, POLICY_PAUSE = 1, POLICY_STOP = 2 };
 
@@ -62,6 +80,13 @@ struct policy_config {
     enum policy_watch watch;
     bool motion_enable;  /* the motion-enable coil is required */
     bool single_owner;   /* one write owner at a time */
+    /*
+     * How long after its reply a start the gateway sent counts as "may
+     * run" at most when no status document comes (0: 10 s). The gateway
+     * sets status_timeout_ms: by then the status is judged stale, and
+     * blind, the worst is assumed anyway.
+     */
+    uint32_t start_unshown_max_ms;
 };
 
 struct policy_sink {
@@ -89,6 +114,12 @@ struct policy {
     uint64_t no_client_since_ms;
     /* The motion-enable coil. */
     bool motion_enabled;
+    bool motion_enable_armed;  /* written 1 once: from then on 0 is a loss */
+    bool motion_enable_paused; /* this drop's pause went out (or is owed) */
+    /* Starts the gateway sent that the status may not show yet. */
+    unsigned starts_unanswered; /* sent or queued, no reply yet */
+    bool start_unshown;         /* answered, no status document since */
+    uint64_t start_answered_ms; /* the last reply */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;
@@ -118,11 +149,27 @@ void policy_client_closed(struct policy *p, uint64_t now_ms, uint64_t client,
                           unsigned clients);
 
 /*
- * A write to the motion-enable coil. Dropping it while the robot may move
- * pauses at once, even with another fault latched (which it then keeps).
+ * A write to the motion-enable coil. The first 1 arms it. At 0 (armed)
+ * while the robot runs or may run: pause at once, even with another fault
+ * latched (which it then keeps); the pause goes out once per drop.
  */
 void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
                           bool robot_moving);
+
+/*
+ * A command that starts motion (CMD_STARTS_MOTION, CMD_MOTION, or a name
+ * the table does not know) was sent or queued for a PLC; and its reply
+ * came, or it failed (any outcome: a timeout or a dropped link leaves its
+ * fate unknown). From the first until a status document received after
+ * the last reply (policy_status_document), the robot may run whatever the
+ * status says: while one is unanswered (the command queue answers every
+ * one in bounded time), then start_unshown_max_ms after the reply at most.
+ */
+void policy_start_sent(struct policy *p, uint64_t now_ms);
+void policy_start_answered(struct policy *p, uint64_t now_ms);
+void policy_status_document(struct policy *p, uint64_t now_ms);
+/* Is a start sent that the status cannot show yet? */
+bool policy_start_unshown(const struct policy *p, uint64_t now_ms);
 
 /* The PLC's reset: clears the latched fault. */
 void policy_reset(struct policy *p);
@@ -130,7 +177,8 @@ void policy_reset(struct policy *p);
 /*
  * Re-evaluates: call every check period and after any input. 'robot_moving'
  * is true while the robot moves or a program runs, or while the status is
- * stale and the gateway cannot tell.
+ * stale and the gateway cannot tell (policy_robot_may_move); a start not
+ * shown yet (policy_start_unshown) is added here.
  */
 void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving);
 
@@ -153,11 +201,17 @@ bool policy_robot_may_move(bool status_fresh, const struct jaka_status *status);
  * The policy's say on a command about to be sent for a PLC: 0, or
  * exception 01 with the reason in 'why'. stop_program always passes; a
  * latched fault refuses everything else; with the motion-enable coil
- * required and at 0, motion and program starts are refused. 'def' NULL (a
+ * required and at 0, motion and program starts are refused. A start while
+ * a watched signal is lost (the heartbeat expired, motion enable dropped
+ * after it was armed) is refused and latches that fault, sending its
+ * action: the PLC asked the robot to run without the signal. 'def' NULL (a
  * name the command table does not know) is judged as motion.
  */
-int policy_gate_command(const struct policy *p, const struct cmd_def *def, char *why,
-                        size_t size);
+int policy_gate_command(struct policy *p, uint64_t now_ms, const struct cmd_def *def,
+                        char *why, size_t size);
+
+/* Does 'def' start motion (NULL, unknown: judged as motion)? */
+bool policy_command_starts_motion(const struct cmd_def *def);
 
 /* Milliseconds since the fault latched; 0 when none. */
 uint64_t policy_fault_age_ms(const struct policy *p, uint64_t now_ms);

@@ -51,6 +51,15 @@ enum tls_failure {
     TLS_FAIL_COUNT
 };
 
+/*
+ * Checks a role name ('size' bytes at 'name'), as a certificate carries it
+ * and [roles] names it: 1 to TLS_ROLE_MAX - 1 bytes of UTF-8, any
+ * language, with no space and no control character. NULL when it is one;
+ * else why not ("too long", "not valid UTF-8", "has a space or a control
+ * character"), in words a log line or an error message can use.
+ */
+const char *tls_role_name_problem(const char *name, size_t size);
+
 /* "no certificate", "untrusted", ...: for logs. */
 const char *tls_failure_name(enum tls_failure f);
 
@@ -155,6 +164,16 @@ enum tls_failure tls_conn_failure(const struct tls_conn *c, char *why, size_t wh
  * ("TLSv1.3"), and whether the session was resumed. */
 const char *tls_conn_subject(const struct tls_conn *c);
 const char *tls_conn_role(const struct tls_conn *c, bool *valid);
+/*
+ * Why the certificate's role was not taken ('valid' false above): "not a
+ * valid UTF8String", "too long (5000 bytes; at most 63)", ...; "" when it
+ * was, or there is none.
+ */
+const char *tls_conn_role_problem(const struct tls_conn *c);
+/* The peer tried to renegotiate (tls_conn_read said TLS_ERROR). */
+bool tls_conn_renegotiation_refused(const struct tls_conn *c);
+/* Ciphertext fed and not yet taken by the engine, in bytes. */
+size_t tls_conn_buffered(const struct tls_conn *c);
 const char *tls_conn_version(const struct tls_conn *c);
 bool tls_conn_resumed(const struct tls_conn *c);
 

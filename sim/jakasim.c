@@ -5,6 +5,15 @@
  * commands; faults are injected on request, for the gateway's tests. With
  * --tls-cert and --tls-key both ports speak TLS, as some controllers do
  * (no client certificate is asked for), through the gateway's own engine.
+ *
+ * set_network_exception_handle (manual 4.75) arms the command connection it
+ * comes on: when that connection is lost, whatever still runs is kept,
+ * paused or stopped per motType, timeLimit ms after the loss was seen. The
+ * manual does not say how a controller sees the loss; jakasim takes a
+ * connection closed (FIN), reset (RST) or failed (a read, write or TLS
+ * error) at once, and, with --link-check-ms N, one silent for N ms (a link
+ * check missed) as lost then. The handler belongs to the connection that
+ * set it: a client that never set one loses nothing by leaving.
  */
 #include "framer.h"
 #include "log.h"
@@ -50,6 +59,9 @@ struct sim_options {
     const char *delay_command; /* delay only this command's reply */
     bool log_commands;
     const char *tls_cert, *tls_key; /* both ports over TLS */
+    /* A live command client sends something at least this often (0: a
+     * silent connection is never taken as lost). */
+    unsigned link_check_ms;
 };
 
 struct peer {
@@ -64,6 +76,16 @@ struct peer {
     bool closing;
     struct tls_conn *tls; /* with --tls-cert */
     bool ready;           /* plain TCP, or the TLS handshake done */
+    /* set_network_exception_handle, as accepted on this connection. */
+    bool handler_set;
+    unsigned handler_ms;
+    enum sim_net_motion handler_motion;
+    /* Since when the client has had nothing to wait for and has sent
+     * nothing: the later of its last bytes and our last reply. */
+    uint64_t quiet_since_ms;
+    unsigned replies_owed; /* held by --reply-delay-ms */
+    uv_timer_t silence;    /* command clients: --link-check-ms + timeLimit */
+    int open_handles;      /* the peer is freed when the last one closes */
     struct peer *next;
 };
 
@@ -88,6 +110,8 @@ struct sim {
     size_t piece_size, piece_sent;
     uint64_t next_peer_id;
     struct delayed_reply *delayed; /* replies waiting for --reply-delay-ms */
+    struct link_loss *losses;      /* handlers waiting out their timeLimit */
+    struct log_ratelimit handler_log; /* a client may open and drop many */
     struct tls_context *tls;
 };
 
@@ -105,13 +129,16 @@ static void on_written(uv_write_t *req, int status)
 static void peer_closed(uv_handle_t *h)
 {
     struct peer *p = h->data;
+    if (--p->open_handles > 0)
+        return;
     if (p->framer_ready)
         framer_free(&p->framer);
     tls_conn_free(p->tls);
     free(p);
 }
 
-static void close_peer(struct peer *p)
+/* Closes a connection; 'reset': with an RST, nothing queued delivered. */
+static void close_peer_how(struct peer *p, bool reset)
 {
     struct sim *sim = p->sim;
     if (p->closing)
@@ -123,7 +150,157 @@ static void close_peer(struct peer *p)
             break;
         }
     }
-    uv_close((uv_handle_t *)&p->tcp, peer_closed);
+    if (!p->status)
+        uv_close((uv_handle_t *)&p->silence, peer_closed);
+    if (!reset || uv_tcp_close_reset(&p->tcp, peer_closed) != 0)
+        uv_close((uv_handle_t *)&p->tcp, peer_closed);
+}
+
+static void close_peer(struct peer *p)
+{
+    close_peer_how(p, false);
+}
+
+/* ---- the network-exception handler ---- */
+
+/* A lost connection's handler, waiting out its timeLimit. */
+struct link_loss {
+    uv_timer_t timer;
+    struct sim *sim;
+    uint64_t peer_id;
+    enum sim_net_motion motion;
+    unsigned time_limit_ms;
+    uint64_t seen_ms; /* when the loss was seen */
+    char why[128];
+    struct link_loss *next;
+};
+
+static void loss_closed(uv_handle_t *h)
+{
+    free(h->data);
+}
+
+static void drop_loss(struct link_loss *l)
+{
+    for (struct link_loss **pp = &l->sim->losses; *pp; pp = &(*pp)->next) {
+        if (*pp == l) {
+            *pp = l->next;
+            break;
+        }
+    }
+    uv_close((uv_handle_t *)&l->timer, loss_closed);
+}
+
+/* The rate limiter's count, as the end of the line that passes. */
+static const char *held_back(uint64_t suppressed)
+{
+    static char text[64];
+    text[0] = '\0';
+    if (suppressed)
+        snprintf(text, sizeof(text), " (%llu handler lines held back)",
+                 (unsigned long long)suppressed);
+    return text;
+}
+
+static const char *motion_name(enum sim_net_motion m)
+{
+    return m == SIM_NET_PAUSE ? "pause" : m == SIM_NET_STOP ? "stop" : "keep";
+}
+
+/* The handler acts on the robot, and says in one line what, why and after
+ * how long. */
+static void handler_act(struct sim *sim, uint64_t peer_id, enum sim_net_motion motion,
+                        unsigned time_limit_ms, const char *why, uint64_t waited_ms)
+{
+    char done[192];
+    uint64_t suppressed;
+
+    sim_robot_network_lost(&sim->robot, motion, done, sizeof(done));
+    if (log_ratelimit_pass(&sim->handler_log, uv_now(sim->loop), &suppressed))
+        log_notice("jakasim: network exception on command connection %llu: %s; waited %llu "
+                   "ms (timeLimit %u ms); motType %d (%s): %s%s",
+                   (unsigned long long)peer_id, why, (unsigned long long)waited_ms,
+                   time_limit_ms, (int)motion, motion_name(motion), done,
+                   held_back(suppressed));
+}
+
+static void on_loss_timer(uv_timer_t *t)
+{
+    struct link_loss *l = t->data;
+    handler_act(l->sim, l->peer_id, l->motion, l->time_limit_ms, l->why,
+                uv_now(l->sim->loop) - l->seen_ms);
+    drop_loss(l);
+}
+
+/*
+ * Connection 'p' is lost from the client's side ('why'): with a handler
+ * set, its action runs timeLimit ms from now (the manual's "how many ms
+ * delay will it trigger upon network anomaly"), whatever connects
+ * meanwhile. Then the connection is closed.
+ */
+static void lose_peer(struct peer *p, const char *why)
+{
+    struct sim *sim = p->sim;
+
+    if (p->closing)
+        return;
+    if (!p->status && p->handler_set) {
+        struct link_loss *l = calloc(1, sizeof(*l));
+        if (l) {
+            l->sim = sim;
+            l->peer_id = p->id;
+            l->motion = p->handler_motion;
+            l->time_limit_ms = p->handler_ms;
+            l->seen_ms = uv_now(sim->loop);
+            snprintf(l->why, sizeof(l->why), "%s", why);
+            uv_timer_init(sim->loop, &l->timer);
+            l->timer.data = l;
+            l->next = sim->losses;
+            sim->losses = l;
+            uv_timer_start(&l->timer, on_loss_timer, p->handler_ms, 0);
+        } else {
+            handler_act(sim, p->id, p->handler_motion, p->handler_ms, why, 0);
+        }
+    }
+    close_peer(p);
+}
+
+/*
+ * Nothing from a client with a handler set for --link-check-ms plus
+ * timeLimit, while it waited for no reply: a link check did not come, and
+ * timeLimit has passed since. The handler acts now, and the connection is
+ * reset: a client whose link comes back finds it gone instead of a robot
+ * that no longer watches it.
+ */
+static void on_silence(uv_timer_t *t)
+{
+    struct peer *p = t->data;
+    struct sim *sim = p->sim;
+    uint64_t silent_ms = uv_now(sim->loop) - p->quiet_since_ms;
+    uint64_t check_ms = sim->opt.link_check_ms;
+    char why[128];
+
+    snprintf(why, sizeof(why), "silent for %llu ms, a link check expected every %llu ms",
+             (unsigned long long)silent_ms, (unsigned long long)check_ms);
+    handler_act(sim, p->id, p->handler_motion, p->handler_ms, why,
+                silent_ms > check_ms ? silent_ms - check_ms : 0);
+    close_peer_how(p, true);
+}
+
+/*
+ * Bytes arrived, or a reply left: the silence starts again. A client
+ * waiting for a delayed reply sends no link check (the gateway never
+ * checks a link with a command in flight), so its silence is not counted
+ * until the reply has gone.
+ */
+static void peer_alive(struct peer *p)
+{
+    p->quiet_since_ms = uv_now(p->sim->loop);
+    if (p->handler_set && p->sim->opt.link_check_ms && p->replies_owed == 0)
+        uv_timer_start(&p->silence, on_silence,
+                       (uint64_t)p->sim->opt.link_check_ms + p->handler_ms, 0);
+    else
+        uv_timer_stop(&p->silence);
 }
 
 /* Bytes as they go on the wire. */
@@ -134,7 +311,7 @@ static void write_raw(struct peer *p, const char *data, size_t size)
 
     if (uv_stream_get_write_queue_size((uv_stream_t *)&p->tcp) > MAX_QUEUED_STATUS) {
         log_warn("jakasim: dropping a client that does not read");
-        close_peer(p);
+        lose_peer(p, "it does not read: over 1 MiB queued");
         return;
     }
     w = malloc(sizeof(*w) + size);
@@ -142,9 +319,12 @@ static void write_raw(struct peer *p, const char *data, size_t size)
         return;
     memcpy(w->data, data, size);
     buf = uv_buf_init(w->data, (unsigned)size);
-    if (uv_write(&w->req, (uv_stream_t *)&p->tcp, &buf, 1, on_written) < 0) {
+    int rc = uv_write(&w->req, (uv_stream_t *)&p->tcp, &buf, 1, on_written);
+    if (rc < 0) {
+        char why[96];
         free(w);
-        close_peer(p);
+        snprintf(why, sizeof(why), "write failed: %s", uv_strerror(rc));
+        lose_peer(p, why);
     }
 }
 
@@ -168,7 +348,7 @@ static void send_to(struct peer *p, const char *data, size_t size)
     }
     if (tls_conn_write(p->tls, data, size) != 0) {
         log_warn("jakasim: TLS write failed; closing the client");
-        close_peer(p);
+        lose_peer(p, "TLS write failed");
         return;
     }
     flush_tls(p);
@@ -340,13 +520,32 @@ static void on_delayed_reply(uv_timer_t *t)
     bool sent = false;
     for (struct peer *p = d->sim->peers; p && !sent; p = p->next)
         if (p->id == d->peer_id && !p->closing) {
+            p->replies_owed--;
             send_to(p, d->data, d->size);
             sent = true;
+            peer_alive(p);
         }
     if (d->sim->opt.log_commands)
         log_info("jakasim: delayed reply to %s %s", d->name,
                  sent ? "sent" : "dropped: its client has gone");
     drop_delayed(d);
+}
+
+/* set_network_exception_handle was accepted on command connection 'p'. */
+static void arm_handler(struct peer *p)
+{
+    const struct sim_robot *r = &p->sim->robot;
+    uint64_t suppressed;
+
+    p->handler_set = true;
+    p->handler_ms = (unsigned)r->net_exception_ms;
+    p->handler_motion = (enum sim_net_motion)r->net_exception_motion;
+    peer_alive(p);
+    if (log_ratelimit_pass(&p->sim->handler_log, uv_now(p->sim->loop), &suppressed))
+        log_info("jakasim: command connection %llu: network exception handler set: "
+                 "timeLimit %u ms, motType %d (%s)%s", (unsigned long long)p->id,
+                 p->handler_ms, (int)p->handler_motion, motion_name(p->handler_motion),
+                 held_back(suppressed));
 }
 
 static void on_command_object(void *user, enum framer_event ev, const char *data,
@@ -360,8 +559,11 @@ static void on_command_object(void *user, enum framer_event ev, const char *data
     if (ev != FRAMER_EVENT_OBJECT)
         return;
     pyjson_init(&reply);
+    unsigned handlers = sim->robot.net_exception_count;
     bool answer = sim_robot_command(&sim->robot, data, size, sim->opt.fail_command,
                                     &reply, name, sizeof(name));
+    if (sim->robot.net_exception_count != handlers)
+        arm_handler(p);
     const char *ignore = sim->opt.ignore_command;
     if (ignore && (strcmp(ignore, "all") == 0 || strcmp(ignore, name) == 0))
         answer = false;
@@ -376,6 +578,12 @@ static void on_command_object(void *user, enum framer_event ev, const char *data
                      answer ? reply.buf : "(no reply)");
     }
     const char *delayed = sim->opt.delay_command;
+    if (!answer) {
+        /* The client waits for a reply that never comes, sending nothing:
+         * only its reply timeout, a close, can end that. */
+        p->replies_owed++;
+        peer_alive(p);
+    }
     if (answer && !reply.failed) {
         if (sim->opt.reply_delay_ms && (!delayed || strcmp(delayed, name) == 0)) {
             struct delayed_reply *d = malloc(sizeof(*d) + reply.len);
@@ -390,9 +598,12 @@ static void on_command_object(void *user, enum framer_event ev, const char *data
                 uv_timer_init(sim->loop, &d->timer);
                 d->timer.data = d;
                 uv_timer_start(&d->timer, on_delayed_reply, sim->opt.reply_delay_ms, 0);
+                p->replies_owed++;
+                peer_alive(p);
             }
         } else {
             send_to(p, reply.buf, reply.len);
+            peer_alive(p);
         }
     }
     pyjson_free(&reply);
@@ -434,7 +645,7 @@ static void read_tls(struct peer *p, const char *data, size_t size)
     int n;
 
     if (tls_conn_feed(p->tls, data, size) != 0 || (!p->ready && !continue_handshake(p))) {
-        close_peer(p);
+        lose_peer(p, "TLS error");
         return;
     }
     while (p->ready && !p->closing) {
@@ -442,7 +653,7 @@ static void read_tls(struct peer *p, const char *data, size_t size)
         if (n == TLS_AGAIN)
             break;
         if (n < 0) {
-            close_peer(p);
+            lose_peer(p, "TLS error or close");
             return;
         }
         if (!p->status)
@@ -454,13 +665,23 @@ static void read_tls(struct peer *p, const char *data, size_t size)
 static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
 {
     struct peer *p = s->data;
+    char why[96];
 
-    if (nread > 0 && p->tls)
+    if (nread > 0 && !p->status)
+        peer_alive(p);
+    if (nread > 0 && p->tls) {
         read_tls(p, buf->base, (size_t)nread);
-    else if (nread > 0 && !p->status)
+    } else if (nread > 0 && !p->status) {
         framer_feed(&p->framer, buf->base, (size_t)nread);
-    else if (nread < 0)
-        close_peer(p);
+    } else if (nread < 0) {
+        if (nread == UV_EOF)
+            snprintf(why, sizeof(why), "closed by the client (FIN)");
+        else if (nread == UV_ECONNRESET)
+            snprintf(why, sizeof(why), "reset by the client (RST)");
+        else
+            snprintf(why, sizeof(why), "read failed: %s", uv_strerror((int)nread));
+        lose_peer(p, why);
+    }
     free(buf->base);
 }
 
@@ -476,12 +697,17 @@ static void accept_peer(uv_stream_t *server, bool status)
     p->status = status;
     uv_tcp_init(sim->loop, &p->tcp);
     p->tcp.data = p;
+    p->open_handles = 1;
     if (uv_accept(server, (uv_stream_t *)&p->tcp) < 0) {
         p->closing = true;
         uv_close((uv_handle_t *)&p->tcp, peer_closed);
         return;
     }
+    p->quiet_since_ms = uv_now(sim->loop);
     if (!status) {
+        uv_timer_init(sim->loop, &p->silence);
+        p->silence.data = p;
+        p->open_handles++;
         if (framer_init(&p->framer, 65536, on_command_object, p) < 0) {
             close_peer(p);
             return;
@@ -501,7 +727,8 @@ static void accept_peer(uv_stream_t *server, bool status)
     sim->peers = p;
     uv_tcp_nodelay(&p->tcp, 1);
     uv_read_start((uv_stream_t *)&p->tcp, on_alloc, on_read);
-    log_info("jakasim: %s client connected", status ? "status" : "command");
+    log_info("jakasim: %s client connected (connection %llu)", status ? "status" : "command",
+             (unsigned long long)p->id);
 }
 
 static void on_status_connection(uv_stream_t *s, int status)
@@ -550,6 +777,8 @@ static void on_signal(uv_signal_t *s, int signum)
         close_peer(sim->peers);
     while (sim->delayed)
         drop_delayed(sim->delayed);
+    while (sim->losses)
+        drop_loss(sim->losses);
     uv_close((uv_handle_t *)&sim->status_server, on_close_quiet);
     uv_close((uv_handle_t *)&sim->command_server, on_close_quiet);
     uv_close((uv_handle_t *)&sim->tick, on_close_quiet);
@@ -609,6 +838,10 @@ static void usage(FILE *out)
         "  --log-commands         log every command and its reply\n"
         "  --tls-cert FILE        serve both ports over TLS with this certificate (PEM)\n"
         "  --tls-key FILE         and this private key (PEM, mode 0600)\n"
+        "  --link-check-ms N      a command client sends a request at least every N ms\n"
+        "                         (jakagw: [robot] link_check_ms); with a network\n"
+        "                         exception handler set, N ms of silence is a lost link\n"
+        "                         (default 0: only a closed or reset connection is)\n"
         "Faults:\n"
         "  --drop-every-ms N      close every connection every N ms\n"
         "  --silent-after-ms N    stop pushing status after N ms, keep connections\n"
@@ -666,6 +899,7 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         {"delay-command", required_argument, NULL, 'e'},
         {"tls-cert", required_argument, NULL, 'K'},
         {"tls-key", required_argument, NULL, 'k'},
+        {"link-check-ms", required_argument, NULL, 'L'},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
@@ -708,6 +942,7 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         case 'e': o->delay_command = optarg; break;
         case 'K': o->tls_cert = optarg; break;
         case 'k': o->tls_key = optarg; break;
+        case 'L': if (parse_uint("link-check-ms", optarg, 600000, &o->link_check_ms)) return -1; break;
         case 'h': usage(stdout); exit(0);
         case ':':
             log_plain("jakasim: %s needs a value; see jakasim --help", argv[optind - 1]);
@@ -771,6 +1006,7 @@ int main(int argc, char **argv)
         return 2;
     }
     sim_robot_init(&sim.robot, sim.opt.test_pattern);
+    sim.handler_log.interval_ms = 100;
     sim.robot.profile = sim.profile;
     sim.robot.fail_message = sim.opt.fail_message;
     if (sim.opt.auto_run) {

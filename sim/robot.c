@@ -215,6 +215,8 @@ static bool move_joints(struct sim_robot *r, double dt)
 
 void sim_robot_tick(struct sim_robot *r, double dt)
 {
+    if (r->interp_state != 2)
+        r->paused_move = false; /* power_off, disable or play ended it */
     r->uptime_s += dt;
     memset(r->joint_vel, 0, sizeof(r->joint_vel));
     r->tcp_speed = 0;
@@ -622,15 +624,24 @@ static bool cmd_resume_program(struct command_ctx *c)
 {
     if (c->r->interp_state != 2)
         return reply_refused(c, "no program is paused");
-    c->r->interp_state = 3;
+    /* A move paused on a lost link goes on to its target. */
+    c->r->interp_state = c->r->paused_move ? 0 : 3;
+    c->r->paused_move = false;
     return reply_ok(c);
+}
+
+/* The arm holds where it is: no program, no move. */
+static void stop_motion(struct sim_robot *r)
+{
+    r->interp_state = 0;
+    r->paused_move = false;
+    r->moving = false;
+    memcpy(r->joint_target, r->joints, sizeof(r->joints));
 }
 
 static bool cmd_stop_program(struct command_ctx *c)
 {
-    c->r->interp_state = 0;
-    c->r->moving = false;
-    memcpy(c->r->joint_target, c->r->joints, sizeof(c->r->joints));
+    stop_motion(c->r);
     /* The manual's reply names pause_program; reproduce the quirk. */
     reply_head(c, "0", "", "pause_program");
     pyjson_end_object(c->w);
@@ -916,7 +927,39 @@ static bool cmd_set_network_exception_handle(struct command_ctx *c)
         return call_failed(c);
     c->r->net_exception_ms = (int)ms;
     c->r->net_exception_motion = (int)mot;
+    c->r->net_exception_count++;
     return reply_ok(c);
+}
+
+void sim_robot_network_lost(struct sim_robot *r, enum sim_net_motion motion, char *done,
+                            size_t done_size)
+{
+    static const char *const verbs[] = {"kept", "paused", "stopped"};
+    const char *verb = verbs[motion <= SIM_NET_STOP ? motion : 0];
+    bool program = r->interp_state == 3;
+    bool move = r->interp_state == 0 && r->moving;
+
+    if (r->interp_state == 2) {
+        snprintf(done, done_size, "the %s was paused already: left paused",
+                 r->paused_move ? "move" : "program");
+        return;
+    }
+    if (!r->enabled || (!program && !move)) {
+        snprintf(done, done_size, "nothing was running");
+        return;
+    }
+    if (program)
+        snprintf(done, done_size, "%s the program %s%s", verb, r->program,
+                 motion == SIM_NET_KEEP ? " running" : "");
+    else
+        snprintf(done, done_size, "%s the move%s", verb,
+                 motion == SIM_NET_KEEP ? " running" : "");
+    if (motion == SIM_NET_PAUSE) {
+        r->interp_state = 2;
+        r->paused_move = move;
+    } else if (motion == SIM_NET_STOP) {
+        stop_motion(r);
+    }
 }
 
 static bool cmd_quit(struct command_ctx *c)

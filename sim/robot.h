@@ -55,7 +55,11 @@ struct sim_robot {
     double tool_offsets[11][6], user_offsets[11][6];
     double payload_mass, payload_centroid[3];
     int collision_level;
+    /* The last set_network_exception_handle accepted, and how many were:
+     * the command port arms the connection it came on (jakasim.c). */
     int net_exception_ms, net_exception_motion;
+    unsigned net_exception_count;
+    bool paused_move; /* interp_state 2 holds a move, not a program */
 
     bool din[SIM_MAX_DIO], dout[SIM_MAX_DIO];
     double ain[SIM_MAX_AIO], aout[SIM_MAX_AIO];
@@ -87,6 +91,20 @@ void sim_robot_tick(struct sim_robot *r, double dt);
 bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
                        const char *fail_cmd, struct pyjson *reply,
                        char *cmd_name, size_t cmd_name_size);
+
+/* motType of set_network_exception_handle (manual 4.75). */
+enum sim_net_motion { SIM_NET_KEEP = 0, SIM_NET_PAUSE = 1, SIM_NET_STOP = 2 };
+
+/*
+ * The network-exception handler's action on whatever still runs: a program
+ * (interp_state 3) or a move (a joint, Cartesian or jog motion) is kept,
+ * paused (interp_state 2, "paused" true; resume_program continues it) or
+ * stopped (interp_state 0, the arm holds where it is). Something already
+ * paused stays paused. Writes what it did, as a phrase for the log
+ * ("paused the program demo.jks", "nothing was running"), into 'done'.
+ */
+void sim_robot_network_lost(struct sim_robot *r, enum sim_net_motion motion, char *done,
+                            size_t done_size);
 
 /* Kinematics of a Zu-5-like arm (DH in mm, angles in degrees). */
 void sim_forward_kinematics(const double joints[SIM_JOINTS], double pose[6]);

@@ -18,8 +18,6 @@
 #include <sys/stat.h>
 #include <uv.h>
 
-/* Room for any value of a line (at most 199 bytes), every byte escaped. */
-#define CONFIG_TEXT_SHOWN (6 * 200 + 1)
 
 /*
  * KEY_HOST: an IP address or a host name, resolved when connecting.
@@ -532,23 +530,25 @@ static bool is_continuation(const struct load_state *st, const char *value)
 }
 
 /*
- * A [roles] line: a role name as certificates carry it (printable, no
- * spaces, at most 63 bytes), each named once, and its rights.
+ * A [roles] line: a role name as certificates carry it (UTF-8, any
+ * language, no spaces or control characters, at most 63 bytes: see
+ * tls_role_name_problem), each named once, and its rights.
  */
 static int add_role(struct gw_config *cfg, const char *name, const char *value, char *why,
                     size_t why_size)
 {
     struct config_role *r;
 
+    const char *problem = tls_role_name_problem(name, strlen(name));
+
     if (strlen(name) >= sizeof(r->name)) {
-        snprintf(why, why_size, "a role name is at most %zu characters", sizeof(r->name) - 1);
+        snprintf(why, why_size, "a role name is at most %zu bytes", sizeof(r->name) - 1);
         return -EINVAL;
     }
-    for (const char *p = name; *p; p++) {
-        if (!isgraph((unsigned char)*p)) {
-            snprintf(why, why_size, "a role name has no spaces or control characters");
-            return -EINVAL;
-        }
+    if (problem) {
+        snprintf(why, why_size,
+                 "a role name is UTF-8 without spaces or control characters: %s", problem);
+        return -EINVAL;
     }
     for (unsigned i = 0; i < cfg->role_count; i++) {
         if (strcmp(cfg->roles[i].name, name) == 0) {
@@ -819,65 +819,140 @@ static void print_text(FILE *out, const char *text)
     fprintf(out, "%s\n", shown);
 }
 
+size_t config_key_count(void)
+{
+    return N_KEYS;
+}
+
+const char *config_key_section(size_t i)
+{
+    return i < N_KEYS ? keys[i].section : NULL;
+}
+
+const char *config_key_name(size_t i)
+{
+    return i < N_KEYS ? keys[i].key : NULL;
+}
+
+/* A fingerprint's 32 bytes, or all zero for none (or, never stored, a bad one). */
+static void fingerprint_bytes(const char *text, uint8_t out[32])
+{
+    char why[96];
+
+    memset(out, 0, 32);
+    if (text[0] && tls_parse_fingerprint(text, out, why, sizeof(why)) != 0)
+        memset(out, 0, 32);
+}
+
+bool config_key_equal(const struct gw_config *a, const struct gw_config *b, size_t i)
+{
+    const struct key_info *k = &keys[i];
+    const void *ma = (const char *)a + k->offset, *mb = (const char *)b + k->offset;
+
+    if (i >= N_KEYS)
+        return false;
+    switch (k->type) {
+    case KEY_STRING:
+    case KEY_HOST:
+    case KEY_IP_ADDRESS:
+    case KEY_PATH:
+    case KEY_INTERFACE:
+        return strcmp(ma, mb) == 0;
+    case KEY_IP_LIST:
+        /* The addresses, as parsed: the same list however it is spelt. */
+        if (a->write_allow_addrs.count != b->write_allow_addrs.count)
+            return false;
+        for (unsigned n = 0; n < a->write_allow_addrs.count; n++)
+            if (memcmp(&a->write_allow_addrs.addrs[n], &b->write_allow_addrs.addrs[n],
+                       sizeof(struct in6_addr)) != 0)
+                return false;
+        return true;
+    case KEY_RIGHTS:
+        return a->tls_default_rights_mask == b->tls_default_rights_mask;
+    case KEY_FINGERPRINT: {
+        uint8_t fa[32], fb[32];
+        fingerprint_bytes(ma, fa);
+        fingerprint_bytes(mb, fb);
+        return memcmp(fa, fb, sizeof(fa)) == 0;
+    }
+    case KEY_UNIT_ID:
+        return *(const int32_t *)ma == *(const int32_t *)mb;
+    case KEY_BOOL:
+        return *(const bool *)ma == *(const bool *)mb;
+    case KEY_UINT:
+    case KEY_CHOICE:
+    case KEY_WORD_ORDER:
+    case KEY_LOG_LEVEL:
+    case KEY_CAN_ID:
+    case KEY_CAN_GROUPS:
+        return *(const uint32_t *)ma == *(const uint32_t *)mb;
+    }
+    return false;
+}
+
+void config_key_format(const struct gw_config *cfg, size_t i, char *out, size_t size)
+{
+    const struct key_info *k = &keys[i];
+    const void *m = (const char *)cfg + k->offset;
+
+    if (i >= N_KEYS || size == 0)
+        return;
+    switch (k->type) {
+    case KEY_STRING:
+    case KEY_HOST:
+    case KEY_IP_ADDRESS:
+    case KEY_IP_LIST:
+    case KEY_PATH:
+    case KEY_RIGHTS:
+    case KEY_FINGERPRINT:
+    case KEY_INTERFACE:
+        log_escape(out, size, (const char *)m, strlen((const char *)m));
+        break;
+    case KEY_UINT:
+        snprintf(out, size, "%u", *(const uint32_t *)m);
+        break;
+    case KEY_UNIT_ID:
+        if (*(const int32_t *)m < 0)
+            snprintf(out, size, "any");
+        else
+            snprintf(out, size, "%d", *(const int32_t *)m);
+        break;
+    case KEY_CHOICE:
+        snprintf(out, size, "%s", k->choices[*(const uint32_t *)m]);
+        break;
+    case KEY_WORD_ORDER:
+        snprintf(out, size, "%s", *(const uint32_t *)m ? "low_first" : "high_first");
+        break;
+    case KEY_LOG_LEVEL:
+        snprintf(out, size, "%s", log_level_names[*(const uint32_t *)m]);
+        break;
+    case KEY_BOOL:
+        snprintf(out, size, "%s", *(const bool *)m ? "true" : "false");
+        break;
+    case KEY_CAN_ID:
+        snprintf(out, size, "0x%X", *(const uint32_t *)m);
+        break;
+    case KEY_CAN_GROUPS:
+        can_map_format_groups(*(const uint32_t *)m, out, size);
+        break;
+    }
+}
+
 void config_print(const struct gw_config *cfg, FILE *out)
 {
     const char *section = "";
+    char shown[CONFIG_TEXT_SHOWN];
 
     for (size_t i = 0; i < N_KEYS; i++) {
         const struct key_info *k = &keys[i];
-        const void *m = (const char *)cfg + k->offset;
         if (strcmp(section, k->section) != 0) {
             fprintf(out, "%s[%s]\n", i ? "\n" : "", k->section);
             section = k->section;
         }
-        fprintf(out, "%s = ", k->key);
-        switch (k->type) {
-        case KEY_STRING:
-        case KEY_HOST:
-        case KEY_IP_ADDRESS:
-        case KEY_IP_LIST:
-        case KEY_PATH:
-        case KEY_RIGHTS:
-        case KEY_FINGERPRINT:
-            print_text(out, (const char *)m);
-            break;
-        case KEY_UINT:
-            fprintf(out, "%u\n", *(const uint32_t *)m);
-            break;
-        case KEY_UNIT_ID:
-            if (*(const int32_t *)m < 0)
-                fprintf(out, "any\n");
-            else
-                fprintf(out, "%d\n", *(const int32_t *)m);
-            break;
-        case KEY_CHOICE:
-            fprintf(out, "%s\n", keys[i].choices[*(const uint32_t *)m]);
-            break;
-        case KEY_WORD_ORDER:
-            fprintf(out, "%s\n", *(const uint32_t *)m ? "low_first" : "high_first");
-            break;
-        case KEY_LOG_LEVEL:
-            fprintf(out, "%s\n", log_level_names[*(const uint32_t *)m]);
-            break;
-        case KEY_BOOL:
-            fprintf(out, "%s\n", *(const bool *)m ? "true" : "false");
-            break;
-        case KEY_INTERFACE:
-            print_text(out, (const char *)m);
-            break;
-        case KEY_CAN_ID:
-            fprintf(out, "0x%X\n", *(const uint32_t *)m);
-            break;
-        case KEY_CAN_GROUPS: {
-            char groups[128];
-            can_map_format_groups(*(const uint32_t *)m, groups, sizeof(groups));
-            fprintf(out, "%s\n", groups);
-            break;
-        }
-        }
+        config_key_format(cfg, i, shown, sizeof(shown));
+        fprintf(out, "%s = %s\n", k->key, shown);
     }
-    /* Last, so that every configuration prints the keys above in the same
-     * order (config_reload.c compares them line by line). */
+    /* Last: [roles] is a list, not a key of the table. */
     if (cfg->role_count)
         fprintf(out, "\n[roles]\n");
     for (unsigned i = 0; i < cfg->role_count; i++) {

@@ -5,8 +5,6 @@
 #include "gw_tls.h"
 #include "log.h"
 
-#include <errno.h>
-#include <stdlib.h>
 #include <string.h>
 
 /*
@@ -150,128 +148,48 @@ bool config_reload_is_live(const char *section, const char *key)
     return find_live(section, key) != NULL;
 }
 
-/*
- * A configuration as config_print() writes it, cut into entries. The text
- * is the one --check-config shows, so two values differ exactly when a
- * user would see them differ.
- */
-struct entry {
-    const char *section, *key, *value;
-};
-
-struct printed {
-    char *text;
-    size_t size;
-    struct entry *entries;
-    size_t count;
-};
-
-static void printed_free(struct printed *p)
-{
-    free(p->text);
-    free(p->entries);
-}
-
-static int print_config(const struct gw_config *cfg, struct printed *p)
-{
-    FILE *f;
-    size_t cap = 0;
-    const char *section = "";
-
-    memset(p, 0, sizeof(*p));
-    f = open_memstream(&p->text, &p->size);
-    if (!f)
-        return -ENOMEM;
-    config_print(cfg, f);
-    if (fclose(f) != 0) {
-        free(p->text);
-        p->text = NULL;
-        return -ENOMEM;
-    }
-    for (char *line = p->text, *end; line && *line; line = end) {
-        end = strchr(line, '\n');
-        if (end)
-            *end++ = '\0';
-        if (line[0] == '[') {
-            char *close = strchr(line, ']');
-            if (close)
-                *close = '\0';
-            section = line + 1;
-            continue;
-        }
-        char *eq = strstr(line, " = ");
-        if (!eq)
-            continue; /* a blank line between sections */
-        if (p->count == cap) {
-            struct entry *more = realloc(p->entries, (cap ? 2 * cap : 32) * sizeof(*more));
-            if (!more) {
-                printed_free(p);
-                return -ENOMEM;
-            }
-            p->entries = more;
-            cap = cap ? 2 * cap : 32;
-        }
-        *eq = '\0';
-        p->entries[p->count++] = (struct entry){section, line, eq + 3};
-    }
-    return 0;
-}
-
 int config_reload_print_keys(FILE *out)
 {
     struct gw_config defaults;
-    struct printed p;
-    int rc;
+    char shown[CONFIG_TEXT_SHOWN];
 
     config_defaults(&defaults);
-    rc = print_config(&defaults, &p);
-    if (rc)
-        return rc;
-    for (size_t i = 0; i < p.count; i++)
-        fprintf(out, "%s\t%s\t%s\t%s\n", p.entries[i].section, p.entries[i].key, p.entries[i].value,
-                config_reload_is_live(p.entries[i].section, p.entries[i].key) ? "live" : "restart");
-    printed_free(&p);
+    for (size_t i = 0; i < config_key_count(); i++) {
+        const char *section = config_key_section(i), *key = config_key_name(i);
+        config_key_format(&defaults, i, shown, sizeof(shown));
+        fprintf(out, "%s\t%s\t%s\t%s\n", section, key, shown,
+                config_reload_is_live(section, key) ? "live" : "restart");
+    }
     return 0;
 }
 
 int config_reload_apply(struct gateway *gw, const struct gw_config *next,
                         struct config_reload_result *result)
 {
-    struct printed now, then;
-    int rc;
+    char was[CONFIG_TEXT_SHOWN], now[CONFIG_TEXT_SHOWN];
 
     memset(result, 0, sizeof(*result));
-    rc = print_config(&gw->cfg, &now);
-    if (rc)
-        return rc;
-    rc = print_config(next, &then);
-    if (rc) {
-        printed_free(&now);
-        return rc;
-    }
-    /* One key table prints both, in the same order. */
-    for (size_t i = 0; i < now.count && i < then.count; i++) {
-        const struct entry *a = &now.entries[i], *b = &then.entries[i];
+    /* Key by key, through the key table, each compared as its type has it. */
+    for (size_t i = 0; i < config_key_count(); i++) {
+        const char *section = config_key_section(i), *key = config_key_name(i);
         const struct live_key *live;
 
-        if (strcmp(a->section, "roles") == 0 || strcmp(b->section, "roles") == 0)
-            break; /* the last section: gw_tls_reload() takes it whole */
-        if (strcmp(a->value, b->value) == 0)
+        if (config_key_equal(&gw->cfg, next, i))
             continue;
-        live = find_live(a->section, a->key);
+        config_key_format(&gw->cfg, i, was, sizeof(was));
+        config_key_format(next, i, now, sizeof(now));
+        live = find_live(section, key);
         if (live) {
             /* Logged first: a new log level may hide the line. */
-            log_notice("reload: [%s] %s: %s -> %s", a->section, a->key, a->value, b->value);
+            log_notice("reload: [%s] %s: %s -> %s", section, key, was, now);
             live->apply(gw, next);
             result->applied++;
         } else {
             log_warn("reload: [%s] %s: %s needs a restart; %s stays in force until then",
-                     a->section, a->key, b->value, a->value);
+                     section, key, now, was);
             result->restart++;
         }
     }
-    printed_free(&now);
-    printed_free(&then);
     /* The TLS files again, and [roles]: new connections get them. */
     gw_tls_reload(gw, next);
     return 0;

@@ -51,6 +51,7 @@ static void on_status_document(struct robot_link *link, const char *json,
     uv_update_time(gw->loop);
     gw->last_document_ms = uv_now(gw->loop);
     gw->last_document_bytes = size;
+    policy_status_document(&gw->policy, gw->last_document_ms);
     regmap_encode_status(&gw->image, gw->status);
     if (!was_fresh)
         notify_change(gw);
@@ -259,7 +260,20 @@ static bool send_policy_action(void *user, enum policy_action action,
 static int gate_command(void *user, const struct cmd_def *def, char *why, size_t size)
 {
     struct gateway *gw = user;
-    return policy_gate_command(&gw->policy, def, why, size);
+    return policy_gate_command(&gw->policy, uv_now(gw->loop), def, why, size);
+}
+
+/* Starts the PLC side sent: the robot may run before its status shows it. */
+static void on_start_sent(void *user)
+{
+    struct gateway *gw = user;
+    policy_start_sent(&gw->policy, uv_now(gw->loop));
+}
+
+static void on_start_answered(void *user)
+{
+    struct gateway *gw = user;
+    policy_start_answered(&gw->policy, uv_now(gw->loop));
 }
 
 static int on_write(void *user, const struct mb_write *w)
@@ -396,6 +410,8 @@ static int start_commands(struct gateway *gw)
         .require_robot_handle = cfg->ne_require_robot_handle,
         .gate = gate_command,
         .gate_user = gw,
+        .start_sent = on_start_sent,
+        .start_answered = on_start_answered,
     };
     return plc_commands_init(&gw->commands, &gw->image, &gw->command.queue, &pcc,
                              loop_now_ms, gw->loop);
@@ -412,6 +428,7 @@ static int start_policy(struct gateway *gw)
         .watch = (enum policy_watch)(cfg->ne_watch + 1),
         .motion_enable = cfg->ne_motion_enable,
         .single_owner = cfg->ne_single_owner,
+        .start_unshown_max_ms = cfg->status_timeout_ms,
     };
     struct policy_sink sink = {.send_action = send_policy_action, .user = gw};
 

@@ -11,6 +11,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <netinet/tcp.h>
+#include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -58,6 +60,7 @@ struct mb_client {
     void *transport_state;
     void *transport_data;      /* the transport's, per connection */
     uint32_t rights;           /* mb_write.rights */
+    bool reading_paused;       /* mb_client_pause_reading */
 };
 
 struct reply {
@@ -796,14 +799,16 @@ static void on_refused_closed(uv_handle_t *h)
         maybe_finish_close(srv);
         return;
     }
-    /* Another connection waited while this one closed: libuv polls the
-     * listener again only once it is accepted. */
-    if (srv->refuse_waiting) {
-        srv->refuse_waiting = false;
-        on_connection((uv_stream_t *)&srv->listener, 0);
-    } else if (srv->extra_refuse_waiting) {
-        srv->extra_refuse_waiting = false;
-        on_connection((uv_stream_t *)&srv->extra_listener, 0);
+    /* Other connections waited while this one closed: libuv polls a
+     * listener again only once its connection is accepted. Every waiting
+     * listener is taken up; one that has to refuse again while another
+     * refusal is under way waits again, for that one's close. */
+    for (int i = 0; i < MB_LISTENER_COUNT; i++) {
+        struct mb_listener *l = &srv->listeners[i];
+        if (!l->refuse_waiting)
+            continue;
+        l->refuse_waiting = false;
+        on_connection((uv_stream_t *)&l->handle, 0);
     }
 }
 
@@ -812,16 +817,13 @@ static void on_refused_closed(uv_handle_t *h)
  * Returning without uv_accept() would stop libuv from polling the listener
  * for good, and no PLC could connect again.
  */
-static void refuse_connection(struct mb_server *srv, uv_stream_t *listener)
+static void refuse_connection(struct mb_server *srv, struct mb_listener *l)
 {
     uint64_t suppressed;
 
     if (srv->refusing) {
         /* Accepted when the previous one is closed. */
-        if (listener == (uv_stream_t *)&srv->extra_listener)
-            srv->extra_refuse_waiting = true;
-        else
-            srv->refuse_waiting = true;
+        l->refuse_waiting = true;
         return;
     }
     srv->stats.refused_no_memory++;
@@ -832,14 +834,42 @@ static void refuse_connection(struct mb_server *srv, uv_stream_t *listener)
     srv->open_handles++;
     uv_tcp_init(srv->loop, &srv->refused);
     srv->refused.data = srv;
-    if (uv_accept(listener, (uv_stream_t *)&srv->refused) < 0)
+    if (uv_accept((uv_stream_t *)&l->handle, (uv_stream_t *)&srv->refused) < 0)
         log_err("modbus: cannot accept a connection to close it");
     uv_close((uv_handle_t *)&srv->refused, on_refused_closed);
 }
 
+/*
+ * TCP keepalive and TCP_USER_TIMEOUT (mb_server.h): a peer gone without a
+ * word is let go in about 5 s (libuv's own keepalive, 10 s and then 10
+ * probes a second apart, took 20 s; the kernel's defaults, over two hours).
+ */
+static void tune_keepalive(struct mb_client *c)
+{
+    static const struct { int level, name, value; const char *what; } opts[] = {
+        {IPPROTO_TCP, TCP_KEEPINTVL, MB_SERVER_KEEPALIVE_INTERVAL_S, "TCP_KEEPINTVL"},
+        {IPPROTO_TCP, TCP_KEEPCNT, MB_SERVER_KEEPALIVE_COUNT, "TCP_KEEPCNT"},
+        {IPPROTO_TCP, TCP_USER_TIMEOUT, MB_SERVER_USER_TIMEOUT_MS, "TCP_USER_TIMEOUT"},
+    };
+    uv_os_fd_t fd;
+    int rc = uv_tcp_keepalive(&c->tcp, 1, MB_SERVER_KEEPALIVE_IDLE_S);
+
+    if (rc < 0 || uv_fileno((uv_handle_t *)&c->tcp, &fd) != 0) {
+        log_debug("modbus: client %s: keepalive not set: %s", c->peer,
+                  uv_strerror(rc < 0 ? rc : UV_EBADF));
+        return;
+    }
+    for (size_t i = 0; i < sizeof(opts) / sizeof(opts[0]); i++)
+        if (setsockopt(fd, opts[i].level, opts[i].name, &opts[i].value,
+                       sizeof(opts[i].value)) < 0)
+            log_debug("modbus: client %s: %s not set: %s", c->peer, opts[i].what,
+                      strerror(errno));
+}
+
 static void on_connection(uv_stream_t *listener, int status)
 {
-    struct mb_server *srv = listener->data;
+    struct mb_listener *l = listener->data;
+    struct mb_server *srv = l->srv;
     struct mb_client *c;
 
     if (status < 0) {
@@ -848,17 +878,13 @@ static void on_connection(uv_stream_t *listener, int status)
     }
     c = srv->calloc_client(1, sizeof(*c));
     if (!c) {
-        refuse_connection(srv, listener);
+        refuse_connection(srv, l);
         return;
     }
     c->srv = srv;
     c->rights = REGMAP_RIGHTS_ALL;
-    if (listener == (uv_stream_t *)&srv->extra_listener) {
-        c->transport = srv->extra_transport;
-        c->transport_state = srv->extra_state;
-    } else {
-        c->transport = &mb_transport_plain;
-    }
+    c->transport = l->transport;
+    c->transport_state = l->state;
     uv_tcp_init(srv->loop, &c->tcp);
     uv_timer_init(srv->loop, &c->timer);
     c->tcp.data = c;
@@ -875,7 +901,7 @@ static void on_connection(uv_stream_t *listener, int status)
     describe_peer(c);
     c->accepted_ms = c->last_activity_ms = uv_now(srv->loop);
     uv_tcp_nodelay(&c->tcp, 1);
-    uv_tcp_keepalive(&c->tcp, 1, 10);
+    tune_keepalive(c);
     /* In the list, so that a close of the server closes it, but pending:
      * not a client, neither counted nor heard of, until admitted. */
     c->state = CLIENT_PENDING;
@@ -951,15 +977,17 @@ static int adopt_listener(struct mb_server *srv, int fd)
     char host[48] = "?";
     int rc;
 
-    rc = uv_tcp_open(&srv->listener, fd);
+    uv_tcp_t *listener = &srv->listeners[MB_LISTENER_PLAIN].handle;
+
+    rc = uv_tcp_open(listener, fd);
     if (rc == 0)
-        rc = uv_listen((uv_stream_t *)&srv->listener, 64, on_connection);
+        rc = uv_listen((uv_stream_t *)listener, 64, on_connection);
     if (rc < 0) {
         log_err("modbus: cannot listen on the socket passed as fd %d: %s", fd,
                 uv_strerror(rc));
         return rc;
     }
-    if (uv_tcp_getsockname(&srv->listener, (struct sockaddr *)&sa, &len) == 0) {
+    if (uv_tcp_getsockname(listener, (struct sockaddr *)&sa, &len) == 0) {
         if (sa.ss_family == AF_INET6)
             uv_ip6_name((struct sockaddr_in6 *)&sa, host, sizeof(host));
         else
@@ -969,6 +997,17 @@ static int adopt_listener(struct mb_server *srv, int fd)
                "([modbus] bind and port do not apply; max %u clients)",
                host, mb_server_port(srv), srv->cfg.max_clients);
     return 0;
+}
+
+static void init_listener(struct mb_server *srv, struct mb_listener *l,
+                          const struct mb_transport *transport, void *state)
+{
+    uv_tcp_init(srv->loop, &l->handle);
+    l->handle.data = l;
+    l->srv = srv;
+    l->transport = transport;
+    l->state = state;
+    srv->open_handles++;
 }
 
 int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
@@ -1005,19 +1044,18 @@ int mb_server_start(uv_loop_t *loop, struct mb_server *srv,
         log_err("modbus: cannot prepare libmodbus: %s", strerror(-rc));
         return rc;
     }
-    uv_tcp_init(loop, &srv->listener);
-    srv->listener.data = srv;
-    srv->open_handles = 1;
+    struct mb_listener *plain = &srv->listeners[MB_LISTENER_PLAIN];
+    init_listener(srv, plain, &mb_transport_plain, NULL);
     if (cfg->no_plain) {
         log_notice("modbus: no plain Modbus TCP listener ([modbus] enabled = false)");
         return 0;
     }
-    srv->plain_listening = true;
+    plain->listening = true;
     if (cfg->listen_fd > 0)
         return adopt_listener(srv, cfg->listen_fd);
-    rc = uv_tcp_bind(&srv->listener, (const struct sockaddr *)&addr, 0);
+    rc = uv_tcp_bind(&plain->handle, (const struct sockaddr *)&addr, 0);
     if (rc == 0)
-        rc = uv_listen((uv_stream_t *)&srv->listener, 64, on_connection);
+        rc = uv_listen((uv_stream_t *)&plain->handle, 64, on_connection);
     if (rc < 0) {
         log_err("modbus: cannot listen on %s port %u: %s", cfg->bind, cfg->port,
                 uv_strerror(rc));
@@ -1042,7 +1080,8 @@ static int port_of(const uv_tcp_t *listener)
 
 int mb_server_listen_port(const struct mb_server *srv)
 {
-    return srv->extra_listening ? port_of(&srv->extra_listener) : -1;
+    const struct mb_listener *l = &srv->listeners[MB_LISTENER_EXTRA];
+    return l->listening ? port_of(&l->handle) : -1;
 }
 
 int mb_server_listen(struct mb_server *srv, const char *bind, uint16_t port, int listen_fd,
@@ -1052,25 +1091,22 @@ int mb_server_listen(struct mb_server *srv, const char *bind, uint16_t port, int
     const char *name = transport->name;
     int rc;
 
-    if (srv->extra_transport || srv->closing)
+    struct mb_listener *l = &srv->listeners[MB_LISTENER_EXTRA];
+
+    if (l->transport || srv->closing)
         return -EBUSY;
     if (listen_fd <= 0 && uv_ip4_addr(bind, port, (struct sockaddr_in *)&addr) != 0 &&
         uv_ip6_addr(bind, port, (struct sockaddr_in6 *)&addr) != 0) {
         log_err("%s: bind address '%s' is not an IPv4 or IPv6 address", name, bind);
         return -EINVAL;
     }
-    srv->extra_transport = transport;
-    srv->extra_state = state;
-    uv_tcp_init(srv->loop, &srv->extra_listener);
-    srv->extra_listener.data = srv;
-    srv->open_handles++;
-    if (listen_fd > 0) {
-        rc = uv_tcp_open(&srv->extra_listener, listen_fd);
-    } else {
-        rc = uv_tcp_bind(&srv->extra_listener, (const struct sockaddr *)&addr, 0);
-    }
+    init_listener(srv, l, transport, state);
+    if (listen_fd > 0)
+        rc = uv_tcp_open(&l->handle, listen_fd);
+    else
+        rc = uv_tcp_bind(&l->handle, (const struct sockaddr *)&addr, 0);
     if (rc == 0)
-        rc = uv_listen((uv_stream_t *)&srv->extra_listener, 64, on_connection);
+        rc = uv_listen((uv_stream_t *)&l->handle, 64, on_connection);
     if (rc < 0) {
         if (listen_fd > 0)
             log_err("%s: cannot listen on the socket passed as fd %d: %s", name, listen_fd,
@@ -1080,7 +1116,7 @@ int mb_server_listen(struct mb_server *srv, const char *bind, uint16_t port, int
                     uv_strerror(rc));
         return rc;
     }
-    srv->extra_listening = true;
+    l->listening = true;
     if (listen_fd > 0)
         log_notice("%s: listening on port %d, the socket passed by systemd", name,
                    mb_server_listen_port(srv));
@@ -1091,20 +1127,14 @@ int mb_server_listen(struct mb_server *srv, const char *bind, uint16_t port, int
 
 int mb_server_port(const struct mb_server *srv)
 {
-    struct sockaddr_storage sa;
-    int len = sizeof(sa);
-
-    if (!srv->plain_listening ||
-        uv_tcp_getsockname(&srv->listener, (struct sockaddr *)&sa, &len) != 0)
-        return -1;
-    if (sa.ss_family == AF_INET6)
-        return ntohs(((struct sockaddr_in6 *)&sa)->sin6_port);
-    return ntohs(((struct sockaddr_in *)&sa)->sin_port);
+    const struct mb_listener *l = &srv->listeners[MB_LISTENER_PLAIN];
+    return l->listening ? port_of(&l->handle) : -1;
 }
 
 static void on_server_handle_closed(uv_handle_t *h)
 {
-    struct mb_server *srv = h->data;
+    struct mb_listener *l = h->data;
+    struct mb_server *srv = l->srv;
     srv->open_handles--;
     maybe_finish_close(srv);
 }
@@ -1144,9 +1174,9 @@ static void close_server(struct mb_server *srv, void (*cb)(struct mb_server *srv
         maybe_finish_close(srv);
         return;
     }
-    uv_close((uv_handle_t *)&srv->listener, on_server_handle_closed);
-    if (srv->extra_transport)
-        uv_close((uv_handle_t *)&srv->extra_listener, on_server_handle_closed);
+    for (int i = 0; i < MB_LISTENER_COUNT; i++)
+        if (srv->listeners[i].transport)
+            uv_close((uv_handle_t *)&srv->listeners[i].handle, on_server_handle_closed);
 }
 
 void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv))
@@ -1212,6 +1242,46 @@ uv_loop_t *mb_client_loop(const struct mb_client *c)
 bool mb_client_is_open(const struct mb_client *c)
 {
     return c->state == CLIENT_PENDING || c->state == CLIENT_OPEN;
+}
+
+bool mb_client_can_send(const struct mb_client *c)
+{
+    return c->state != CLIENT_CLOSING;
+}
+
+bool mb_client_has_input(const struct mb_client *c)
+{
+    uv_os_fd_t fd;
+    int n = 0;
+
+    return uv_fileno((const uv_handle_t *)&c->tcp, &fd) == 0 && ioctl(fd, FIONREAD, &n) == 0 &&
+           n > 0;
+}
+
+void mb_client_pause_reading(struct mb_client *c)
+{
+    if (!mb_client_is_open(c) || c->reading_paused)
+        return;
+    uv_read_stop((uv_stream_t *)&c->tcp);
+    c->reading_paused = true;
+}
+
+int mb_client_resume_reading(struct mb_client *c)
+{
+    int rc;
+
+    if (!mb_client_is_open(c) || !c->reading_paused)
+        return 0;
+    c->reading_paused = false;
+    rc = uv_read_start((uv_stream_t *)&c->tcp, on_client_alloc, on_client_read);
+    if (rc < 0)
+        close_client(c, "cannot read");
+    return rc;
+}
+
+uint64_t mb_client_accepted_ms(const struct mb_client *c)
+{
+    return c->accepted_ms;
 }
 
 uint8_t *mb_client_space(struct mb_client *c, size_t *room)

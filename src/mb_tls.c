@@ -9,11 +9,26 @@
 
 struct mb_tls_conn {
     struct tls_conn *tls;
-    bool admitted;
     struct mb_client *client;
+    bool admitted;
+    bool heard;                /* bytes came for its handshake */
     bool queued;               /* waits for its handshake step */
     struct mb_tls_conn *next;  /* in the step queue */
+    /* Pending handshakes, oldest first: who makes room at max_handshakes. */
+    struct mb_tls_conn *older, *newer;
 };
+
+/*
+ * Ciphertext a pending handshake may hold before its step: a ClientHello
+ * with a certificate chain fits. Reading stops while a connection waits for
+ * its step, so one read (16 KiB) and the rest of a record is what it holds;
+ * the cap is the bound that does not depend on that.
+ */
+#define HANDSHAKE_INPUT_MAX (64 * 1024)
+
+/* Per-session lines: at most this many per window, the rest counted. */
+#define SESSION_LINES_PER_WINDOW 10
+#define SESSION_LINE_WINDOW_MS 10000
 
 /*
  * Handshake work is rationed: one handshake step (a key exchange, a
@@ -47,6 +62,7 @@ int mb_tls_init(struct mb_tls *t, struct tls_context *ctx, const struct mb_tls_c
     t->cfg = *cfg;
     t->fail_log.interval_ms = 1000;
     t->limit_log.interval_ms = 1000;
+    t->close_log.interval_ms = 1000;
     return 0;
 }
 
@@ -94,14 +110,73 @@ static void handshake_failed(struct mb_tls *t, struct mb_client *c, enum tls_fai
              mb_client_peer(c), tls_failure_name(f), why, (unsigned long long)suppressed);
 }
 
-/* Writes what the engine has for the socket. */
+/* A session ends on an error of its own (a bad record): rate-limited. */
+static void client_closed_log(struct mb_tls *t, struct mb_client *c, const char *why)
+{
+    uint64_t suppressed;
+
+    if (!log_ratelimit_pass(&t->close_log, uv_now(mb_client_loop(c)), &suppressed))
+        return;
+    log_warn("mbaps: client %s: closing connection: %s; %llu more such lines suppressed",
+             mb_client_peer(c), why, (unsigned long long)suppressed);
+}
+
+/*
+ * Writes what the engine has for the socket: also while the connection
+ * flushes its last replies, so that a close_notify goes out.
+ */
 static void flush(struct mb_client *c, struct mb_tls_conn *conn)
 {
     uint8_t buf[16384];
     size_t n;
 
-    while (mb_client_is_open(c) && (n = tls_conn_take(conn->tls, buf, sizeof(buf))) > 0)
+    while (mb_client_can_send(c) && (n = tls_conn_take(conn->tls, buf, sizeof(buf))) > 0)
         mb_client_send_raw(c, buf, n);
+}
+
+static void unlink_pending(struct mb_tls *t, struct mb_tls_conn *conn)
+{
+    if (conn->older)
+        conn->older->newer = conn->newer;
+    else if (t->pending_oldest == conn)
+        t->pending_oldest = conn->newer;
+    if (conn->newer)
+        conn->newer->older = conn->older;
+    else if (t->pending_newest == conn)
+        t->pending_newest = conn->older;
+    conn->older = conn->newer = NULL;
+}
+
+/*
+ * The pending handshake to close for a newcomer, by the plain port's rule
+ * (mb_server.h): the oldest that has sent nothing (not a byte read, none
+ * waiting in the kernel), else the oldest. Silent sockets, however fast
+ * they come back, only displace one another; a client that sends its
+ * ClientHello at once is not among them.
+ */
+static struct mb_tls_conn *handshake_victim(struct mb_tls *t)
+{
+    for (struct mb_tls_conn *p = t->pending_oldest; p; p = p->newer)
+        if (!p->heard && !mb_client_has_input(p->client))
+            return p;
+    return t->pending_oldest;
+}
+
+static void make_room(struct mb_tls *t, struct mb_client *newcomer)
+{
+    struct mb_tls_conn *victim = handshake_victim(t);
+    uint64_t age;
+    char why[160];
+
+    if (!victim)
+        return;
+    age = uv_now(mb_client_loop(newcomer)) - mb_client_accepted_ms(victim->client);
+    snprintf(why, sizeof(why), "closed after %llu ms %s, to admit %s (max_handshakes %u)",
+             (unsigned long long)age,
+             victim->heard ? "as the oldest pending handshake" : "without a byte sent",
+             mb_client_peer(newcomer), t->cfg.max_handshakes);
+    handshake_failed(t, victim->client, TLS_FAIL_OVER_LIMIT, why, &t->limit_log);
+    mb_client_close(victim->client, NULL);
 }
 
 static int tls_open(void *state, struct mb_client *c)
@@ -109,6 +184,8 @@ static int tls_open(void *state, struct mb_client *c)
     struct mb_tls *t = state;
     struct mb_tls_conn *conn;
 
+    if (t->stats.handshakes >= t->cfg.max_handshakes)
+        make_room(t, c);
     if (t->stats.handshakes >= t->cfg.max_handshakes) {
         char why[64];
         snprintf(why, sizeof(why), "max_handshakes %u running; closed at once",
@@ -124,6 +201,13 @@ static int tls_open(void *state, struct mb_client *c)
         log_err("mbaps: out of memory for a new connection from %s: closed", mb_client_peer(c));
         return -ENOMEM;
     }
+    conn->client = c;
+    conn->older = t->pending_newest;
+    if (t->pending_newest)
+        t->pending_newest->newer = conn;
+    else
+        t->pending_oldest = conn;
+    t->pending_newest = conn;
     *mb_client_data(c) = conn;
     t->stats.handshakes++;
     mb_client_set_deadline(c, t->cfg.handshake_timeout_ms);
@@ -137,30 +221,64 @@ static void tls_alloc(void *state, struct mb_client *c, uv_buf_t *buf)
     *buf = uv_buf_init((char *)t->read_buf, sizeof(t->read_buf));
 }
 
-/* The handshake is done: one line, the rights of the role, a client. */
+/*
+ * A session line may be printed: at most SESSION_LINES_PER_WINDOW per
+ * SESSION_LINE_WINDOW_MS, so that a handshake loop cannot fill the journal
+ * while the first sessions of every PLC still get theirs. *suppressed: the
+ * lines held back since the last one printed.
+ */
+static bool session_line_passes(struct mb_tls *t, uint64_t now, uint64_t *suppressed)
+{
+    if (now - t->session_window_ms >= SESSION_LINE_WINDOW_MS || !t->session_lines) {
+        t->session_window_ms = now;
+        t->session_lines = 0;
+    }
+    if (t->session_lines >= SESSION_LINES_PER_WINDOW) {
+        t->sessions_unlogged++;
+        return false;
+    }
+    t->session_lines++;
+    *suppressed = t->sessions_unlogged;
+    t->sessions_unlogged = 0;
+    return true;
+}
+
+/* The handshake is done: a line (rate-limited), the rights of the role, a client. */
 static void admit(struct mb_tls *t, struct mb_client *c, struct mb_tls_conn *conn)
 {
     bool valid, listed = false;
     const char *role = tls_conn_role(conn->tls, &valid);
     uint32_t rights = t->cfg.rights_for_role(t->cfg.user, role, valid, &listed);
-    char shown[160];
+    uint64_t suppressed;
+    char shown[160], role_text[TLS_ROLE_MAX + 80], more[80] = "";
 
-    regmap_format_rights(rights, shown, sizeof(shown));
     t->stats.handshakes--;
     t->stats.handshakes_ok++;
     conn->admitted = true;
+    unlink_pending(t, conn);
     t->stats.clients++;
-    log_notice("mbaps: client %s: certificate \"%s\", role %s%s%s: may write %s (%s, %s%s)",
-               mb_client_peer(c), tls_conn_subject(conn->tls),
-               !valid ? "(not a valid UTF8String)" : role[0] ? "\"" : "(none)", valid ? role : "",
-               valid && role[0] ? "\"" : "", shown,
-               listed ? "[roles]" : "default_rights", tls_conn_version(conn->tls),
-               tls_conn_resumed(conn->tls) ? ", session resumed" : "new session");
+    if (session_line_passes(t, uv_now(mb_client_loop(c)), &suppressed)) {
+        regmap_format_rights(rights, shown, sizeof(shown));
+        if (!valid)
+            snprintf(role_text, sizeof(role_text), "(not taken: %s)",
+                     tls_conn_role_problem(conn->tls));
+        else if (role[0])
+            snprintf(role_text, sizeof(role_text), "\"%s\"", role);
+        else
+            snprintf(role_text, sizeof(role_text), "(none)");
+        if (suppressed)
+            snprintf(more, sizeof(more), "; %llu more sessions since the last such line",
+                     (unsigned long long)suppressed);
+        log_notice("mbaps: client %s: certificate \"%s\", role %s: may write %s (%s, %s, %s)%s",
+                   mb_client_peer(c), tls_conn_subject(conn->tls), role_text, shown,
+                   listed ? "[roles]" : "default_rights", tls_conn_version(conn->tls),
+                   tls_conn_resumed(conn->tls) ? "session resumed" : "new session", more);
+    }
     mb_client_admit(c, rights);
 }
 
 /* Hands every whole piece of plaintext to the server's framing. */
-static void read_plaintext(struct mb_client *c, struct mb_tls_conn *conn)
+static void read_plaintext(struct mb_tls *t, struct mb_client *c, struct mb_tls_conn *conn)
 {
     char why[200];
 
@@ -181,8 +299,15 @@ static void read_plaintext(struct mb_client *c, struct mb_tls_conn *conn)
             mb_client_release(c, NULL);
             return;
         }
-        tls_conn_failure(conn->tls, why, sizeof(why));
-        mb_client_close(c, why);
+        enum tls_failure f = tls_conn_failure(conn->tls, why, sizeof(why));
+        if (tls_conn_renegotiation_refused(conn->tls)) {
+            /* A handshake that failed: counted as one (protocol). */
+            handshake_failed(t, c, f, why, &t->fail_log);
+            mb_client_close(c, NULL);
+            return;
+        }
+        client_closed_log(t, c, why);
+        mb_client_close(c, NULL);
         return;
     }
 }
@@ -194,8 +319,12 @@ static void step_handshake(struct mb_tls *t, struct mb_client *c, struct mb_tls_
     int rc = tls_conn_handshake(conn->tls);
 
     flush(c, conn); /* our flight, or the alert that says no */
-    if (!mb_client_is_open(c) || rc == TLS_AGAIN)
+    if (!mb_client_is_open(c))
         return;
+    if (rc == TLS_AGAIN) {
+        mb_client_resume_reading(c); /* its turn is over: the next flight */
+        return;
+    }
     if (rc == TLS_ERROR) {
         enum tls_failure f = tls_conn_failure(conn->tls, why, sizeof(why));
         handshake_failed(t, c, f, why, &t->fail_log);
@@ -203,7 +332,8 @@ static void step_handshake(struct mb_tls *t, struct mb_client *c, struct mb_tls_
         return;
     }
     admit(t, c, conn);
-    read_plaintext(c, conn); /* a request sent with the client's Finished */
+    if (mb_client_resume_reading(c) == 0)
+        read_plaintext(t, c, conn); /* a request sent with the client's Finished */
 }
 
 static void unqueue(struct mb_tls_steps *q, struct mb_tls_conn *conn)
@@ -255,7 +385,6 @@ static int queue_step(struct mb_tls *t, struct mb_client *c, struct mb_tls_conn 
         q->t = t;
         t->steps = q;
     }
-    conn->client = c;
     conn->queued = true;
     conn->next = NULL;
     if (q->tail)
@@ -272,14 +401,27 @@ static void tls_input(void *state, struct mb_client *c, const uint8_t *data, siz
     struct mb_tls *t = state;
     struct mb_tls_conn *conn = conn_of(c);
 
+    if (!conn->admitted) {
+        conn->heard = true;
+        if (tls_conn_buffered(conn->tls) + size > HANDSHAKE_INPUT_MAX) {
+            char why[80];
+            snprintf(why, sizeof(why), "more than %u bytes sent before its handshake step",
+                     HANDSHAKE_INPUT_MAX);
+            handshake_failed(t, c, TLS_FAIL_PROTOCOL, why, &t->fail_log);
+            mb_client_close(c, NULL);
+            return;
+        }
+    }
     if (tls_conn_feed(conn->tls, data, size) < 0) {
         mb_client_close(c, "out of memory for TLS input");
         return;
     }
     if (conn->admitted) {
-        read_plaintext(c, conn);
+        read_plaintext(t, c, conn);
         return;
     }
+    /* Nothing more is read until its step has taken this. */
+    mb_client_pause_reading(c);
     if (queue_step(t, c, conn) < 0)
         mb_client_close(c, "out of memory for the handshake queue");
 }
@@ -325,10 +467,12 @@ static void tls_closed(void *state, struct mb_client *c, bool was_pending)
         return; /* refused at open */
     if (conn->queued)
         unqueue(t->steps, conn);
-    if (conn->admitted)
+    if (conn->admitted) {
         t->stats.clients--;
-    else
+    } else {
         t->stats.handshakes--;
+        unlink_pending(t, conn);
+    }
 }
 
 static void tls_free(void *state, struct mb_client *c)

@@ -3,6 +3,7 @@
 #include "plc_commands.h"
 
 #include "log.h"
+#include "policy.h"
 
 #include <cJSON.h>
 #include <errno.h>
@@ -702,6 +703,13 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
     slot->pending++;
     if (slot->state)
         set_result(slot, CMD_PENDING, 0, "");
+    /* The policy counts the robot as running from now on, until the
+     * status can show it. */
+    if (policy_command_starts_motion(def)) {
+        slot->starts_pending++;
+        if (pc->cfg.start_sent)
+            pc->cfg.start_sent(pc->cfg.gate_user);
+    }
 }
 
 void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
@@ -836,6 +844,12 @@ static void on_done(void *user, const struct cmd_result *r)
     struct plc_commands *pc = slot->pc;
 
     slot->pending--;
+    if (slot->starts_pending > 0) {
+        /* One pending at a time for these slots: this is the start. */
+        slot->starts_pending--;
+        if (pc->cfg.start_answered)
+            pc->cfg.start_answered(pc->cfg.gate_user);
+    }
     /* Several commands of one setpoint (an FC15 of outputs): the result
      * stays pending until the last is answered, and the first failure
      * among them is what it shows then. */

@@ -60,36 +60,51 @@ static bool is_command_row(const struct regmap_row *row)
     return row->source == REGMAP_SRC_CMD || row->source == REGMAP_SRC_PATH;
 }
 
-/* Step 2 and 3 at once: keep the element, then check it. */
-static int keep_and_check(void *user, const struct regmap_written *w)
+/* Step 2: keeps each element, decoded once. */
+static int keep(void *user, const struct regmap_written *w)
 {
     struct plc_write *pw = user;
 
     if (pw->element_count == MODBUS_MAX_WRITE_BITS)
         return MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE; /* not reached */
     pw->elements[pw->element_count++] = *w;
-    if (is_command_row(w->row))
-        return plc_commands_check(pw->commands, w);
     return 0;
 }
 
-/* Step 4 for one element. */
-static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_t now)
+/* The element of the write that sets 'row', or NULL. */
+static const struct regmap_written *element_of(const struct plc_write *pw,
+                                               const struct regmap_row *row)
+{
+    for (unsigned i = 0; i < pw->element_count; i++)
+        if (pw->elements[i].row == row)
+            return &pw->elements[i];
+    return NULL;
+}
+
+/* The fault-reset coil written 1. */
+static void reset_fault(struct plc_write *pw)
+{
+    if (pw->policy->fault != POLICY_FAULT_NONE)
+        log_notice("network-exception fault %d reset by %s", pw->policy->fault, pw->w->client);
+    policy_reset(pw->policy);
+}
+
+/* Step 5 for one element; a motion-enable drop and the reset with it were
+ * taken already. */
+static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_t now,
+                   bool drops_enable)
 {
     const struct plc_write_rows *rows = &pw->rows;
 
     if (e->row == rows->heartbeat) {
         policy_heartbeat(pw->policy, now, pw->w->client_id, pw->w->client, e->value);
     } else if (e->row == rows->fault_reset) {
-        if (e->value != 0) {
-            if (pw->policy->fault != POLICY_FAULT_NONE)
-                log_notice("network-exception fault %d reset by %s", pw->policy->fault,
-                           pw->w->client);
-            policy_reset(pw->policy);
-        }
+        if (e->value != 0 && !drops_enable)
+            reset_fault(pw);
     } else if (e->row == rows->motion_enable) {
-        policy_motion_enable(pw->policy, now, e->value != 0,
-                             pw->hooks.robot_may_move(pw->hooks.user));
+        if (e->value != 0)
+            policy_motion_enable(pw->policy, now, true,
+                                 pw->hooks.robot_may_move(pw->hooks.user));
     } else if (is_command_row(e->row)) {
         plc_commands_apply(pw->commands, e);
     }
@@ -113,18 +128,45 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     pw->w = w;
     regmap_save(img, w->table, w->address, w->count, pw->saved);
     regmap_load(img, w->table, w->address, w->count, w->values);
-    plc_commands_begin(pw->commands);
     ex = regmap_decode_write(img, w->table, w->address, w->count, w->values, pw->saved,
-                             keep_and_check, pw);
+                             keep, pw);
     if (ex) {
         regmap_load(img, w->table, w->address, w->count, pw->saved);
-        plc_commands_discard(pw->commands);
+        pw->element_count = 0;
         pw->w = NULL;
         return ex;
     }
     uint64_t now = pw->hooks.now_ms(pw->hooks.user);
+    /* A drop of motion enable goes first, whatever its address: nothing
+     * else the write holds is judged before the policy has seen it, and
+     * nothing refuses it. A reset in the same write goes just before it:
+     * it acknowledges the fault latched before the write, and the drop
+     * latches fault 3 if the robot runs or may run. */
+    const struct regmap_written *enable = element_of(pw, pw->rows.motion_enable);
+    const struct regmap_written *reset = element_of(pw, pw->rows.fault_reset);
+    bool drops_enable = enable && enable->value == 0;
+    if (drops_enable) {
+        if (reset && reset->value != 0)
+            reset_fault(pw);
+        policy_motion_enable(pw->policy, now, false, pw->hooks.robot_may_move(pw->hooks.user));
+    }
+    /* Step 4: every command checked with the new values in place, against
+     * the fault as it was before the write (a reset in it starts nothing). */
+    plc_commands_begin(pw->commands);
+    for (unsigned i = 0; i < pw->element_count && ex == 0; i++)
+        if (is_command_row(pw->elements[i].row))
+            ex = plc_commands_check(pw->commands, &pw->elements[i]);
+    if (ex) {
+        regmap_load(img, w->table, w->address, w->count, pw->saved);
+        if (drops_enable)
+            img->mb->tab_bits[pw->rows.motion_enable->address] = 0; /* it stays */
+        plc_commands_discard(pw->commands);
+        pw->element_count = 0;
+        pw->w = NULL;
+        return ex;
+    }
     for (unsigned i = 0; i < pw->element_count; i++)
-        act_on(pw, &pw->elements[i], now);
+        act_on(pw, &pw->elements[i], now, drops_enable);
     plc_commands_discard(pw->commands);
     policy_check(pw->policy, now, pw->hooks.robot_may_move(pw->hooks.user));
     /* 'w' is the server's and lives only for this call. */

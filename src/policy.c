@@ -84,23 +84,6 @@ static void latch(struct policy *p, uint64_t now_ms, enum policy_fault reason,
     act(p, action, reason);
 }
 
-void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
-                          bool robot_moving)
-{
-    bool dropped = p->motion_enabled && !value;
-
-    p->motion_enabled = value;
-    /* Idle, nothing to pause: the coil at 0 already keeps programs and
-     * motion from starting (policy_blocks_commands). Moving, it pauses at
-     * once, whatever fault is latched already. */
-    if (!p->cfg.motion_enable || !dropped || !robot_moving)
-        return;
-    if (p->fault == POLICY_FAULT_NONE)
-        latch(p, now_ms, POLICY_FAULT_MOTION_ENABLE, POLICY_PAUSE);
-    else
-        act(p, POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE); /* its own reason, not the old one's */
-}
-
 void policy_reset(struct policy *p)
 {
     p->fault = POLICY_FAULT_NONE;
@@ -108,32 +91,144 @@ void policy_reset(struct policy *p)
     p->owed = POLICY_KEEP;
 }
 
-/* Which watched signal is lost now, if any. */
-static enum policy_fault lost_signal(const struct policy *p, uint64_t now_ms)
+#define START_UNSHOWN_MAX_MS_DEFAULT 10000
+
+void policy_start_sent(struct policy *p, uint64_t now_ms)
 {
+    (void)now_ms;
+    p->starts_unanswered++;
+}
+
+void policy_start_answered(struct policy *p, uint64_t now_ms)
+{
+    if (p->starts_unanswered > 0)
+        p->starts_unanswered--;
+    if (p->starts_unanswered == 0) {
+        p->start_unshown = true;
+        p->start_answered_ms = now_ms;
+    }
+}
+
+void policy_status_document(struct policy *p, uint64_t now_ms)
+{
+    /* Only a document received well after the reply can show the start: a
+     * controller answers before its next status push reflects the new
+     * program state, and jakasim's 8 ms push is no promise for a real
+     * one, so the first documents after the reply prove nothing. */
+    if (p->starts_unanswered == 0 && p->start_unshown &&
+        now_ms >= p->start_answered_ms + POLICY_START_SETTLE_MS)
+        p->start_unshown = false;
+}
+
+bool policy_start_unshown(const struct policy *p, uint64_t now_ms)
+{
+    uint32_t max = p->cfg.start_unshown_max_ms ? p->cfg.start_unshown_max_ms
+                                               : START_UNSHOWN_MAX_MS_DEFAULT;
+    /* Unanswered, it may start any moment: the command queue bounds that
+     * (a reply, a reply timeout or the link's loss answers every one). */
+    if (p->starts_unanswered > 0)
+        return true;
+    return p->start_unshown && now_ms - p->start_answered_ms < max;
+}
+
+/* Does the robot run, or may it run: what the status shows, or a start
+ * sent that it cannot show yet. */
+static bool may_run(const struct policy *p, uint64_t now_ms, bool robot_moving)
+{
+    return robot_moving || policy_start_unshown(p, now_ms);
+}
+
+#define LOST(reason) (1u << (reason))
+
+/*
+ * The one rule for every watched signal: which are lost now, as a set of
+ * LOST(reason). A signal counts only once armed (a first heartbeat change,
+ * a first client, a first 1 on the motion-enable coil), and is judged as a
+ * level, never as an edge.
+ */
+static unsigned lost_signals(const struct policy *p, uint64_t now_ms)
+{
+    unsigned lost = 0;
+
     if ((p->cfg.watch & POLICY_WATCH_HEARTBEAT) && heartbeat_expired(p, now_ms))
-        return POLICY_FAULT_HEARTBEAT;
+        lost |= LOST(POLICY_FAULT_HEARTBEAT);
     if ((p->cfg.watch & POLICY_WATCH_CONNECTION) && p->connection_armed &&
         p->clients == 0 && now_ms - p->no_client_since_ms >= p->cfg.time_limit_ms)
-        return POLICY_FAULT_NO_CLIENT;
-    return POLICY_FAULT_NONE;
+        lost |= LOST(POLICY_FAULT_NO_CLIENT);
+    if (p->cfg.motion_enable && p->motion_enable_armed && !p->motion_enabled)
+        lost |= LOST(POLICY_FAULT_MOTION_ENABLE);
+    return lost;
+}
+
+/* Motion enable's own action is always pause; the others' is configured. */
+static enum policy_action action_for(const struct policy *p, enum policy_fault reason)
+{
+    return reason == POLICY_FAULT_MOTION_ENABLE ? POLICY_PAUSE : p->cfg.action;
+}
+
+/*
+ * Applies the rule: signals lost while the robot runs or may run latch the
+ * first of them (in the order of enum policy_fault) and send the strongest
+ * of their actions. Under a latched fault nothing is repeated, except
+ * motion enable's pause, once per drop.
+ */
+static void apply_rule(struct policy *p, uint64_t now_ms, bool running)
+{
+    unsigned lost = lost_signals(p, now_ms);
+
+    if (lost == 0 || !running)
+        return;
+    if (p->fault == POLICY_FAULT_NONE) {
+        enum policy_fault first = POLICY_FAULT_NONE;
+        enum policy_action action = POLICY_KEEP;
+        for (enum policy_fault r = POLICY_FAULT_HEARTBEAT; r <= POLICY_FAULT_MOTION_ENABLE;
+             r++) {
+            if (!(lost & LOST(r)))
+                continue;
+            if (first == POLICY_FAULT_NONE)
+                first = r;
+            if (action_for(p, r) > action)
+                action = action_for(p, r); /* stop outranks pause */
+        }
+        if (lost & LOST(POLICY_FAULT_MOTION_ENABLE))
+            p->motion_enable_paused = true;
+        latch(p, now_ms, first, action);
+        return;
+    }
+    if ((lost & LOST(POLICY_FAULT_MOTION_ENABLE)) && !p->motion_enable_paused) {
+        /* Its own reason, not the latched one's: the log says why. */
+        p->motion_enable_paused = true;
+        act(p, POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+    }
+}
+
+void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
+                          bool robot_moving)
+{
+    p->motion_enabled = value;
+    if (value) {
+        p->motion_enable_armed = true;
+        p->motion_enable_paused = false; /* the next drop pauses again */
+        return;
+    }
+    /* Idle, nothing to pause: the coil at 0 already keeps programs and
+     * motion from starting (policy_gate_command). Running or about to,
+     * it pauses at once, whatever fault is latched already. */
+    apply_rule(p, now_ms, may_run(p, now_ms, robot_moving));
 }
 
 void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving)
 {
+    bool running = may_run(p, now_ms, robot_moving);
+
     /* An owner whose heartbeat expired gives the write side up. */
     if (p->owner && heartbeat_expired(p, now_ms))
         clear_owner(p);
-    if (p->fault != POLICY_FAULT_NONE) {
-        /* Latched: the action went out once and is never repeated; one
-         * that could not go out is tried again while the robot may move. */
-        if (p->owed != POLICY_KEEP && robot_moving)
-            act(p, p->owed, p->fault);
-        return;
-    }
-    enum policy_fault lost = lost_signal(p, now_ms);
-    if (lost != POLICY_FAULT_NONE && robot_moving)
-        latch(p, now_ms, lost, p->cfg.action);
+    /* Latched: an action that could not go out is tried again while the
+     * robot may move. */
+    if (p->fault != POLICY_FAULT_NONE && p->owed != POLICY_KEEP && running)
+        act(p, p->owed, p->fault);
+    apply_rule(p, now_ms, running);
 }
 
 bool policy_blocks_commands(const struct policy *p)
@@ -158,11 +253,17 @@ bool policy_robot_may_move(bool status_fresh, const struct jaka_status *status)
     return running || (inpos->present && inpos->value == 0);
 }
 
-int policy_gate_command(const struct policy *p, const struct cmd_def *def, char *why,
-                        size_t size)
+bool policy_command_starts_motion(const struct cmd_def *def)
 {
     /* Unknown to the table: judged as motion. */
-    unsigned flags = def ? def->flags : CMD_MOTION;
+    return !def || (def->flags & (CMD_MOTION | CMD_STARTS_MOTION));
+}
+
+int policy_gate_command(struct policy *p, uint64_t now_ms, const struct cmd_def *def,
+                        char *why, size_t size)
+{
+    static const char *const names[] = {"", "the PLC heartbeat", "the Modbus connection",
+                                        "motion enable"};
 
     if (def && strcmp(def->name, "stop_program") == 0)
         return 0; /* stopping is never refused */
@@ -170,7 +271,19 @@ int policy_gate_command(const struct policy *p, const struct cmd_def *def, char 
         snprintf(why, size, "network-exception fault %d latched: reset it first", p->fault);
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     }
-    if ((flags & (CMD_MOTION | CMD_STARTS_MOTION)) && policy_blocks_commands(p)) {
+    if (!policy_command_starts_motion(def))
+        return 0;
+    unsigned lost = lost_signals(p, now_ms);
+    if (lost) {
+        /* The PLC asks the robot to run without the signal: the rule as
+         * if the start had gone out, so the outcome does not depend on
+         * whether the start came before or after the loss. */
+        apply_rule(p, now_ms, true);
+        snprintf(why, size, "%s lost: fault %d latched",
+                 names[p->fault <= POLICY_FAULT_MOTION_ENABLE ? p->fault : 0], p->fault);
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    if (policy_blocks_commands(p)) {
         snprintf(why, size, "motion enable is 0");
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     }

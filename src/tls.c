@@ -40,6 +40,7 @@ struct tls_conn {
     char subject[256];
     char role[TLS_ROLE_MAX];
     bool role_valid;
+    char role_problem[64]; /* why not valid; "" */
 };
 
 static const char *const failure_names[TLS_FAIL_COUNT] = {
@@ -53,6 +54,58 @@ static const char *const failure_names[TLS_FAIL_COUNT] = {
     [TLS_FAIL_OVER_LIMIT] = "too many handshakes",
     [TLS_FAIL_FINGERPRINT] = "fingerprint mismatch",
 };
+
+/* Length of the UTF-8 sequence at p (at most 'left' bytes), or 0 when it
+ * is not one: overlong forms, surrogates and values past U+10FFFF are not. */
+static size_t utf8_sequence(const unsigned char *p, size_t left)
+{
+    size_t n;
+    uint32_t v;
+
+    if (p[0] < 0x80)
+        return 1;
+    if (p[0] >= 0xC2 && p[0] <= 0xDF)
+        n = 2, v = p[0] & 0x1F;
+    else if (p[0] >= 0xE0 && p[0] <= 0xEF)
+        n = 3, v = p[0] & 0x0F;
+    else if (p[0] >= 0xF0 && p[0] <= 0xF4)
+        n = 4, v = p[0] & 0x07;
+    else
+        return 0;
+    if (n > left)
+        return 0;
+    for (size_t i = 1; i < n; i++) {
+        if ((p[i] & 0xC0) != 0x80)
+            return 0;
+        v = v << 6 | (p[i] & 0x3F);
+    }
+    if ((n == 3 && v < 0x800) || (n == 4 && (v < 0x10000 || v > 0x10FFFF)) ||
+        (v >= 0xD800 && v <= 0xDFFF))
+        return 0;
+    return n;
+}
+
+const char *tls_role_name_problem(const char *name, size_t size)
+{
+    const unsigned char *p = (const unsigned char *)name;
+
+    if (size == 0)
+        return "empty";
+    if (size >= TLS_ROLE_MAX)
+        return "too long";
+    for (size_t i = 0; i < size;) {
+        size_t n = utf8_sequence(p + i, size - i);
+        if (n == 0)
+            return "not valid UTF-8";
+        /* ASCII controls, space, DEL; C1 controls (U+0080-U+009F);
+         * U+00A0 (no-break space). */
+        if ((n == 1 && (p[i] <= 0x20 || p[i] == 0x7F)) ||
+            (n == 2 && p[i] == 0xC2 && p[i + 1] <= 0xA0))
+            return "has a space or a control character";
+        i += n;
+    }
+    return NULL;
+}
 
 const char *tls_failure_name(enum tls_failure f)
 {
@@ -507,16 +560,21 @@ static void read_peer(struct tls_conn *c)
     c->role_valid = false;
     if (role) {
         int n = ASN1_STRING_length(role);
-        const unsigned char *text = ASN1_STRING_get0_data(role);
-        bool clean = n > 0 && n < TLS_ROLE_MAX;
-        for (int i = 0; clean && i < n; i++)
-            clean = isgraph(text[i]);
-        if (clean) {
+        const char *text = (const char *)ASN1_STRING_get0_data(role);
+        const char *problem = tls_role_name_problem(text, (size_t)n);
+        if (!problem) {
             memcpy(c->role, text, (size_t)n);
             c->role[n] = '\0';
             c->role_valid = true;
+        } else if (n >= TLS_ROLE_MAX) {
+            snprintf(c->role_problem, sizeof(c->role_problem), "too long (%d bytes; at most %d)",
+                     n, TLS_ROLE_MAX - 1);
+        } else {
+            snprintf(c->role_problem, sizeof(c->role_problem), "%s", problem);
         }
         ASN1_UTF8STRING_free(role);
+    } else {
+        snprintf(c->role_problem, sizeof(c->role_problem), "not a valid UTF8String");
     }
     ERR_clear_error();
 }
@@ -670,6 +728,21 @@ const char *tls_conn_role(const struct tls_conn *c, bool *valid)
     if (valid)
         *valid = c->role_valid;
     return c->role;
+}
+
+const char *tls_conn_role_problem(const struct tls_conn *c)
+{
+    return c->role_problem;
+}
+
+bool tls_conn_renegotiation_refused(const struct tls_conn *c)
+{
+    return c->renegotiation;
+}
+
+size_t tls_conn_buffered(const struct tls_conn *c)
+{
+    return BIO_ctrl_pending(c->in);
 }
 
 const char *tls_conn_version(const struct tls_conn *c)

@@ -349,6 +349,91 @@ static void shipped_config_is_valid(void **state)
     assert_memory_equal(&c, &d, sizeof(c));
 }
 
+/* The index of [section] key in the key table. */
+static size_t key_index(const char *section, const char *key)
+{
+    for (size_t i = 0; i < config_key_count(); i++)
+        if (strcmp(config_key_section(i), section) == 0 && strcmp(config_key_name(i), key) == 0)
+            return i;
+    fail_msg("no key [%s] %s", section, key);
+    return 0;
+}
+
+/*
+ * A reload compares configurations key by key as each key's type has it:
+ * the same value spelt another way is no change (no "needs a restart"
+ * line), a different value is one, and only that key differs.
+ */
+static void keys_compare_by_type(void **state)
+{
+    static const char *const same[][4] = {
+        /* section, key, one spelling, another */
+        {"robot", "tls_fingerprint",
+         "AB:CD:EF:01:23:45:67:89:AB:CD:EF:01:23:45:67:89:AB:CD:EF:01:23:45:67:89:AB:CD:EF:01:23:45:67:89",
+         "abcdef0123456789abcdef0123456789abcdef0123456789abcdef0123456789"},
+        {"modbus", "write_allow", "10.0.0.1, 10.0.0.2", "10.0.0.1,10.0.0.2"},
+        {"modbus", "write_allow", "::ffff:10.0.0.1", "10.0.0.1"},
+        {"modbus", "unit_id", "any", "ANY"},
+        {"modbus", "word_order", "high_first", "ABCD"},
+        {"modbus", "read_only", "true", "yes"},
+        {"log", "level", "info", "INFO"},
+        {"can", "base_id", "0x500", "1280"},
+        {"robot", "connect_timeout_ms", "3000", "03000"},
+    };
+    static const char *const changed[][4] = {
+        {"robot", "tls_fingerprint", "",
+         "abcdef0123456789abcdef0123456789abcdef0123456789abcdef0123456789"},
+        {"modbus", "write_allow", "10.0.0.1", "10.0.0.2"},
+        {"modbus", "unit_id", "any", "0"},
+        {"modbus", "idle_timeout_ms", "60000", "0"},
+        {"tls", "client_ca", "/etc/a.crt", "/etc/b.crt"},
+    };
+    (void)state;
+    for (size_t n = 0; n < sizeof(same) / sizeof(same[0]) + sizeof(changed) / sizeof(changed[0]);
+         n++) {
+        bool is_same = n < sizeof(same) / sizeof(same[0]);
+        const char *const *row = is_same ? same[n] : changed[n - sizeof(same) / sizeof(same[0])];
+        struct gw_config a, b;
+        char why[256];
+
+        config_defaults(&a);
+        config_defaults(&b);
+        if (config_set(&a, row[0], row[1], row[2], why, sizeof(why)) != 0 ||
+            config_set(&b, row[0], row[1], row[3], why, sizeof(why)) != 0)
+            fail_msg("[%s] %s: %s", row[0], row[1], why);
+        size_t at = key_index(row[0], row[1]);
+        for (size_t i = 0; i < config_key_count(); i++) {
+            bool expect = i == at ? is_same : true;
+            if (config_key_equal(&a, &b, i) != expect)
+                fail_msg("[%s] %s = '%s' / '%s': key [%s] %s compared %s", row[0], row[1],
+                         row[2], row[3], config_key_section(i), config_key_name(i),
+                         expect ? "different" : "equal");
+        }
+    }
+}
+
+/* [roles] takes role names in any language; what it refuses, it names. */
+static void role_names_are_utf8(void **state)
+{
+    struct gw_config c;
+    (void)state;
+
+    expect_loaded("[roles]\nop\xC3\xA9rateur = read\n\xE6\x93\x8D\xE4\xBD\x9C\xE5\x91\x98 = write\n",
+                  &c);
+    assert_int_equal(c.role_count, 2);
+    assert_string_equal(c.roles[0].name, "op\xC3\xA9rateur");
+    bool listed = false;
+    assert_int_equal(config_role_rights(&c, "op\xC3\xA9rateur", true, &listed), c.roles[0].rights);
+    assert_true(listed);
+    const char bad_utf8[] = "[roles]\nop\xE9" "rateur = read\n";
+    expect_refused(bad_utf8, sizeof(bad_utf8) - 1, "not valid UTF-8");
+    const char nbsp[] = "[roles]\nop\xC2\xA0" "erator = read\n";
+    expect_refused(nbsp, sizeof(nbsp) - 1, "has a space or a control character");
+    const char *long_name = "[roles]\n"
+                            "aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa = read\n";
+    expect_refused(long_name, strlen(long_name), "at most 63 bytes");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -369,6 +454,8 @@ int main(void)
         cmocka_unit_test(key_before_any_section),
         cmocka_unit_test(max_document_bytes_at_its_limits),
         cmocka_unit_test(rules_between_keys),
+        cmocka_unit_test(keys_compare_by_type),
+        cmocka_unit_test(role_names_are_utf8),
         cmocka_unit_test(shipped_config_is_valid),
     };
     return cmocka_run_group_tests_name("config", tests, NULL, NULL);

@@ -1,8 +1,9 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * test_mb_server.c - the Modbus server on a real loop and real sockets:
- * a connection that cannot be given memory is closed, and the listener
- * keeps serving the PLCs that come next.
+ * a connection that cannot be given memory is closed, and both listeners
+ * keep serving the PLCs that come next; a PLC's socket is set to notice a
+ * silent peer in seconds.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -13,6 +14,7 @@
 #include <arpa/inet.h>
 #include <errno.h>
 #include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <poll.h>
 #include <stdlib.h>
 #include <string.h>
@@ -79,9 +81,9 @@ static int teardown(void **state)
     return 0;
 }
 
-static int connect_client(struct fixture *f)
+static int connect_to(int port)
 {
-    struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons((uint16_t)mb_server_port(&f->srv))};
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons((uint16_t)port)};
     int fd = socket(AF_INET, SOCK_STREAM | SOCK_NONBLOCK, 0);
 
     a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
@@ -89,6 +91,11 @@ static int connect_client(struct fixture *f)
     int rc = connect(fd, (struct sockaddr *)&a, sizeof(a));
     assert_true(rc == 0 || errno == EINPROGRESS);
     return fd;
+}
+
+static int connect_client(struct fixture *f)
+{
+    return connect_to(mb_server_port(&f->srv));
 }
 
 /*
@@ -124,6 +131,13 @@ static void write_all(int fd, const uint8_t *data, size_t size)
     assert_int_equal(size, 0);
 }
 
+/* Runs the loop until the server has no client left (at most 1 s). */
+static void pump_until_no_client(struct fixture *f)
+{
+    for (int i = 0; i < 1000 && f->srv.stats.clients; i++)
+        uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
+}
+
 /* FC04, input register 0, one register. */
 static const uint8_t read_magic[] = {0, 1, 0, 0, 0, 6, 1, 4, 0, 0, 0, 1};
 
@@ -155,8 +169,100 @@ static void a_connection_without_memory_is_closed_and_the_next_is_served(void **
     assert_int_equal(buf[8], 2); /* one register */
     close(fd);
     /* Let the server see the close before it is torn down. */
-    for (int i = 0; i < 50 && f->srv.stats.clients; i++)
-        uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
+    pump_until_no_client(f);
+}
+
+/*
+ * Both listeners wait for the same refusal to close: the plain one with a
+ * connection it could not give memory to, the second one likewise. Memory
+ * comes back as the first is taken up; the second must be taken up too,
+ * or libuv never polls it again and its port is dead for good.
+ */
+static void both_listeners_resume_after_refusals(void **state)
+{
+    struct fixture *f = *state;
+    uint8_t buf[64];
+    int fds[4];
+
+    assert_int_equal(mb_server_listen(&f->srv, "127.0.0.1", 0, 0, &mb_transport_plain, NULL), 0);
+    int ports[2] = {mb_server_port(&f->srv), mb_server_listen_port(&f->srv)};
+    assert_true(ports[1] > 0);
+    /* Two on each port, all waiting before the loop runs: whichever
+     * listener goes first refuses one and holds its second; the other
+     * holds its first. Three allocations fail: memory is back for the
+     * next one. */
+    failures_left = 3;
+    for (int i = 0; i < 4; i++) {
+        fds[i] = connect_to(ports[i % 2]);
+        write_all(fds[i], read_magic, sizeof(read_magic));
+    }
+    for (int i = 0; i < 4; i++) {
+        ssize_t n = pump_until_readable(f, fds[i], buf, sizeof(buf));
+        /* Closed (refused) or answered; never left hanging. */
+        assert_true(n == 0 || n == 11);
+        close(fds[i]);
+    }
+    assert_true(f->srv.stats.refused_no_memory >= 1);
+    for (int round = 0; round < 2; round++) {
+        for (int i = 0; i < 2; i++) {
+            int fd = connect_to(ports[i]);
+            write_all(fd, read_magic, sizeof(read_magic));
+            assert_int_equal(pump_until_readable(f, fd, buf, sizeof(buf)), 11);
+            assert_int_equal(buf[7], 4);
+            close(fd);
+        }
+    }
+    pump_until_no_client(f);
+}
+
+/* The accepted socket of the server whose peer is the local end 'fd'. */
+static int server_side_of(int fd)
+{
+    struct sockaddr_in mine, peer;
+    socklen_t len = sizeof(mine);
+
+    assert_int_equal(getsockname(fd, (struct sockaddr *)&mine, &len), 0);
+    for (int s = 3; s < 1024; s++) {
+        len = sizeof(peer);
+        if (s != fd && getpeername(s, (struct sockaddr *)&peer, &len) == 0 &&
+            peer.sin_family == AF_INET && peer.sin_port == mine.sin_port)
+            return s;
+    }
+    return -1;
+}
+
+static int tcp_option(int fd, int level, int name)
+{
+    int v = -1;
+    socklen_t len = sizeof(v);
+    assert_int_equal(getsockopt(fd, level, name, &v, &len), 0);
+    return v;
+}
+
+/*
+ * A PLC pulled off the network says nothing: keepalive (2 s, then 1 s,
+ * 3 probes) and TCP_USER_TIMEOUT (5 s) end its connection in about 5 s,
+ * which frees its slot and what it owned.
+ */
+static void a_plc_socket_notices_a_silent_peer_in_seconds(void **state)
+{
+    struct fixture *f = *state;
+    uint8_t buf[64];
+    int fd = connect_client(f);
+
+    write_all(fd, read_magic, sizeof(read_magic));
+    assert_int_equal(pump_until_readable(f, fd, buf, sizeof(buf)), 11);
+    int s = server_side_of(fd);
+    assert_true(s >= 0);
+    assert_int_equal(tcp_option(s, SOL_SOCKET, SO_KEEPALIVE), 1);
+    assert_int_equal(tcp_option(s, IPPROTO_TCP, TCP_KEEPIDLE), MB_SERVER_KEEPALIVE_IDLE_S);
+    assert_int_equal(tcp_option(s, IPPROTO_TCP, TCP_KEEPINTVL), MB_SERVER_KEEPALIVE_INTERVAL_S);
+    assert_int_equal(tcp_option(s, IPPROTO_TCP, TCP_KEEPCNT), MB_SERVER_KEEPALIVE_COUNT);
+    assert_int_equal(tcp_option(s, IPPROTO_TCP, TCP_USER_TIMEOUT), MB_SERVER_USER_TIMEOUT_MS);
+    assert_true(MB_SERVER_KEEPALIVE_IDLE_S +
+                    MB_SERVER_KEEPALIVE_INTERVAL_S * MB_SERVER_KEEPALIVE_COUNT <= 5);
+    close(fd);
+    pump_until_no_client(f);
 }
 
 int main(void)
@@ -164,6 +270,9 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(
             a_connection_without_memory_is_closed_and_the_next_is_served, setup, teardown),
+        cmocka_unit_test_setup_teardown(both_listeners_resume_after_refusals, setup, teardown),
+        cmocka_unit_test_setup_teardown(a_plc_socket_notices_a_silent_peer_in_seconds, setup,
+                                        teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

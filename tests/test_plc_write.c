@@ -4,7 +4,9 @@
  * heartbeat and the write owner, the fault reset and clear-counters coils
  * (acted on, then reading 0), motion enable, read-only and write_allow
  * compared as addresses. Command rows are tested in test_plc_commands.c
- * through the same transaction.
+ * through the same transaction; here, only how they meet the policy: a
+ * start and a motion-enable drop, a start and a reset, in one write or in
+ * two, either order.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -51,10 +53,31 @@ static bool count_action(void *user, enum policy_action action, enum policy_faul
     return true;
 }
 
+static unsigned sent_commands;
+static char last_sent[128];
+
 static int no_send(void *io, const char *data, size_t size)
 {
-    (void)io, (void)data, (void)size;
+    (void)io;
+    sent_commands++;
+    snprintf(last_sent, sizeof(last_sent), "%.*s", (int)size, data);
     return 0;
+}
+
+/* The policy's hooks into the command rows, as gateway.c binds them. */
+static int policy_gate(void *user, const struct cmd_def *def, char *why, size_t size)
+{
+    return policy_gate_command(user, now, def, why, size);
+}
+
+static void policy_sent(void *user)
+{
+    policy_start_sent(user, now);
+}
+
+static void policy_answered(void *user)
+{
+    policy_start_answered(user, now);
 }
 
 static void start(const struct plc_write_config *wc, bool single_owner, bool motion_enable)
@@ -76,7 +99,20 @@ static void start(const struct plc_write_config *wc, bool single_owner, bool mot
     policy_init(&policy, &pcfg, &sink);
     assert_int_equal(plc_write_init(&pw, &img, &pc, &policy, wc, &hooks), 0);
     cleared = actions = 0;
+    sent_commands = 0;
     moving = false;
+}
+
+/* start() with the policy bound to the command rows and the link up. */
+static void start_bound(void)
+{
+    struct plc_write_config wc = {0};
+    start(&wc, false, true);
+    pc.cfg.gate = policy_gate;
+    pc.cfg.start_sent = policy_sent;
+    pc.cfg.start_answered = policy_answered;
+    pc.cfg.gate_user = &policy;
+    cmd_queue_set_connected(&queue, true);
 }
 
 static int teardown(void **state)
@@ -150,6 +186,149 @@ static void motion_enable_drop_pauses_through_the_transaction(void **state)
     assert_int_equal(policy.fault, POLICY_FAULT_MOTION_ENABLE);
 }
 
+/* Several coils in one FC15, as the server makes it. */
+static int write_coils(const struct regmap_row *first, const uint16_t *values, unsigned count)
+{
+    struct mb_write w = {.table = first->table, .address = first->address, .count = count,
+                         .values = values, .client = "192.0.2.1", .client_id = 1,
+                         .rights = REGMAP_RIGHTS_ALL};
+    assert_int_equal(ip_addr_parse(w.client, &w.client_addr), 0);
+    int ex = plc_write_judge(&pw, &w);
+    if (ex == 0) {
+        regmap_load(&img, first->table, first->address, count, values);
+        plc_write_after(&pw);
+    }
+    return ex;
+}
+
+static const struct regmap_row *coil_row(const char *command)
+{
+    char path[64];
+    snprintf(path, sizeof(path), "%s", command);
+    const struct regmap_row *row = regmap_find_path(&map, REGMAP_SRC_CMD, path);
+    assert_non_null(row);
+    return row;
+}
+
+/*
+ * issue 23: play_program, then motion enable dropped before the status
+ * shows the program running (the robot still reads idle): the start the
+ * gateway sent counts as running, so the drop pauses and latches fault 3.
+ * The old transaction judged the drop on the status alone and sent nothing.
+ */
+static void drop_right_after_a_start_pauses(void **state)
+{
+    (void)state;
+    start_bound();
+    const struct regmap_row *play = coil_row("play_program");
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 1), 0);
+    assert_int_equal(write_one("192.0.2.1", 1, play, 1), 0);
+    assert_int_equal(sent_commands, 1);
+    assert_string_equal(last_sent, "{\"cmdName\":\"play_program\"}");
+    now += 10;
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 0), 0);
+    assert_int_equal(actions, 1);
+    assert_int_equal(policy.fault, POLICY_FAULT_MOTION_ENABLE);
+    /* Answered, still no status after it: it may run, the fault stays one. */
+    static const char ok[] = "{\"errorCode\":\"0\"}";
+    cmd_queue_on_reply(&queue, ok, sizeof(ok) - 1);
+    assert_int_equal(policy.starts_unanswered, 0);
+    assert_true(policy_start_unshown(&policy, now));
+    policy_check(&policy, now, moving);
+    assert_int_equal(actions, 1);
+}
+
+/* The other order: motion enable dropped first (idle: nothing to pause),
+ * then play_program. Refused, never sent, and the same end as the first
+ * order: fault 3 latched, pause sent. */
+static void start_after_a_drop_is_refused_and_latches(void **state)
+{
+    (void)state;
+    start_bound();
+    const struct regmap_row *play = coil_row("play_program");
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 1), 0);
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 0), 0);
+    assert_int_equal(actions, 0);
+    assert_int_equal(policy.fault, POLICY_FAULT_NONE);
+    assert_int_equal(write_one("192.0.2.1", 1, play, 1), 1);
+    assert_int_equal(sent_commands, 0);
+    assert_int_equal(actions, 1);
+    assert_int_equal(policy.fault, POLICY_FAULT_MOTION_ENABLE);
+    assert_int_equal(img.mb->tab_bits[play->address], 0); /* refused: as before */
+    /* A command that starts nothing still passes the lost signal (it is
+     * refused only by the latched fault now, until the reset). */
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 1), 0);
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.fault_reset, 1), 0);
+    assert_int_equal(write_one("192.0.2.1", 1, coil_row("power_on"), 1), 0);
+    assert_int_equal(sent_commands, 1);
+}
+
+/* Never armed (no 1 written yet): motion enable at 0 refuses starts and
+ * latches nothing, as before. */
+static void start_before_motion_enable_is_armed_is_only_refused(void **state)
+{
+    (void)state;
+    start_bound();
+    assert_int_equal(write_one("192.0.2.1", 1, coil_row("play_program"), 1), 1);
+    assert_int_equal(actions, 0);
+    assert_int_equal(policy.fault, POLICY_FAULT_NONE);
+}
+
+/*
+ * One FC15 over the fault-reset and motion-enable coils (130, 131): the
+ * reset acknowledges the fault latched before the write, then the drop is
+ * judged; the robot running, fault 3 is latched and one pause sent, not
+ * cleared by the reset that came with it.
+ */
+static void reset_and_drop_in_one_write(void **state)
+{
+    (void)state;
+    start_bound();
+    assert_int_equal(pw.rows.motion_enable->address, pw.rows.fault_reset->address + 1);
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 1), 0);
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.heartbeat, 1), 0);
+    moving = true;
+    now += 1000;
+    policy_check(&policy, now, moving);
+    assert_int_equal(policy.fault, POLICY_FAULT_HEARTBEAT);
+    assert_int_equal(actions, 1);
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.heartbeat, 2), 0);
+    const uint16_t reset_and_drop[] = {1, 0};
+    assert_int_equal(write_coils(pw.rows.fault_reset, reset_and_drop, 2), 0);
+    assert_int_equal(policy.fault, POLICY_FAULT_MOTION_ENABLE);
+    assert_int_equal(actions, 2);
+    assert_int_equal(img.mb->tab_bits[pw.rows.fault_reset->address], 0);
+    assert_int_equal(img.mb->tab_bits[pw.rows.motion_enable->address], 0);
+    /* Reset and raise in one write: the fault clears, the robot may run. */
+    const uint16_t reset_and_raise[] = {1, 1};
+    assert_int_equal(write_coils(pw.rows.fault_reset, reset_and_raise, 2), 0);
+    assert_int_equal(policy.fault, POLICY_FAULT_NONE);
+    assert_int_equal(actions, 2);
+}
+
+/* A reset and a start: the start is judged against the fault as it was
+ * before the reset (a reset never starts anything). Taken one after the
+ * other, the start after the reset passes, the one before is refused. */
+static void reset_then_start_and_start_then_reset(void **state)
+{
+    (void)state;
+    start_bound();
+    const struct regmap_row *play = coil_row("play_program");
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 1), 0);
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.heartbeat, 1), 0);
+    moving = true;
+    now += 1000;
+    policy_check(&policy, now, moving);
+    assert_int_equal(policy.fault, POLICY_FAULT_HEARTBEAT);
+    moving = false;
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.heartbeat, 2), 0);
+    assert_int_equal(write_one("192.0.2.1", 1, play, 1), 1); /* latched */
+    assert_int_equal(sent_commands, 0);
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.fault_reset, 1), 0);
+    assert_int_equal(write_one("192.0.2.1", 1, play, 1), 0);
+    assert_int_equal(sent_commands, 1);
+}
+
 static void read_only_and_write_allow(void **state)
 {
     (void)state;
@@ -178,6 +357,11 @@ int main(void)
         cmocka_unit_test_teardown(heartbeat_owner_and_command_coils, teardown),
         cmocka_unit_test_teardown(motion_enable_drop_pauses_through_the_transaction, teardown),
         cmocka_unit_test_teardown(read_only_and_write_allow, teardown),
+        cmocka_unit_test_teardown(drop_right_after_a_start_pauses, teardown),
+        cmocka_unit_test_teardown(start_after_a_drop_is_refused_and_latches, teardown),
+        cmocka_unit_test_teardown(start_before_motion_enable_is_armed_is_only_refused, teardown),
+        cmocka_unit_test_teardown(reset_and_drop_in_one_write, teardown),
+        cmocka_unit_test_teardown(reset_then_start_and_start_then_reset, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -3,8 +3,9 @@
  * test_policy.c - the network-exception policy's state machine (policy.h)
  * over every transition, with time given as arguments and the action
  * recorded by a fake sink: the heartbeat watch, the connection watch, both,
- * the motion-enable coil, the latch and its reset, the write owner and the
- * fault's age.
+ * the motion-enable coil (a level), starts the status cannot show yet, the
+ * command gate, the latch and its reset, the write owner and the fault's
+ * age.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -481,6 +482,155 @@ static void motion_enable_drop_under_a_latched_fault(void **state)
     assert_int_equal(sent.calls, 2);
 }
 
+/*
+ * issue 23: a start the gateway sent counts as running until a status
+ * document received after its reply: motion enable dropped in between
+ * pauses, though the status still reads idle. Before, the drop was judged
+ * on the status alone and sent nothing.
+ */
+static void drop_after_a_start_not_shown_yet_pauses(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_start_sent(&p, T0 + 1);
+    policy_motion_enable(&p, T0 + 2, false, IDLE); /* queued, unanswered */
+    expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+
+    /* Answered: until a document received after the reply, still running. */
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_start_sent(&p, T0 + 1);
+    policy_start_answered(&p, T0 + 5);
+    policy_status_document(&p, T0 + 5); /* the same millisecond: may predate it */
+    assert_true(policy_start_unshown(&p, T0 + 5));
+    /* Too soon after the reply: the controller's status may lag it. */
+    policy_status_document(&p, T0 + 5 + POLICY_START_SETTLE_MS - 1);
+    assert_true(policy_start_unshown(&p, T0 + 5 + POLICY_START_SETTLE_MS - 1));
+    policy_motion_enable(&p, T0 + 6, false, IDLE);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+
+    /* A document after the reply reading idle: the start did not run. */
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_start_sent(&p, T0 + 1);
+    policy_start_answered(&p, T0 + 5);
+    policy_status_document(&p, T0 + 5 + POLICY_START_SETTLE_MS);
+    assert_false(policy_start_unshown(&p, T0 + 5 + POLICY_START_SETTLE_MS));
+    policy_motion_enable(&p, T0 + 6 + POLICY_START_SETTLE_MS, false, IDLE);
+    assert_int_equal(sent.calls, 0);
+    assert_int_equal(p.fault, POLICY_FAULT_NONE);
+}
+
+/* Two starts: documents count only once both are answered; answered, the
+ * mark lasts start_unshown_max_ms at most without a document. */
+static void starts_unshown_until_the_last_reply_or_the_bound(void **state)
+{
+    (void)state;
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
+    p.cfg.start_unshown_max_ms = 500;
+    policy_start_sent(&p, T0);
+    policy_start_sent(&p, T0 + 10);
+    policy_start_answered(&p, T0 + 20);
+    policy_status_document(&p, T0 + 30);
+    assert_true(policy_start_unshown(&p, T0 + 30)); /* one still unanswered */
+    policy_start_answered(&p, T0 + 40);
+    policy_status_document(&p, T0 + 40);
+    assert_true(policy_start_unshown(&p, T0 + 40));
+    policy_status_document(&p, T0 + 40 + POLICY_START_SETTLE_MS);
+    assert_false(policy_start_unshown(&p, T0 + 40 + POLICY_START_SETTLE_MS));
+    /* Unanswered, it may start any moment, however long it waits. */
+    policy_start_sent(&p, T0 + 100);
+    assert_true(policy_start_unshown(&p, T0 + 100 + 10 * LIMIT));
+    /* Answered, no document: counted as running up to the bound. */
+    policy_start_answered(&p, T0 + 200);
+    assert_true(policy_start_unshown(&p, T0 + 200 + 499));
+    assert_false(policy_start_unshown(&p, T0 + 200 + 500));
+    /* Unset: 10 s. */
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
+    policy_start_sent(&p, T0);
+    policy_start_answered(&p, T0);
+    assert_true(policy_start_unshown(&p, T0 + 9999));
+    assert_false(policy_start_unshown(&p, T0 + 10000));
+}
+
+/* Motion enable is a level, judged every period like the heartbeat: at 0
+ * (armed) while idle nothing; the program started from elsewhere is
+ * paused at the next check, once. */
+static void motion_enable_at_0_pauses_a_later_start(void **state)
+{
+    (void)state;
+    start(POLICY_STOP, POLICY_WATCH_HEARTBEAT, true, false);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_motion_enable(&p, T0 + 10, false, IDLE);
+    check_span(T0 + 10, T0 + 5 * LIMIT, IDLE);
+    assert_int_equal(sent.calls, 0);
+    policy_check(&p, T0 + 5 * LIMIT + 10, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE); /* pause, not the configured stop */
+    check_span(T0 + 5 * LIMIT + 20, T0 + 10 * LIMIT, MOVING);
+    assert_int_equal(sent.calls, 1);
+    /* Reset while it still runs with the coil at 0: latched again at once. */
+    policy_reset(&p);
+    policy_check(&p, T0 + 10 * LIMIT + 10, MOVING);
+    assert_int_equal(sent.calls, 2);
+    assert_int_equal(p.fault, POLICY_FAULT_MOTION_ENABLE);
+    /* Never armed: a 0 from the start judges nothing. */
+    start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
+    policy_motion_enable(&p, T0, false, MOVING);
+    check_span(T0, T0 + LIMIT, MOVING);
+    assert_int_equal(sent.calls, 0);
+    assert_true(policy_blocks_commands(&p));
+}
+
+/* The command path consults the same rule: a start while a signal is lost
+ * is refused and latches that fault with its action, as if it had gone
+ * out; what starts nothing passes. */
+static void gate_start_while_a_signal_is_lost(void **state)
+{
+    (void)state;
+    char why[96];
+    const struct cmd_def *play = cmd_find("play_program");
+    const struct cmd_def *power_on = cmd_find("power_on");
+
+    start(POLICY_STOP, POLICY_WATCH_HEARTBEAT, true, false);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_motion_enable(&p, T0 + 10, false, IDLE);
+    assert_int_equal(policy_gate_command(&p, T0 + 20, power_on, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0 + 20, play, why, sizeof(why)), 1);
+    assert_string_equal(why, "motion enable lost: fault 3 latched");
+    expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+
+    /* The heartbeat lost, the robot idle: a start latches fault 1 and the
+     * configured action (stop). */
+    start(POLICY_STOP, POLICY_WATCH_HEARTBEAT, false, false);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 2 * LIMIT, IDLE);
+    assert_int_equal(sent.calls, 0);
+    assert_int_equal(policy_gate_command(&p, T0 + 2 * LIMIT, power_on, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0 + 2 * LIMIT, NULL, why, sizeof(why)), 1);
+    assert_string_equal(why, "the PLC heartbeat lost: fault 1 latched");
+    expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
+}
+
+/* Several signals lost at once: the first (heartbeat, connection, motion
+ * enable) is the fault; the strongest action goes out, once. */
+static void several_lost_at_once(void **state)
+{
+    (void)state;
+    start(POLICY_KEEP, POLICY_WATCH_HEARTBEAT, true, false);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_motion_enable(&p, T0 + 10, false, IDLE);
+    check_span(T0 + 10, T0 + LIMIT + 10, IDLE);
+    assert_int_equal(sent.calls, 0);
+    policy_check(&p, T0 + LIMIT + 20, MOVING);
+    assert_int_equal(sent.calls, 1);
+    assert_int_equal(sent.action[0], POLICY_PAUSE); /* keep for the heartbeat, pause for motion enable */
+    assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
+    check_span(T0 + LIMIT + 30, T0 + 3 * LIMIT, MOVING);
+    assert_int_equal(sent.calls, 1);
+}
+
 /* An action that cannot go out (the command link is down) stays owed and
  * goes out at the first check at which it can, while the robot may move. */
 static bool refuse_then_accept(void *user, enum policy_action action, enum policy_fault reason)
@@ -659,21 +809,21 @@ static void gate_refuses_under_a_fault_and_without_motion_enable(void **state)
     start(POLICY_PAUSE, POLICY_WATCH_HEARTBEAT, true, false);
     /* Motion enable required and at 0: motion, program starts and unknown
      * names (judged as motion) are refused; the rest passes. */
-    assert_int_equal(policy_gate_command(&p, power_on, why, sizeof(why)), 0);
-    assert_int_equal(policy_gate_command(&p, play, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0, power_on, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0, play, why, sizeof(why)), 1);
     assert_string_equal(why, "motion enable is 0");
-    assert_int_equal(policy_gate_command(&p, joint_move, why, sizeof(why)), 1);
-    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0, joint_move, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0, NULL, why, sizeof(why)), 1);
     policy_motion_enable(&p, T0, true, IDLE);
-    assert_int_equal(policy_gate_command(&p, play, why, sizeof(why)), 0);
-    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0, play, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0, NULL, why, sizeof(why)), 0);
     /* A latched fault refuses everything but stop_program. */
     policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
     policy_check(&p, T0 + LIMIT, MOVING);
-    assert_int_equal(policy_gate_command(&p, power_on, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0 + LIMIT, power_on, why, sizeof(why)), 1);
     assert_string_equal(why, "network-exception fault 1 latched: reset it first");
-    assert_int_equal(policy_gate_command(&p, NULL, why, sizeof(why)), 1);
-    assert_int_equal(policy_gate_command(&p, stop, why, sizeof(why)), 0);
+    assert_int_equal(policy_gate_command(&p, T0 + LIMIT, NULL, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0 + LIMIT, stop, why, sizeof(why)), 0);
 }
 
 static void sink_without_a_callback(void **state)
@@ -717,6 +867,11 @@ int main(void)
         cmocka_unit_test(motion_enable_drop_while_idle_latches_nothing),
         cmocka_unit_test(motion_enable_not_required),
         cmocka_unit_test(motion_enable_drop_under_a_latched_fault),
+        cmocka_unit_test(drop_after_a_start_not_shown_yet_pauses),
+        cmocka_unit_test(starts_unshown_until_the_last_reply_or_the_bound),
+        cmocka_unit_test(motion_enable_at_0_pauses_a_later_start),
+        cmocka_unit_test(gate_start_while_a_signal_is_lost),
+        cmocka_unit_test(several_lost_at_once),
         cmocka_unit_test(an_action_that_cannot_go_out_stays_owed),
         cmocka_unit_test(owner_is_the_heartbeat_writer),
         cmocka_unit_test(owner_released_when_it_disconnects),

@@ -186,6 +186,44 @@ static void role_is_read_from_the_certificate(void **state)
     tls_context_unref(sctx);
 }
 
+/*
+ * A role is taken as UTF-8 in any language; one that is not taken says
+ * why: too long (a 5000-byte UTF8String is valid, just too long), not a
+ * UTF8String at all.
+ */
+static void roles_taken_or_refused_for_the_real_reason(void **state)
+{
+    static const struct {
+        const char *cert, *role, *problem;
+        bool valid;
+    } cases[] = {
+        {"utf8role", "op\xC3\xA9rateur", "", true},
+        {"longrole", "", "too long (5000 bytes; at most 63)", false},
+        {"ia5role", "", "not a valid UTF8String", false},
+    };
+    (void)state;
+
+    for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+        struct tls_context *sctx = server_ctx(), *cctx = client_ctx(cases[i].cert, 0);
+        struct tls_conn *s = tls_conn_new(sctx, NULL), *c = tls_conn_new(cctx, NULL);
+        bool valid;
+
+        assert_int_equal(handshake(s, c, NULL), TLS_OK);
+        assert_string_equal(tls_conn_role(s, &valid), cases[i].role);
+        assert_int_equal(valid, cases[i].valid);
+        assert_string_equal(tls_conn_role_problem(s), cases[i].problem);
+        tls_conn_free(s);
+        tls_conn_free(c);
+        tls_context_unref(cctx);
+        tls_context_unref(sctx);
+    }
+    assert_null(tls_role_name_problem("\xE6\x93\x8D\xE4\xBD\x9C", 6));
+    assert_string_equal(tls_role_name_problem("op\xC3", 3), "not valid UTF-8");
+    assert_string_equal(tls_role_name_problem("\xC0\xAF", 2), "not valid UTF-8"); /* overlong */
+    assert_string_equal(tls_role_name_problem("a b", 3), "has a space or a control character");
+    assert_string_equal(tls_role_name_problem("a\xC2\x85", 3), "has a space or a control character");
+}
+
 static void no_role_reads_empty(void **state)
 {
     struct tls_context *sctx = server_ctx(), *cctx = client_ctx("norole", 0);
@@ -532,6 +570,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(role_is_read_from_the_certificate),
         cmocka_unit_test(no_role_reads_empty),
+        cmocka_unit_test(roles_taken_or_refused_for_the_real_reason),
         cmocka_unit_test(refusals_say_why),
         cmocka_unit_test(plaintext_is_a_protocol_failure),
         cmocka_unit_test(session_is_resumed),

@@ -3,6 +3,8 @@
 """The Modbus TCP slave as a PLC sees it: framing, pipelining, exceptions,
 writes, identification, client limits. Byte-exact requests go over raw
 sockets; mbpoll and pymodbus check that independent masters agree."""
+import os
+import shutil
 import signal
 import socket
 import struct
@@ -13,8 +15,8 @@ import time
 
 from pymodbus.client import ModbusTcpClient
 
-from harness import (TestFailure, check, mbap, raw_client, read_bits, read_input_registers, recv_adu,
-                     run, running, wait_until)
+from harness import (ModbusPlc, TestFailure, check, mbap, raw_client, read_bits,
+                     read_input_registers, recv_adu, run, running, wait_until)
 
 
 def start(config=""):
@@ -487,7 +489,57 @@ def test_mbpoll_reads_live_status():
         check("[7]: \t-1234.5" in out.stdout, "mbpoll float probe:\n" + out.stdout)
 
 
+IR_MODBUS_CLIENTS = 40
+
+
+def pulled_plc():
+    """In a network namespace of its own (see below): a PLC's packets are
+    dropped, as when its cable is pulled, and it says nothing more.
+    Keepalive (2 s, then 3 probes 1 s apart) ends its connection: the
+    gateway counts one client less (and whatever that PLC owned goes by
+    the path of any closed client)."""
+    with running() as (sim, gw):
+        pulled, other = ModbusPlc(gw.modbus_port), ModbusPlc(gw.modbus_port)
+        check(pulled.ir(0)[0] == 0x4A4B, "the PLC reads")
+        check(other.ir(IR_MODBUS_CLIENTS)[0] == 2, "two clients")
+        port = pulled.client.socket.getsockname()[1]
+        for rule in (["add", "table", "inet", "pulled"],
+                     ["add", "chain", "inet", "pulled", "out",
+                      "{ type filter hook output priority 0; }"],
+                     ["add", "rule", "inet", "pulled", "out", "tcp", "sport", str(port), "drop"]):
+            subprocess.run(["nft"] + rule, check=True)
+        start = time.monotonic()
+        wait_until(lambda: other.ir(IR_MODBUS_CLIENTS)[0] == 1, 30,
+                   "the pulled PLC's connection to close")
+        elapsed = time.monotonic() - start
+        print("  the pulled PLC's connection closed after %.1f s" % elapsed)
+        check(elapsed < 8, "closed after %.1f s" % elapsed)
+        other.close()
+
+
+def test_pulled_plc_frees_its_slot_within_seconds():
+    """A PLC pulled off the network without a word frees its connection in
+    about 5 s (TCP keepalive and TCP_USER_TIMEOUT), not the kernel's
+    minutes. Needs a network namespace (root, ip, nft) to
+    drop its packets without touching the host's."""
+    if os.geteuid() != 0 or not (shutil.which("ip") and shutil.which("nft")):
+        print("  skipped: needs root, ip and nft for a network namespace")
+        return
+    ns = "jakagw-pulled-%d" % os.getpid()
+    subprocess.run(["ip", "netns", "add", ns], check=True)
+    try:
+        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", "lo", "up"], check=True)
+        r = subprocess.run(["ip", "netns", "exec", ns, sys.executable, os.path.abspath(__file__),
+                            "pulled-plc"], capture_output=True, text=True, timeout=120)
+        print(r.stdout.rstrip())
+        check(r.returncode == 0, "in the namespace:\n%s%s" % (r.stdout, r.stderr[-3000:]))
+    finally:
+        subprocess.run(["ip", "netns", "del", ns])
+
+
 if __name__ == "__main__":
+    if sys.argv[1:] == ["pulled-plc"]:
+        run([pulled_plc])
     tests = [test_stalled_half_request_delays_nobody, test_pipelined_requests_answered_in_order,
              test_exceptions_for_bad_requests, test_writes_heartbeat_and_clear_counters,
              test_identification_17_and_43, test_full_server_evicts_the_longest_idle,
@@ -495,10 +547,12 @@ if __name__ == "__main__":
              test_mbpoll_reads_live_status, test_active_poller_survives_connect_bursts,
              test_buffered_requests_and_closed_peers_before_eviction,
              test_reserved_function_codes_close_the_connection, test_frame_deadline_is_precise,
-             test_idle_timeout_is_precise]
+             test_idle_timeout_is_precise, test_pulled_plc_frees_its_slot_within_seconds]
     if sys.argv[1:] == ["valgrind"]:
         # make valgrind: the two deadline-precision tests measure +-100 ms,
         # which valgrind's 20-50x slowdown cannot keep; make test runs them.
         tests = [t for t in tests
                  if t not in (test_frame_deadline_is_precise, test_idle_timeout_is_precise)]
+    elif sys.argv[1:]:
+        tests = [t for t in tests if t.__name__ in sys.argv[1:]]  # named tests only
     run(tests)

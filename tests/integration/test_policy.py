@@ -17,6 +17,7 @@ time_limit_ms + one check period (a tenth of it) + scheduling slack."""
 import json
 import socket
 import statistics
+import struct
 import time
 
 from harness import (Gateway, ModbusPlc, SimAt, check, free_port, is_housekeeping, log_lines,
@@ -425,6 +426,124 @@ def test_motion_enable_drop_while_idle():
         plc.close()
 
 
+def modbus_requests(port, pdus, gap_s=None):
+    """Modbus requests on one new connection, written without waiting for
+    replies: all in one send() (one TCP segment) when 'gap_s' is None,
+    else 'gap_s' apart. Returns each reply's exception code (0: none), in
+    the order sent."""
+    frames = [struct.pack(">HHHB", tid, 0, len(pdu) + 1, 1) + pdu
+              for tid, pdu in enumerate(pdus, 1)]
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if gap_s is None:
+            s.sendall(b"".join(frames))
+        else:
+            for i, frame in enumerate(frames):
+                if i:
+                    time.sleep(gap_s)
+                s.sendall(frame)
+        data, replies = b"", {}
+        while len(replies) < len(frames):
+            while len(data) < 7 or len(data) < 6 + struct.unpack(">H", data[4:6])[0]:
+                chunk = s.recv(4096)
+                check(chunk, "the gateway closed the connection")
+                data += chunk
+            tid, _, length = struct.unpack(">HHH", data[:6])
+            pdu, data = data[7:6 + length], data[6 + length:]
+            replies[tid] = pdu[1] if pdu[0] & 0x80 else 0
+    return [replies[tid] for tid in range(1, len(frames) + 1)]
+
+
+def write_coil_pdu(address, value):
+    return struct.pack(">BHH", 5, address, 0xFF00 if value else 0)
+
+
+def test_play_and_motion_enable_drop_together():
+    """issue 23: coil 107 (play_program) = 1 and coil 131 (motion enable)
+    = 0 in one TCP segment, or 10 ms apart, in either order, end like the
+    same two writes 200 ms apart: pause_program received by the robot and
+    fault 3 latched, the program not left running. Before, with play first,
+    the robot received play_program and nothing else, and the program ran
+    on with no fault (the status did not show the start yet when motion
+    enable dropped; the coil was judged on its edge only)."""
+    play, drop = write_coil_pdu(PLAY, 1), write_coil_pdu(MOTION_ENABLE, 0)
+    trials = [("play, drop in one segment", [play, drop], None),
+              ("drop, play in one segment", [drop, play], None),
+              ("play, drop 10 ms apart", [play, drop], 0.01),
+              ("drop, play 10 ms apart", [drop, play], 0.01),
+              ("play, drop 200 ms apart", [play, drop], 0.2)]
+    with running(SIM + ["--auto-run"], BASE + "motion_enable = true\n") as (sim, gw):
+        plc = ModbusPlc(gw.modbus_port)
+        ready(plc)
+        for trial, (what, pdus, gap) in enumerate(trials):
+            # Loaded, enabled, idle; motion enable held; play's coil at 0.
+            pendant(sim, "stop_program")
+            wait_until(lambda: plc.ir(INTERP_STATE)[0] == IDLE, 5, "the program stopped")
+            check(plc.coil(MOTION_ENABLE, 1) == 0, "motion enable refused")
+            check(plc.coil(PLAY, 0) == 0, "re-arming play refused")
+            check(plc.pulse(FAULT_RESET) == 0, "reset refused")
+            check(plc.ir(FAULT)[0] == NO_FAULT, "%s: a fault before the trial" % what)
+            pauses, plays = count(sim, "pause_program"), count(sim, "play_program")
+            replies = modbus_requests(gw.modbus_port, pdus, gap)
+            play_first = pdus[0] == play
+            wait_until(lambda: count(sim, "pause_program") > pauses, 5,
+                       "%s: pause_program on the wire" % what, interval=0.005)
+            check(plc.ir(FAULT)[0] == FAULT_MOTION_ENABLE,
+                  "%s: fault %d, not 3" % (what, plc.ir(FAULT)[0]))
+            check(plc.ir(MOTION_ENABLED)[0] == 0, "%s: motion enable still shown" % what)
+            if play_first:
+                check(replies == [0, 0], "%s: replies %s" % (what, replies))
+                check(count(sim, "play_program") == plays + 1, "%s: play_program" % what)
+                wait_until(lambda: plc.ir(INTERP_STATE)[0] == PAUSED, 5,
+                           "%s: the program paused" % what)
+            else:
+                # Motion enable at 0 first: the start is refused, never sent.
+                check(replies == [0, EX_NOT_PERMITTED], "%s: replies %s" % (what, replies))
+                check(count(sim, "play_program") == plays, "%s: play_program sent" % what)
+            # Still so a while later: nothing started it again.
+            age = plc.u32(FAULT_AGE)
+            wait_until(lambda: plc.u32(FAULT_AGE) >= age + 5 * PERIOD_MS, 5,
+                       "five check periods")
+            check(plc.ir(INTERP_STATE)[0] != RUNNING, "%s: the program runs" % what)
+            check(plc.ir(FAULT)[0] == FAULT_MOTION_ENABLE, "%s: fault cleared" % what)
+            check(count(sim, "pause_program") == pauses + 1,
+                  "%s: pause_program sent %d times" % (what, count(sim, "pause_program") - pauses))
+            check(plc.ir(FAULTS)[0] == trial + 1, "%s: faults count" % what)
+            print("  %s: replies %s, pause_program sent, fault 3" % (what, replies))
+        plc.close()
+
+
+def test_motion_enable_is_a_level():
+    """Motion enable at 0 is judged every check period: a program started
+    from the pendant while the PLC holds it at 0 is paused, fault 3, as a
+    heartbeat lost while idle is. Before the coil is first set to 1 it only
+    refuses starts (test_motion_enable_drop_pauses)."""
+    with running(SIM + ["--auto-run"], BASE + "motion_enable = true\n") as (sim, gw):
+        plc = ModbusPlc(gw.modbus_port)
+        ready(plc)
+        pendant(sim, "stop_program")
+        wait_until(lambda: plc.ir(INTERP_STATE)[0] == IDLE, 5, "the program stopped")
+        check(plc.coil(MOTION_ENABLE, 1) == 0 and plc.coil(MOTION_ENABLE, 0) == 0,
+              "motion enable writes refused")
+        check(count(sim, "pause_program") == 0 and plc.ir(FAULT)[0] == NO_FAULT,
+              "the drop acted on an idle robot")
+        start = time.monotonic()
+        pendant(sim, "play_program")
+        wait_until(lambda: count(sim, "pause_program") == 1, 5, "pause_program on the wire",
+                   interval=0.005)
+        took = time.monotonic() - start
+        print("  program started from the pendant with motion enable at 0 -> "
+              "pause_program: %.0f ms" % (1000 * took))
+        check(took <= (PERIOD_MS + 20 + 100) / 1000 + SLACK_S,
+              "pause after %.0f ms (a check period, a status period)" % (1000 * took))
+        check(plc.ir(FAULT)[0] == FAULT_MOTION_ENABLE, "fault 3 not latched")
+        wait_until(lambda: plc.ir(INTERP_STATE)[0] == PAUSED, 5, "the program paused")
+        age = plc.u32(FAULT_AGE)
+        wait_until(lambda: plc.u32(FAULT_AGE) >= age + 10 * PERIOD_MS, 5, "ten check periods")
+        check(count(sim, "pause_program") == 1, "pause_program repeated")
+        plc.close()
+
+
 def test_pause_not_held_behind_a_slow_reply():
     """The action must reach the robot within the limit even while a PLC
     command's reply is outstanding (up to reply_timeout_ms), and must not be
@@ -508,4 +627,5 @@ if __name__ == "__main__":
          test_heartbeat_loss_pauses_once, test_heartbeat_loss_stops_with_action_stop,
          test_heartbeat_loss_while_idle_sends_nothing, test_connection_watch,
          test_motion_enable_drop_pauses, test_motion_enable_drop_while_idle,
+         test_play_and_motion_enable_drop_together, test_motion_enable_is_a_level,
          test_pause_not_held_behind_a_slow_reply, test_write_owner])

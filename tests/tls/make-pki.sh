@@ -11,6 +11,9 @@
 #   revoked.*     revoked in ca.crl
 #   other-ca.*, stranger.*   another CA and a client certificate of it
 #   gateway2.*    a second gateway certificate (rotation)
+#   utf8role.*    role "opérateur" (UTF-8, not ASCII)
+#   longrole.*    a role of 5000 bytes: a valid UTF8String, too long
+#   ia5role.*     the role as an IA5String, not a UTF8String
 #
 #   tests/tls/make-pki.sh DIR
 set -eu
@@ -36,6 +39,9 @@ client intruder '1.3.6.1.4.1.50316.802.1 = ASN1:UTF8String:intruder\n'
 client expired '1.3.6.1.4.1.50316.802.1 = ASN1:UTF8String:operator\n' \
     -startdate 20200101000000Z -enddate 20210101000000Z
 client revoked '1.3.6.1.4.1.50316.802.1 = ASN1:UTF8String:operator\n'
+client utf8role '1.3.6.1.4.1.50316.802.1 = ASN1:FORMAT:UTF8,UTF8String:op\303\251rateur\n'
+client longrole "1.3.6.1.4.1.50316.802.1 = ASN1:UTF8String:$(head -c 5000 /dev/zero | tr '\0' a)\n"
+client ia5role '1.3.6.1.4.1.50316.802.1 = ASN1:IA5String:operator\n'
 openssl ca -config ca.cnf -revoke revoked.crt 2>/dev/null
 openssl ca -config ca.cnf -gencrl -out ca.crl 2>/dev/null
 
