@@ -15,6 +15,9 @@ bound it checks with what it measured:
 - a command written into a silently dead command link: the PLC reads a
   failure, and the robot (jakasim's log of the commands it received) never
   gets it, not even once the cable is back;
+- both robot ports pulled while a program runs: the robot pauses it
+  itself (the handler the gateway set), within link_check_ms and
+  robot_time_limit_ms, and the PLC reads it paused once the cable is back;
 - one PLC connection pulled (both directions, then each one alone) while a
   program runs: its heartbeat expires, the robot gets exactly one
   pause_program, and another client may write within the bound;
@@ -77,7 +80,10 @@ def result_states():
     description ("0 idle, 1 pending, 2 done (accepted by the robot), ..."),
     so the suite follows the map when states are added."""
     text = DESCRIPTION[("input_register", "result_power_on_state")].split(":", 1)[1]
-    return {m.group(2).strip(): int(m.group(1)) for m in re.finditer(r"(\d+) ([^,(]+)", text)}
+    # "4 reply timeout and 5 link lost after it was written: outcome unknown
+    # (...)" names two states: a label ends at ',', ' and N', ':' or ' ('.
+    return {m.group(2).strip(): int(m.group(1))
+            for m in re.finditer(r"(\d+) ([a-z][a-z ]*?)(?=,| and \d|:| \(|$)", text)}
 
 
 STATES = result_states()
@@ -353,6 +359,51 @@ def test_command_into_dead_link_never_delivered():
               "the robot received power_on after the PLC was told it failed: %s"
               % [e[2] for e in plc_commands(sim)])
         check(received == ["clear_error"], "the robot received %s" % received)
+        plc.close()
+    finally:
+        stopped(sim, gw)
+
+
+def test_robot_pauses_itself_when_both_links_are_pulled():
+    """The two layers together: with both robot ports pulled while a
+    program runs, the robot's own handler (set_network_exception_handle,
+    robot_time_limit_ms 1000, pause) pauses it; jakasim takes a missing link
+    check as the loss (--link-check-ms, the gateway's link_check_ms)."""
+    link_check_ms, robot_time_limit_ms = 1000, 1000
+    bound = (link_check_ms + robot_time_limit_ms) / 1000 + SLACK_S
+    sim, gw = started(FAST, ["--auto-run", "--link-check-ms", str(link_check_ms)])
+    try:
+        plc = ModbusPlc(gw.modbus_port)
+        ready(plc)
+        wait_until(lambda: plc.ir(INTERP_STATE)[0] == RUNNING, 5, "the program running")
+        # A healthy idle link: the gateway's checks keep the robot's watch
+        # content for longer than its limit several times over.
+        time.sleep(3 * (link_check_ms + robot_time_limit_ms) / 1000)
+        mark = "network exception on command connection"
+        check(not log_lines(sim, mark), "the robot acted on a healthy link: %s"
+              % log_lines(sim, mark))
+        check(plc.ir(INTERP_STATE)[0] == RUNNING, "the program stopped running")
+        fault = netfault.pull(sim.status_port)
+        fault_command = netfault.pull(sim.command_port)
+        try:
+            took = timed(lambda: log_lines(sim, mark), 10, "the robot's own pause", fault.since)
+        finally:
+            fault_command.restore()
+            restored = fault.restore()
+        print("  both robot ports pulled -> the robot paused itself after %.0f ms (bound "
+              "%.0f ms): %s" % (1000 * took, 1000 * bound, log_lines(sim, mark)[0].strip()),
+              flush=True)
+        check(took <= bound, "the robot paused itself after %.0f ms" % (1000 * took))
+        check("paused the program" in log_lines(sim, mark)[0], "not a pause: %s"
+              % log_lines(sim, mark))
+        back = timed(lambda: plc.di(0, 3) == [1, 1, 1] and
+                     plc.ir(ROBOT_HANDLE)[0] == HANDLE_ACCEPTED, 15,
+                     "both links up again", restored)
+        print("  cable back -> both links up, handler accepted: %.0f ms" % (1000 * back))
+        check(back <= RECOVERY_BOUND_S, "links back after %.0f ms" % (1000 * back))
+        check(plc.ir(INTERP_STATE)[0] == PAUSED, "the program reads %d after the cable is back, "
+              "not paused (2)" % plc.ir(INTERP_STATE)[0])
+        check(not plc_commands(sim), "the gateway sent commands: %s" % plc_commands(sim))
         plc.close()
     finally:
         stopped(sim, gw)
@@ -693,7 +744,8 @@ def measure_false_trips():
 
 
 TESTS = [test_status_port_silent_pull, test_idle_command_port_silent_pull,
-         test_command_into_dead_link_never_delivered, test_plc_connection_silent_pull,
+         test_command_into_dead_link_never_delivered,
+         test_robot_pauses_itself_when_both_links_are_pulled, test_plc_connection_silent_pull,
          test_reset_mid_stream, test_random_loss_robot_ports]
 
 if __name__ == "__main__":
