@@ -42,8 +42,8 @@ import threading
 import time
 
 import netfault
-from harness import (Gateway, ModbusPlc, Sim, check, is_housekeeping, log_lines, map_rows,
-                     mbap, sim_commands, sim_events, wait_until)
+from harness import (Gateway, ModbusPlc, SimAt, check, free_port, is_housekeeping, log_lines,
+                     map_rows, mbap, sim_commands, sim_events, wait_until)
 
 ADDR, DESCRIPTION = {}, {}
 for _row in map_rows():
@@ -123,7 +123,11 @@ def timed(cond, timeout, what, since):
 
 
 def started(config="", sim_args=()):
-    sim = Sim(*(SIM + list(sim_args)))
+    # Two distinct ports, and jakasim's own log if it does not start.
+    status_port, command_port = free_port(), free_port()
+    while command_port == status_port:
+        command_port = free_port()
+    sim = SimAt(status_port, command_port, *(SIM + list(sim_args)))
     try:
         return sim, Gateway(sim, config)
     except Exception:
@@ -250,7 +254,8 @@ def test_status_port_silent_pull():
             stale.append(timed(lambda: plc.di(STATUS_FRESH)[0] == 0, 10,
                                "status_fresh to read 0", fault.since))
             check(plc.u32(STATUS_AGE) >= 1000, "stale with status_age_ms %d" % plc.u32(STATUS_AGE))
-            check(plc.di(COMMAND_LINK_UP)[0] == 1, "the command link went down with the status port")
+            check(plc.di(COMMAND_LINK_UP)[0] == 1,
+                  "the command link went down with the status port")
             # The gateway restarts the link; its connects go nowhere.
             time.sleep(1.5)
             check(plc.di(STATUS_FRESH)[0] == 0, "status fresh with the cable out")
