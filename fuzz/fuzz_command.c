@@ -25,7 +25,8 @@
  * - submitting returns -ENOTCONN while down, -EBUSY when 64 are queued; a
  *   done callback never runs inside cmd_queue_submit, and inside
  *   cmd_queue_submit_urgent only for the queued command it displaces
- *   (refused); every accepted command's done callback runs exactly once,
+ *   (not sent); a command written finishes answered or with its outcome
+ *   unknown (timeout, link down), one never written as not sent; every accepted command's done callback runs exactly once,
  *   at the latest when the queue is freed, and the queue never holds more
  *   than its capacity.
  */
@@ -142,13 +143,18 @@ static void on_done(void *user, const struct cmd_result *r)
     FUZZ_REQUIRE(in_submit != 1, "done callback of job %u from inside cmd_queue_submit", j->id);
     FUZZ_REQUIRE(j->accepted, "done callback of job %u, never accepted", j->id);
     FUZZ_REQUIRE(++j->done_calls == 1, "done callback of job %u ran twice", j->id);
-    FUZZ_REQUIRE(r->outcome > CMD_PENDING && r->outcome <= CMD_REFUSED,
+    FUZZ_REQUIRE(r->outcome > CMD_PENDING && r->outcome <= CMD_NOT_SENT,
             "job %u finished with outcome %d", j->id, r->outcome);
+    /* Written: answered, or its outcome unknown. Never written: not sent. */
+    FUZZ_REQUIRE(j->sends ? r->outcome == CMD_DONE || r->outcome == CMD_ROBOT_ERROR ||
+                                r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN
+                          : r->outcome == CMD_NOT_SENT,
+            "job %u, written %u times, finished with outcome %d", j->id, j->sends, r->outcome);
     FUZZ_REQUIRE(memchr(r->error_msg, '\0', sizeof(r->error_msg)), "errorMsg not terminated");
-    if (in_submit == 2 && r->outcome == CMD_REFUSED && j->sends == 0)
+    if (in_submit == 2 && r->outcome == CMD_NOT_SENT && j->sends == 0 && !dropped_inside)
         displaced++; /* made room for the safety action */
     else if (in_submit == 2)
-        FUZZ_REQUIRE(dropped_inside && r->outcome == CMD_LINK_DOWN,
+        FUZZ_REQUIRE(dropped_inside && (r->outcome == CMD_LINK_DOWN || r->outcome == CMD_NOT_SENT),
                 "job %u finished (%d) inside a safety action's submit", j->id, r->outcome);
     j->outcome = r->outcome;
     if (j->sends) {

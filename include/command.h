@@ -16,10 +16,18 @@
  *   the timeout fails, and the connection is restarted (through
  *   ops.restart_link), so its late reply can never be taken for the next
  *   command's;
- * - when the link goes down, the command in flight fails (its outcome is
- *   unknown) and so does every queued one: nothing is sent after a
- *   reconnect that was accepted before it;
+ * - when the link goes down, every command fails: one already written
+ *   with its outcome unknown (CMD_TIMEOUT, CMD_LINK_DOWN: the robot may
+ *   have acted on it), one never written as not sent (CMD_NOT_SENT: the
+ *   robot never received it); nothing is sent after a reconnect that was
+ *   accepted before it;
  * - while the link is down, nothing is accepted (-ENOTCONN).
+ *
+ * The link check (cmd_queue_submit_check) is an entry of the queue like
+ * any other, so its reply is matched by order and never taken for a PLC
+ * command's; it is accepted only into an empty queue (never while a
+ * command is in flight), and a command submitted while it is in flight is
+ * written at once behind it (pipelined), so a check never delays one.
  *
  * Time and I/O reach the queue through 'struct cmd_ops', so its rules are
  * unit-tested with a fake clock and a fake link.
@@ -69,10 +77,14 @@ enum cmd_outcome {
     CMD_PENDING = 1,     /* sent or queued, no reply yet */
     CMD_DONE = 2,        /* the robot accepted it (errorCode 0) */
     CMD_ROBOT_ERROR = 3, /* the robot refused it: see error_code, error_msg */
-    CMD_TIMEOUT = 4,     /* no reply within the timeout; outcome unknown */
-    CMD_LINK_DOWN = 5,   /* the command link went down; outcome unknown */
+    CMD_TIMEOUT = 4,     /* written, no reply within the timeout: outcome unknown */
+    CMD_LINK_DOWN = 5,   /* written, the link went down before its reply:
+                            outcome unknown */
     CMD_INVALID = 6,     /* refused by validation, nothing sent */
     CMD_REFUSED = 7,     /* not allowed now (configuration, state), nothing sent */
+    CMD_NOT_SENT = 8,    /* accepted but never written (the link was down or
+                            went down, a fault dropped the queue, a safety
+                            action took its place): the robot never got it */
 };
 
 const char *cmd_outcome_name(enum cmd_outcome outcome);
@@ -96,7 +108,7 @@ struct cmd_ops {
     int (*send)(void *io, const char *data, size_t size);
     /* Milliseconds from any fixed point. */
     uint64_t (*now_ms)(void *io);
-    /* Drops the connection (it reconnects by itself). */
+    /* Drops the connection abortively (it reconnects by itself). */
     void (*restart_link)(void *io, const char *why);
     /* A command went out: its reply's deadline starts (may be NULL). */
     void (*sent)(void *io);
@@ -111,6 +123,8 @@ struct cmd_entry {
     cmd_done_cb done;
     void *user;
     bool sent;           /* written already (the head, or an urgent one) */
+    bool check;          /* the gateway's link check (cmd_queue_submit_check) */
+    uint32_t timeout_ms; /* its reply's deadline; 0: the queue's */
     uint64_t sent_at_ms;
 };
 
@@ -119,8 +133,11 @@ struct cmd_queue_stats {
     uint64_t replies;
     uint64_t robot_errors;
     uint64_t timeouts;
-    uint64_t failed_link_down;
+    uint64_t failed_link_down; /* written, then the link went down */
+    uint64_t not_sent;         /* accepted, never written */
     uint64_t unsolicited;
+    uint64_t checks;        /* link checks written */
+    uint64_t checks_failed; /* link checks unanswered within their bound */
 };
 
 struct cmd_queue {
@@ -131,13 +148,15 @@ struct cmd_queue {
     unsigned head, count;
     bool in_flight;
     uint64_t sent_at_ms;
+    uint32_t flight_timeout_ms; /* the deadline of the one in flight */
     struct cmd_queue_stats stats;
 };
 
 void cmd_queue_init(struct cmd_queue *q, const struct cmd_ops *ops,
                     uint32_t timeout_ms);
 
-/* Fails whatever is queued (CMD_LINK_DOWN) and frees it. */
+/* Fails whatever is queued (CMD_LINK_DOWN if written, else CMD_NOT_SENT)
+ * and frees it. */
 void cmd_queue_free(struct cmd_queue *q);
 
 /*
@@ -160,6 +179,18 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
  */
 int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
                             cmd_done_cb done, void *user);
+
+/*
+ * The link check: writes 'json' (a harmless query) at once, if the queue is
+ * empty; its reply must come within 'timeout_ms' (0: the queue's), or it
+ * fails as CMD_TIMEOUT and the link is restarted like after any reply
+ * timeout. Commands submitted while it is in flight are written at once
+ * behind it. Returns 0, -ENOTCONN, -EBUSY when anything is queued or in
+ * flight (the link is in use: no check needed), -ENOMEM, or the send's
+ * error (then nothing changed).
+ */
+int cmd_queue_submit_check(struct cmd_queue *q, const char *json, size_t size,
+                           uint32_t timeout_ms, cmd_done_cb done, void *user);
 
 /* The command link came up or went down. */
 void cmd_queue_set_connected(struct cmd_queue *q, bool connected);

@@ -38,6 +38,7 @@ struct gw_config {
     uint32_t reconnect_min_ms;
     uint32_t reconnect_max_ms;
     uint32_t status_timeout_ms;
+    uint32_t link_check_ms; /* an idle command link is checked this often */
     uint32_t max_document_bytes;
     bool robot_tls;              /* both robot ports over TLS */
     char robot_tls_ca[256];      /* the controller's CA, PEM */

@@ -164,6 +164,15 @@ void plc_commands_link_down(struct plc_commands *pc);
  */
 int plc_commands_send_now(struct plc_commands *pc, const char *name);
 
+/*
+ * The link check's reply (command_port.h): what it says about the robot
+ * (get_robot_state: enabled, powered on) is shown in the information rows.
+ * 'name' is the query's cmdName. The information's age is not changed: the
+ * check refreshes only these rows.
+ */
+void plc_commands_link_check_reply(struct plc_commands *pc, const char *name,
+                                   const struct cmd_result *r);
+
 /* Refreshes the values that change with time (the information's age). */
 void plc_commands_refresh(struct plc_commands *pc);
 

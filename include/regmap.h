@@ -112,7 +112,9 @@ enum regmap_word_order {
     X(tls_failed_timeout)                                                      \
     X(tls_failed_over_limit)                                                   \
     X(status_link_tls_failure)                                                 \
-    X(command_link_tls_failure)
+    X(command_link_tls_failure)                                                \
+    X(link_checks)                                                             \
+    X(link_checks_failed)
 
 enum gw_value {
 #define GW_ENUM(name) GW_##name,

@@ -20,6 +20,12 @@
  * the same backoff. What the robot sends is decrypted before the framer
  * sees it, and what the link sends is encrypted: nothing above changes.
  *
+ * A connection closed for a fault (an error, silence, a failed handshake,
+ * robot_link_restart) is closed abortively, with an RST: nothing still
+ * queued in the kernel is delivered after the gateway gave up on it. Both
+ * sockets have tuned keepalive and TCP_USER_TIMEOUT (cfg.user_timeout_ms).
+ * robot_link_close, a clean stop, closes normally.
+ *
  * Life cycle, as libuv handles: robot_link_init(), robot_link_start(),
  * robot_link_close(cb); the memory is the caller's until cb runs.
  * Nothing here blocks: resolving runs on libuv's thread pool.
@@ -34,6 +40,11 @@
 #include "framer.h"
 #include "log.h"
 #include "tls.h"
+
+/* TCP keepalive on both robot sockets (see robot_link.c, tune_socket). */
+#define ROBOT_LINK_KEEPALIVE_IDLE_S 2
+#define ROBOT_LINK_KEEPALIVE_INTERVAL_S 1
+#define ROBOT_LINK_KEEPALIVE_COUNT 3
 
 /* Bytes queued to a robot that does not read, before sends fail. */
 #define ROBOT_LINK_MAX_QUEUED (64 * 1024)
@@ -64,6 +75,10 @@ struct robot_link_config {
     uint32_t reconnect_min_ms;
     uint32_t reconnect_max_ms;
     uint32_t silence_timeout_ms;
+    /* TCP_USER_TIMEOUT: how long sent data (or a keepalive probe) may stay
+     * unacknowledged before the kernel aborts the connection; 0: the
+     * kernel's default (about 15 minutes of retransmissions). */
+    uint32_t user_timeout_ms;
     size_t max_object;
     /* NULL: plain TCP. Else TLS with this client context, of which the
      * link keeps its own reference (robot_link_set_tls to change it). */
@@ -98,6 +113,7 @@ struct robot_link {
 
     uint32_t backoff_ms;
     int last_error; /* the failure last logged, to log each change once */
+    bool tune_failure_logged; /* keepalive or TCP_USER_TIMEOUT refused */
     bool stopping;
     int open_handles;
     void (*close_cb)(struct robot_link *link);
@@ -137,7 +153,8 @@ int robot_link_send(struct robot_link *link, const char *data, size_t size);
  */
 void robot_link_set_tls(struct robot_link *link, struct tls_context *ctx);
 
-/* Closes the connection now and reconnects after the backoff delay. */
+/* Closes the connection now, abortively, and reconnects after the backoff
+ * delay. */
 void robot_link_restart(struct robot_link *link, const char *why);
 
 /* Stops for good; 'cb' runs when every handle is closed. */

@@ -75,7 +75,7 @@ static const struct can_signal state_signals[] = {
 
 static const struct can_signal health_signals[] = {
     GW_BIT("StatusLinkUp", 0, status_link_up, "Status port (10000) connected"),
-    GW_BIT("CommandLinkUp", 1, command_link_up, "Command port (10001) connected"),
+    GW_BIT("CommandLinkUp", 1, command_link_up, "Command port (10001) connected and answering"),
     GW_BIT("StatusFresh", 2, status_fresh,
            "A status document arrived within status_timeout_ms: the robot "
            "frames carry live data"),

@@ -139,6 +139,7 @@ const char *cmd_outcome_name(enum cmd_outcome outcome)
         [CMD_DONE] = "done",         [CMD_ROBOT_ERROR] = "robot error",
         [CMD_TIMEOUT] = "timeout",   [CMD_LINK_DOWN] = "link down",
         [CMD_INVALID] = "invalid",   [CMD_REFUSED] = "refused",
+        [CMD_NOT_SENT] = "not sent",
     };
     return (unsigned)outcome < sizeof(names) / sizeof(names[0]) ? names[outcome] : "?";
 }
@@ -218,7 +219,23 @@ static void fail_head(struct cmd_queue *q, enum cmd_outcome outcome, const char 
     finish_head(q, &r);
 }
 
-/* Sends the head entry if nothing is in flight. */
+/*
+ * A command lost with its connection. Written, the robot may have acted on
+ * it: its outcome is unknown. Never written, the robot never got it. The
+ * texts lead with that, since a PLC reads their first 40 bytes.
+ */
+static void fail_head_lost(struct cmd_queue *q, const char *why_sent,
+                           const char *why_not_sent)
+{
+    if (entry_at(q, 0)->sent) {
+        q->stats.failed_link_down++;
+        fail_head(q, CMD_LINK_DOWN, why_sent);
+    } else {
+        q->stats.not_sent++;
+        fail_head(q, CMD_NOT_SENT, why_not_sent);
+    }
+}
+
 /* Writes an entry; 0 or the send's error. */
 static int write_entry(struct cmd_queue *q, struct cmd_entry *e)
 {
@@ -234,8 +251,11 @@ static int write_entry(struct cmd_queue *q, struct cmd_entry *e)
 /* The head is in flight: its reply's deadline runs from when it went out. */
 static void start_flight(struct cmd_queue *q)
 {
+    const struct cmd_entry *head = entry_at(q, 0);
+
     q->in_flight = true;
-    q->sent_at_ms = entry_at(q, 0)->sent_at_ms;
+    q->sent_at_ms = head->sent_at_ms;
+    q->flight_timeout_ms = head->timeout_ms ? head->timeout_ms : q->timeout_ms;
     if (q->ops.sent)
         q->ops.sent(q->ops.io);
 }
@@ -248,12 +268,25 @@ static void send_next(struct cmd_queue *q)
         int rc = e->sent ? 0 : write_entry(q, e);
         if (rc < 0) {
             char why[96];
-            snprintf(why, sizeof(why), "could not send: %s", strerror(-rc));
-            fail_head(q, CMD_LINK_DOWN, why);
+            snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
+            q->stats.not_sent++;
+            fail_head(q, CMD_NOT_SENT, why);
             continue;
         }
         start_flight(q);
     }
+}
+
+/* Is every entry before 'n' a link check written already? Then nothing
+ * waits: the entry at 'n' may be written at once, behind them. */
+static bool only_checks_before(struct cmd_queue *q, unsigned n)
+{
+    for (unsigned i = 0; i < n; i++) {
+        const struct cmd_entry *e = entry_at(q, i);
+        if (!e->check || !e->sent)
+            return false;
+    }
+    return true;
 }
 
 int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
@@ -271,8 +304,11 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
     *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
     q->count++;
     /* Only an empty queue sends at once: a command submitted from a done
-     * callback, while others wait, must not jump ahead of them. */
-    if (!q->in_flight && q->count == 1) {
+     * callback, while others wait, must not jump ahead of them. Behind a
+     * link check nothing waits: the command goes out at once, pipelined,
+     * and its reply is matched after the check's. */
+    bool empty = !q->in_flight && q->count == 1;
+    if (empty || only_checks_before(q, q->count - 1)) {
         /* Sent now: a failure here is the caller's to report. */
         int rc = write_entry(q, e);
         if (rc < 0) {
@@ -280,8 +316,37 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
             free(copy);
             return rc;
         }
-        start_flight(q);
+        if (empty)
+            start_flight(q);
     }
+    return 0;
+}
+
+int cmd_queue_submit_check(struct cmd_queue *q, const char *json, size_t size,
+                           uint32_t timeout_ms, cmd_done_cb done, void *user)
+{
+    if (!q->connected)
+        return -ENOTCONN;
+    /* A command in flight or queued: the link is in use, and its own
+     * reply timeout watches it. */
+    if (q->in_flight || q->count > 0)
+        return -EBUSY;
+    char *copy = malloc(size);
+    if (!copy)
+        return -ENOMEM;
+    memcpy(copy, json, size);
+    struct cmd_entry *e = entry_at(q, 0);
+    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user,
+                            .check = true, .timeout_ms = timeout_ms};
+    q->count = 1;
+    int rc = write_entry(q, e);
+    if (rc < 0) {
+        q->count = 0;
+        free(copy);
+        return rc;
+    }
+    q->stats.checks++;
+    start_flight(q);
     return 0;
 }
 
@@ -330,8 +395,9 @@ int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
             *entry_at(q, q->count) = displaced;
             q->count++;
         } else {
-            struct cmd_result r = {.outcome = CMD_REFUSED};
-            snprintf(r.error_msg, sizeof(r.error_msg), "displaced by a safety action");
+            struct cmd_result r = {.outcome = CMD_NOT_SENT};
+            snprintf(r.error_msg, sizeof(r.error_msg), "not sent: displaced by a safety action");
+            q->stats.not_sent++;
             free(displaced.json);
             displaced.done(displaced.user, &r);
         }
@@ -341,12 +407,10 @@ int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
     return rc;
 }
 
-static void fail_all(struct cmd_queue *q, const char *why)
+static void fail_all(struct cmd_queue *q, const char *why_sent, const char *why_not_sent)
 {
-    while (q->count > 0) {
-        q->stats.failed_link_down++;
-        fail_head(q, CMD_LINK_DOWN, why);
-    }
+    while (q->count > 0)
+        fail_head_lost(q, why_sent, why_not_sent);
 }
 
 void cmd_queue_set_connected(struct cmd_queue *q, bool connected)
@@ -355,7 +419,8 @@ void cmd_queue_set_connected(struct cmd_queue *q, bool connected)
     /* Also when already marked down (after a reply timeout): whatever is
      * still queued then must not wait for a connection that is gone. */
     if (!connected)
-        fail_all(q, "the command link went down; the outcome is unknown");
+        fail_all(q, "outcome unknown: the link went down",
+                 "not sent: the link went down");
 }
 
 void cmd_queue_on_reply(struct cmd_queue *q, const char *json, size_t size)
@@ -376,19 +441,27 @@ void cmd_queue_on_reply(struct cmd_queue *q, const char *json, size_t size)
 
 void cmd_queue_check_timeout(struct cmd_queue *q)
 {
-    if (!q->in_flight || q->ops.now_ms(q->ops.io) - q->sent_at_ms < q->timeout_ms)
+    if (!q->in_flight ||
+        q->ops.now_ms(q->ops.io) - q->sent_at_ms < q->flight_timeout_ms)
         return;
-    char why[96];
-    snprintf(why, sizeof(why), "no reply within %u ms; the outcome is unknown",
-             (unsigned)q->timeout_ms);
+    char why[96], msg[64];
+    bool check = entry_at(q, 0)->check;
+    unsigned limit = (unsigned)q->flight_timeout_ms;
+    if (check)
+        snprintf(why, sizeof(why), "link check unanswered within %u ms", limit);
+    else
+        snprintf(why, sizeof(why), "no reply within %u ms; the outcome is unknown", limit);
+    snprintf(msg, sizeof(msg), "outcome unknown: no reply in %u ms", limit);
     q->stats.timeouts++;
+    if (check)
+        q->stats.checks_failed++;
     /* The connection is condemned from here: nothing a callback submits
      * may be written to it. */
     q->connected = false;
-    fail_head(q, CMD_TIMEOUT, why);
+    fail_head(q, CMD_TIMEOUT, msg);
     /* The late reply must never answer the next command: drop the
      * connection it would come on, and what was queued behind it. */
-    fail_all(q, "dropped with the connection after a reply timeout");
+    fail_all(q, "outcome unknown: link restarted", "not sent: link restarted");
     q->ops.restart_link(q->ops.io, why);
 }
 
@@ -397,7 +470,7 @@ uint64_t cmd_queue_next_deadline_ms(const struct cmd_queue *q)
     if (!q->in_flight)
         return UINT64_MAX;
     uint64_t elapsed = q->ops.now_ms(q->ops.io) - q->sent_at_ms;
-    return elapsed >= q->timeout_ms ? 0 : q->timeout_ms - elapsed;
+    return elapsed >= q->flight_timeout_ms ? 0 : q->flight_timeout_ms - elapsed;
 }
 
 unsigned cmd_queue_pending(const struct cmd_queue *q)
@@ -407,5 +480,5 @@ unsigned cmd_queue_pending(const struct cmd_queue *q)
 
 void cmd_queue_free(struct cmd_queue *q)
 {
-    fail_all(q, "the gateway is stopping");
+    fail_all(q, "outcome unknown: the gateway stopped", "not sent: the gateway is stopping");
 }

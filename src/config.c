@@ -79,6 +79,7 @@ static const struct key_info keys[] = {
     KEY("robot", "reconnect_min_ms", KEY_UINT, reconnect_min_ms, 10, 600000, "200"),
     KEY("robot", "reconnect_max_ms", KEY_UINT, reconnect_max_ms, 10, 600000, "5000"),
     KEY("robot", "status_timeout_ms", KEY_UINT, status_timeout_ms, 50, 600000, "1000"),
+    KEY("robot", "link_check_ms", KEY_UINT, link_check_ms, 100, 60000, "1000"),
     /*
      * The framer buffers a whole document and cJSON parses it on the loop
      * thread: a real document is about 9 KB, a 256 KiB one parses in a few

@@ -54,6 +54,15 @@ static void apply_status_timeout(struct gateway *gw, const struct gw_config *nex
     /* The freshness the PLC reads, and the status link's silence limit. */
     gw->cfg.status_timeout_ms = next->status_timeout_ms;
     gw->status_link.cfg.silence_timeout_ms = next->status_timeout_ms;
+    /* The kernel's bound follows it, from the next connection. */
+    gw->status_link.cfg.user_timeout_ms = next->status_timeout_ms + 1000;
+}
+
+static void apply_link_check(struct gateway *gw, const struct gw_config *next)
+{
+    /* From the next idle period of the command link. */
+    gw->cfg.link_check_ms = next->link_check_ms;
+    gw->command.link_check_ms = next->link_check_ms;
 }
 
 static void apply_max_clients(struct gateway *gw, const struct gw_config *next)
@@ -118,6 +127,7 @@ static const struct live_key live_keys[] = {
     {"robot", "reconnect_min_ms", apply_reconnect_min},
     {"robot", "reconnect_max_ms", apply_reconnect_max},
     {"robot", "status_timeout_ms", apply_status_timeout},
+    {"robot", "link_check_ms", apply_link_check},
     {"robot", "tls_ca", apply_robot_tls_ca},
     {"robot", "tls_fingerprint", apply_robot_tls_fingerprint},
     {"modbus", "max_clients", apply_max_clients},

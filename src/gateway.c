@@ -120,6 +120,20 @@ static void on_command_state(struct command_port *cp, enum robot_link_state stat
     notify_change(gw);
 }
 
+static void on_command_answering(struct command_port *cp, bool answering)
+{
+    (void)answering;
+    notify_change(cp->user);
+}
+
+/* A link check's reply: what it says about the robot shows in the map. */
+static void on_link_check_reply(struct command_port *cp, const char *query,
+                                const struct cmd_result *r)
+{
+    struct gateway *gw = cp->user;
+    plc_commands_link_check_reply(&gw->commands, query, r);
+}
+
 bool gateway_status_fresh(const struct gateway *gw)
 {
     return gw->last_document_ms != 0 &&
@@ -159,12 +173,14 @@ void gateway_refresh_values(struct gateway *gw)
 
     /* The constant values are set once, in set_constant_values(). */
     v[GW_status_link_up] = gw->status_link.state == ROBOT_LINK_CONNECTED;
-    v[GW_command_link_up] = gw->command.link.state == ROBOT_LINK_CONNECTED;
+    v[GW_command_link_up] = command_port_answering(&gw->command);
     v[GW_status_fresh] = fresh;
     v[GW_status_link_state] =
         gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh ? 3
                                                                 : gw->status_link.state;
-    v[GW_command_link_state] = gw->command.link.state;
+    v[GW_command_link_state] = command_port_state(&gw->command);
+    v[GW_link_checks] = (double)gw->command.queue.stats.checks;
+    v[GW_link_checks_failed] = (double)gw->command.queue.stats.checks_failed;
     v[GW_status_age_ms] = age_ms(gw, gw->last_document_ms);
     v[GW_documents_parsed] = (double)c->documents_parsed;
     v[GW_parse_errors] = (double)c->parse_errors;
@@ -198,6 +214,8 @@ static void clear_counters(void *user)
     struct gateway *gw = user;
 
     memset(&gw->counters, 0, sizeof(gw->counters));
+    gw->command.queue.stats.checks = 0;
+    gw->command.queue.stats.checks_failed = 0;
     gw->modbus.stats.requests = 0;
     gw->modbus.stats.exceptions = 0;
     gw->modbus.stats.evictions = 0;
@@ -299,13 +317,15 @@ static bool is_running(void *user)
 void gateway_describe(const struct gateway *gw, char *buf, size_t size)
 {
     static const char *const names[] = {"disconnected", "connecting", "connected"};
-    snprintf(buf, size, "status link %s%s, command link %s, %u Modbus clients",
+    snprintf(buf, size, "status link %s%s, command link %s%s, %u Modbus clients",
              names[gw->status_link.state],
              gw->status_link.state == ROBOT_LINK_CONNECTED &&
                      !gateway_status_fresh(gw)
                  ? " (silent)"
                  : "",
-             names[gw->command.link.state], gw->modbus.stats.clients);
+             names[gw->command.link.state],
+             command_port_state(&gw->command) == 3 ? " (not answering yet)" : "",
+             gw->modbus.stats.clients);
 }
 
 static int start_links(struct gateway *gw)
@@ -323,6 +343,9 @@ static int start_links(struct gateway *gw)
         .reconnect_min_ms = cfg->reconnect_min_ms,
         .reconnect_max_ms = cfg->reconnect_max_ms,
         .silence_timeout_ms = cfg->status_timeout_ms,
+        /* The kernel's bounds come a second after the gateway's own, so
+         * that what the PLC reads is the gateway's decision. */
+        .user_timeout_ms = cfg->status_timeout_ms + 1000,
         .max_object = cfg->max_document_bytes,
         .tls = tls,
     };
@@ -339,10 +362,18 @@ static int start_links(struct gateway *gw)
     gw->parts |= GATEWAY_PART_STATUS_LINK;
     lc.name = "command";
     lc.port = (uint16_t)cfg->command_port;
-    /* Replies come only when asked; silence is normal there. */
+    /* Replies come only when asked; silence is normal there, and the link
+     * check (link_check_ms) asks when it lasts. */
     lc.silence_timeout_ms = 0;
+    lc.user_timeout_ms = cfg->reply_timeout_ms + 1000;
+    struct command_port_hooks hooks = {
+        .on_state = on_command_state,
+        .on_answering = on_command_answering,
+        .on_check_reply = on_link_check_reply,
+        .user = gw,
+    };
     rc = command_port_init(gw->loop, &gw->command, &lc, cfg->reply_timeout_ms,
-                           on_command_state, gw);
+                           cfg->link_check_ms, &hooks);
     tls_context_unref(tls); /* each link holds its own reference */
     if (rc)
         return rc;

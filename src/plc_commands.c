@@ -18,27 +18,47 @@
 #define EX_LINK_DOWN MODBUS_EXCEPTION_GATEWAY_TARGET
 #define EX_FAILURE MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
 
-/* Robot information the status stream lacks: command, reply member, row. */
+/* A reply's word and the number its row shows for it. */
+struct info_word {
+    const char *text;
+    double value;
+};
+
+static const struct info_word program_states[] = {
+    {"idle", 0}, {"running", 1}, {"paused", 2}, {NULL, 0}};
+/* get_robot_state (4.12): the manual writes "powered on", jakasim and some
+ * controllers "powered_on". */
+static const struct info_word enable_states[] = {
+    {"robot_disabled", 0}, {"robot_enabled", 1}, {NULL, 0}};
+static const struct info_word power_states[] = {
+    {"powered_off", 0}, {"powered off", 0}, {"powered_on", 1}, {"powered on", 1}, {NULL, 0}};
+
+/* Robot information the status stream lacks: command, reply member, row,
+ * and the words a text value may take (NULL: a number). */
 static const struct info_item {
     const char *cmd;
     const char *key;
     const char *row;
+    const struct info_word *words;
 } info_items[] = {
-    {"get_version", "version", "info.controller_version"},
-    {"get_loaded_program", "programName", "info.loaded_program"},
-    {"get_program_state", "programState", "info.program_state"},
-    {"get_payload", "mass", "info.payload_mass"},
-    {"get_payload", "centroid", "info.payload_centroid[*]"},
-    {"get_clsn_sensitivity", "sensitivityLevel", "info.collision_level"},
+    {"get_version", "version", "info.controller_version", NULL},
+    {"get_loaded_program", "programName", "info.loaded_program", NULL},
+    {"get_program_state", "programState", "info.program_state", program_states},
+    /* The link check's query (command_port.h). */
+    {"get_robot_state", "enable", "info.robot_enabled", enable_states},
+    {"get_robot_state", "power", "info.robot_powered_on", power_states},
+    {"get_payload", "mass", "info.payload_mass", NULL},
+    {"get_payload", "centroid", "info.payload_centroid[*]", NULL},
+    {"get_clsn_sensitivity", "sensitivityLevel", "info.collision_level", NULL},
     /* The manual spells the reply member "tool offsets"; some send "_". */
-    {"get_tool_offsets", "tool_offsets", "info.tool_offsets[*]"},
-    {"get_tool_offsets", "tool offsets", "info.tool_offsets[*]"},
-    {"get_user_offsets", "user_offsets", "info.user_offsets[*]"},
-    {"get_user_offsets", "user offsets", "info.user_offsets[*]"},
-    {"get_dh_param", "alpha", "info.dh_alpha[*]"},
-    {"get_dh_param", "a", "info.dh_a[*]"},
-    {"get_dh_param", "d", "info.dh_d[*]"},
-    {"get_dh_param", "joint_homeoff", "info.dh_joint_homeoff[*]"},
+    {"get_tool_offsets", "tool_offsets", "info.tool_offsets[*]", NULL},
+    {"get_tool_offsets", "tool offsets", "info.tool_offsets[*]", NULL},
+    {"get_user_offsets", "user_offsets", "info.user_offsets[*]", NULL},
+    {"get_user_offsets", "user offsets", "info.user_offsets[*]", NULL},
+    {"get_dh_param", "alpha", "info.dh_alpha[*]", NULL},
+    {"get_dh_param", "a", "info.dh_a[*]", NULL},
+    {"get_dh_param", "d", "info.dh_d[*]", NULL},
+    {"get_dh_param", "joint_homeoff", "info.dh_joint_homeoff[*]", NULL},
 };
 static const char *const info_commands[PLC_INFO_COMMANDS] = {
     "get_version",          "get_loaded_program", "get_program_state",
@@ -613,7 +633,7 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
         return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
                       "shutdown is off: [commands] allow_shutdown = true enables it");
     if (!pc->queue->connected)
-        return refuse(slot, EX_LINK_DOWN, CMD_LINK_DOWN, "the command link is down");
+        return refuse(slot, EX_LINK_DOWN, CMD_NOT_SENT, "not sent: the command link is down");
     /* Pausing and stopping are never held back for want of the handler. */
     bool halts = flags & CMD_HALTS;
     if (pc->cfg.require_robot_handle && pc->cfg.robot_handle && !halts &&
@@ -692,7 +712,9 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
     if (rc < 0) {
         char why[96];
         snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
-        set_result(slot, rc == -ENOTCONN ? CMD_LINK_DOWN : CMD_REFUSED, 0, why);
+        /* The write was accepted: whatever kept the command from going
+         * out, the robot never got it. */
+        set_result(slot, CMD_NOT_SENT, 0, why);
         /* The mailbox's sequence number is finished too: a PLC waiting on
          * done_seq must not wait for ever. */
         if (slot->kind == PLC_SLOT_MAILBOX)
@@ -773,13 +795,12 @@ static void store_info(struct plc_commands *pc, const struct info_item *item,
     if (cJSON_IsNumber(value)) {
         v = value->valuedouble;
     } else if (cJSON_IsString(value)) {
-        static const char *const states[] = {"idle", "running", "paused"};
         char *end;
         v = strtod(value->valuestring, &end);
         ok = end != value->valuestring && *end == '\0';
-        for (unsigned i = 0; !ok && i < 3; i++)
-            if (strcmp(value->valuestring, states[i]) == 0) {
-                v = i;
+        for (const struct info_word *w = item->words; !ok && w && w->text; w++)
+            if (strcmp(value->valuestring, w->text) == 0) {
+                v = w->value;
                 ok = true;
             }
     } else {
@@ -801,18 +822,31 @@ static void fetch_info(struct plc_commands *pc, const char *name)
     }
 }
 
+/* Maps the members of an accepted reply to 'name' onto their rows. */
+static void store_reply(struct plc_commands *pc, const char *name, const struct cmd_result *r)
+{
+    cJSON *doc = cJSON_ParseWithLength(r->reply, r->reply_size);
+    for (unsigned i = 0; i < sizeof(info_items) / sizeof(info_items[0]); i++)
+        if (strcmp(info_items[i].cmd, name) == 0)
+            store_info(pc, &info_items[i],
+                       cJSON_GetObjectItemCaseSensitive(doc, info_items[i].key));
+    cJSON_Delete(doc);
+}
+
 static void record_info(struct plc_commands *pc, const struct plc_slot *slot,
                         const struct cmd_result *r)
 {
     if (r->outcome != CMD_DONE)
         return;
-    cJSON *doc = cJSON_ParseWithLength(r->reply, r->reply_size);
-    for (unsigned i = 0; i < sizeof(info_items) / sizeof(info_items[0]); i++)
-        if (strcmp(info_items[i].cmd, slot->def->name) == 0)
-            store_info(pc, &info_items[i],
-                       cJSON_GetObjectItemCaseSensitive(doc, info_items[i].key));
-    cJSON_Delete(doc);
+    store_reply(pc, slot->def->name, r);
     pc->info_updated_ms = pc->now_ms(pc->clock);
+}
+
+void plc_commands_link_check_reply(struct plc_commands *pc, const char *name,
+                                   const struct cmd_result *r)
+{
+    if (r->outcome == CMD_DONE && r->reply)
+        store_reply(pc, name, r);
 }
 
 /* The JSON mailbox shows the reply itself, cut to its block if longer. */

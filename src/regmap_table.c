@@ -80,7 +80,9 @@
     P_ROW(REGMAP_INPUT_REGISTER, (base), 1, REGMAP_U16, 0, "",                \
           "result_" cmd "_state", "result." cmd ".state",                     \
           cmd ": 0 idle, 1 pending, 2 done (accepted by the robot), 3 robot "  \
-          "error, 4 reply timeout, 5 link down, 6 invalid, 7 refused"),        \
+          "error, 4 reply timeout and 5 link lost after it was written: "      \
+          "outcome unknown (the robot may have acted), 6 invalid, 7 refused, " \
+          "8 not sent (the robot never received it)"),                         \
     P_ROW(REGMAP_INPUT_REGISTER, (base) + 1, 1, REGMAP_I32, 0, "",            \
           "result_" cmd "_error_code", "result." cmd ".error_code",           \
           cmd ": the robot's errorCode of the last reply"),                    \
@@ -220,7 +222,9 @@ const struct regmap_row regmap_table_rows[] = {
 
     /* ---- discrete inputs: gateway ---- */
     G_DI(0, status_link_up, "Status port (10000) connected"),
-    G_DI(1, command_link_up, "Command port (10001) connected"),
+    G_DI(1, command_link_up,
+         "Command port (10001) connected and answering (a reply on this connection; "
+         "an idle link is checked every link_check_ms)"),
     G_DI(2, status_fresh,
          "A status document arrived within status_timeout_ms: data is live"),
 
@@ -280,7 +284,8 @@ const struct regmap_row regmap_table_rows[] = {
     G_IR(16, status_link_state, REGMAP_U16, "",
          "Status port: 0 disconnected, 1 connecting, 2 connected, 3 connected but silent"),
     G_IR(17, command_link_state, REGMAP_U16, "",
-         "Command port: 0 disconnected, 1 connecting, 2 connected"),
+         "Command port: 0 disconnected, 1 connecting, 2 connected and answering, "
+         "3 connected but no reply on this connection yet"),
     G_IR(18, status_age_ms, REGMAP_U32, "ms",
          "Time since the last status document was parsed; 4294967295 if none yet"),
     G_IR(20, documents_parsed, REGMAP_U32, "", "Status documents parsed"),
@@ -317,6 +322,11 @@ const struct regmap_row regmap_table_rows[] = {
          "CAN frames due but not sent (queue full, interface down or absent)"),
     G_IR(56, can_errors, REGMAP_U32, "",
          "CAN send, open and poll failures and bus-off reports"),
+    G_IR(58, link_checks, REGMAP_U32, "",
+         "Command link checks sent (get_robot_state after link_check_ms idle)"),
+    G_IR(98, link_checks_failed, REGMAP_U32, "",
+         "Command link checks unanswered within min(reply_timeout_ms, link_check_ms): "
+         "each restarted the link"),
     /* ---- input registers: the network-exception policy ---- */
     P_ROW(REGMAP_INPUT_REGISTER, 60, 1, REGMAP_U16, 0, "", "fault", "fault",
           "Latched network-exception fault: 0 none, 1 PLC heartbeat lost, 2 no "
@@ -592,6 +602,13 @@ const struct regmap_row regmap_table_rows[] = {
           "info.payload_centroid[*]", "Payload centroid, coordinate # (x, y, z)"),
     P_ROW(REGMAP_INPUT_REGISTER, 5060, 1, REGMAP_U16, 0, "", "collision_level",
           "info.collision_level", "Collision sensitivity level (4.45)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5061, 1, REGMAP_U16, 0, "", "robot_enabled",
+          "info.robot_enabled",
+          "Robot enabled, 0 or 1, as the last command link check's reply says "
+          "(get_robot_state, 4.12)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5062, 1, REGMAP_U16, 0, "", "robot_powered_on",
+          "info.robot_powered_on",
+          "Robot powered on, 0 or 1, as the last command link check's reply says"),
     P_ROW(REGMAP_INPUT_REGISTER, 5100, 66, REGMAP_F32, 0, "mm, deg", "tool_offset_#",
           "info.tool_offsets[*]",
           "Tool frames 0-10 (4.29), six values each (x y z rx ry rz): value #"),

@@ -5,9 +5,12 @@
 #include "log.h"
 
 #include <errno.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/socket.h>
 
 static void start_connect(struct robot_link *link);
 static void on_connect_timeout(uv_timer_t *t);
@@ -157,6 +160,54 @@ static void on_tcp_closed(uv_handle_t *h)
     schedule_retry(link);
 }
 
+/*
+ * Closes the socket abortively (RST): whatever is still in the kernel's
+ * send queue is discarded instead of being delivered later. A command
+ * the gateway has given up on (and told the PLC so) must never reach the
+ * robot when a pulled cable comes back; a graceful close would keep
+ * retransmitting it. Falls back to a plain close when the socket has no
+ * descriptor yet.
+ */
+static void close_abortively(struct robot_link *link)
+{
+    if (uv_tcp_close_reset(&link->tcp, on_tcp_closed) != 0)
+        uv_close((uv_handle_t *)&link->tcp, on_tcp_closed);
+}
+
+/*
+ * Kernel-level bounds on a connection the gateway may not be watching:
+ * keepalive probes after KEEPALIVE_IDLE_S idle, then every
+ * KEEPALIVE_INTERVAL_S, and TCP_USER_TIMEOUT, after which data (or
+ * probes) unacknowledged that long make the kernel abort the connection
+ * (a read error here). With TCP_USER_TIMEOUT set, Linux gives up on
+ * keepalive once that long has passed with a probe out, instead of
+ * counting KEEPALIVE_COUNT probes. These cost the controller nothing (its
+ * kernel answers); the command link check (command_port.h) also catches a
+ * command server that hangs while its TCP stack lives.
+ */
+static void tune_socket(struct robot_link *link)
+{
+    int on = 1, idle = ROBOT_LINK_KEEPALIVE_IDLE_S, interval = ROBOT_LINK_KEEPALIVE_INTERVAL_S,
+        count = ROBOT_LINK_KEEPALIVE_COUNT;
+    unsigned int user_timeout = link->cfg.user_timeout_ms;
+    uv_os_fd_t fd;
+    int rc = uv_fileno((uv_handle_t *)&link->tcp, &fd);
+
+    if (rc == 0 &&
+        (setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &on, sizeof(on)) != 0 ||
+         setsockopt(fd, IPPROTO_TCP, TCP_KEEPIDLE, &idle, sizeof(idle)) != 0 ||
+         setsockopt(fd, IPPROTO_TCP, TCP_KEEPINTVL, &interval, sizeof(interval)) != 0 ||
+         setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &count, sizeof(count)) != 0 ||
+         (user_timeout &&
+          setsockopt(fd, IPPROTO_TCP, TCP_USER_TIMEOUT, &user_timeout, sizeof(user_timeout)) != 0)))
+        rc = -errno;
+    if (rc != 0 && !link->tune_failure_logged) {
+        link->tune_failure_logged = true;
+        log_warn("%s link: cannot set keepalive and TCP_USER_TIMEOUT: %s; a silent peer "
+                 "is found by the gateway's own checks only", link->cfg.name, strerror(-rc));
+    }
+}
+
 /* Closes the socket; the retry is scheduled once it is closed. */
 static void drop_connection(struct robot_link *link)
 {
@@ -170,7 +221,7 @@ static void drop_connection(struct robot_link *link)
     link->tls_ready = false;
     set_state(link, ROBOT_LINK_DISCONNECTED);
     if (link->tcp_open && !uv_is_closing((uv_handle_t *)&link->tcp))
-        uv_close((uv_handle_t *)&link->tcp, on_tcp_closed);
+        close_abortively(link);
     else if (!link->tcp_open)
         schedule_retry(link);
 }
@@ -356,7 +407,7 @@ static void on_connected(uv_connect_t *req, int status)
         return;
     }
     uv_tcp_nodelay(&link->tcp, 1);
-    uv_tcp_keepalive(&link->tcp, 1, 5);
+    tune_socket(link);
     if (!link->cfg.tls) {
         link_established(link);
         return;

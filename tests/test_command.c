@@ -169,6 +169,7 @@ static void table_lookups(void **state)
             assert_ptr_equal(cmd_find_code(cmd_table[i].code), &cmd_table[i]);
     assert_string_equal(cmd_outcome_name(CMD_DONE), "done");
     assert_string_equal(cmd_outcome_name(CMD_LINK_DOWN), "link down");
+    assert_string_equal(cmd_outcome_name(CMD_NOT_SENT), "not sent");
     assert_string_equal(cmd_outcome_name((enum cmd_outcome)99), "?");
 }
 
@@ -370,10 +371,14 @@ static void timeout_at_the_limit_restarts_and_fails_the_rest(void **state)
     assert_int_equal(a.result.outcome, CMD_TIMEOUT);
     assert_null(strstr(a.result.error_msg, "errorCode"));
     assert_non_null(strstr(a.result.error_msg, "500 ms"));
+    /* Written and unanswered: the robot may have acted on it. */
+    assert_true(strncmp(a.result.error_msg, "outcome unknown", 15) == 0);
+    /* Queued behind it, never written: the robot never got them. */
     assert_int_equal(b.calls, 1);
-    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(b.result.outcome, CMD_NOT_SENT);
+    assert_true(strncmp(b.result.error_msg, "not sent", 8) == 0);
     assert_int_equal(c.calls, 1);
-    assert_int_equal(c.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(c.result.outcome, CMD_NOT_SENT);
     assert_true(a.order < b.order && b.order < c.order);
     assert_int_equal(link.restarts, 1);
     assert_non_null(strstr(link.restart_why, "no reply within 500 ms"));
@@ -382,7 +387,8 @@ static void timeout_at_the_limit_restarts_and_fails_the_rest(void **state)
     assert_int_equal(cmd_queue_pending(&queue), 0);
     assert_int_equal(cmd_queue_next_deadline_ms(&queue), UINT64_MAX);
     assert_int_equal(queue.stats.timeouts, 1);
-    assert_int_equal(queue.stats.failed_link_down, 2);
+    assert_int_equal(queue.stats.failed_link_down, 0);
+    assert_int_equal(queue.stats.not_sent, 2);
 
     /* The late reply answers nothing. */
     reply("{\"cmdName\":\"play_program\",\"errorCode\":\"0\"}");
@@ -413,7 +419,7 @@ static void late_reply_after_restart_never_matches(void **state)
     link.now += 500;
     cmd_queue_check_timeout(&queue);
     assert_int_equal(a.result.outcome, CMD_TIMEOUT);
-    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(b.result.outcome, CMD_NOT_SENT);
     assert_false(queue.connected);
     assert_int_equal(test_submit(&d), -ENOTCONN);
     reply("{\"errorCode\":\"0\"}");
@@ -443,11 +449,15 @@ static void link_down_fails_in_flight_and_queued(void **state)
     assert_int_equal(a.calls, 1);
     assert_int_equal(b.calls, 1);
     assert_int_equal(c.calls, 1);
+    /* a was written: unknown; b and c never left the gateway. */
     assert_int_equal(a.result.outcome, CMD_LINK_DOWN);
-    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
-    assert_int_equal(c.result.outcome, CMD_LINK_DOWN);
+    assert_true(strncmp(a.result.error_msg, "outcome unknown", 15) == 0);
+    assert_int_equal(b.result.outcome, CMD_NOT_SENT);
+    assert_true(strncmp(b.result.error_msg, "not sent", 8) == 0);
+    assert_int_equal(c.result.outcome, CMD_NOT_SENT);
     assert_true(a.order < b.order && b.order < c.order);
-    assert_int_equal(queue.stats.failed_link_down, 3);
+    assert_int_equal(queue.stats.failed_link_down, 1);
+    assert_int_equal(queue.stats.not_sent, 2);
     assert_int_equal(cmd_queue_pending(&queue), 0);
     assert_int_equal(cmd_queue_next_deadline_ms(&queue), UINT64_MAX);
 
@@ -575,8 +585,8 @@ static void send_failure_of_a_queued_command(void **state)
     reply("{\"errorCode\":\"0\"}");
     assert_int_equal(a.result.outcome, CMD_DONE);
     assert_int_equal(b.calls, 1);
-    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
-    assert_non_null(strstr(b.result.error_msg, "could not send"));
+    assert_int_equal(b.result.outcome, CMD_NOT_SENT);
+    assert_non_null(strstr(b.result.error_msg, "not sent: Broken pipe"));
     assert_int_equal(c.calls, 0);
     assert_int_equal(link.sent_count, 2);
     assert_string_equal(last_sent(), c.json);
@@ -591,8 +601,8 @@ static void send_failure_of_a_queued_command(void **state)
     test_submit(&f);
     link.fail_sends = 2;
     reply("{\"errorCode\":\"0\"}");
-    assert_int_equal(e.result.outcome, CMD_LINK_DOWN);
-    assert_int_equal(f.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(e.result.outcome, CMD_NOT_SENT);
+    assert_int_equal(f.result.outcome, CMD_NOT_SENT);
     assert_int_equal(d.calls + e.calls + f.calls, 3);
     assert_int_equal(cmd_queue_pending(&queue), 0);
 }
@@ -685,8 +695,9 @@ static void free_fails_everything_once(void **state)
     assert_int_equal(a.calls, 1);
     assert_int_equal(b.calls, 1);
     assert_int_equal(a.result.outcome, CMD_LINK_DOWN);
-    assert_int_equal(b.result.outcome, CMD_LINK_DOWN);
-    assert_non_null(strstr(a.result.error_msg, "stopping"));
+    assert_int_equal(b.result.outcome, CMD_NOT_SENT);
+    assert_non_null(strstr(a.result.error_msg, "stopped"));
+    assert_non_null(strstr(b.result.error_msg, "stopping"));
     assert_int_equal(cmd_queue_pending(&queue), 0);
     assert_int_equal(link.sent_count, 1);
     /* Freeing again (the teardown does) changes nothing. */
@@ -742,6 +753,195 @@ static void urgent_action_goes_out_at_once(void **state)
     assert_int_equal(link.restarts, 1);
 }
 
+/* ---- the link check (cmd_queue_submit_check) ---- */
+
+#define CHECK_JSON "{\"cmdName\":\"get_robot_state\"}"
+
+static int submit_check(struct job *j, uint32_t bound_ms)
+{
+    return cmd_queue_submit_check(&queue, j->json, strlen(j->json), bound_ms, on_done, j);
+}
+
+/*
+ * A PLC command submitted while a check is in flight goes out at once,
+ * behind it; the first reply is the check's and the second the command's,
+ * whatever they say: the check's reply never answers the PLC's command.
+ */
+static void check_reply_never_answers_a_command(void **state)
+{
+    (void)state;
+    struct job chk = {.json = CHECK_JSON};
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+
+    assert_int_equal(submit_check(&chk, 300), 0);
+    assert_int_equal(link.sent_count, 1);
+    assert_string_equal(last_sent(), chk.json);
+    assert_int_equal(queue.stats.checks, 1);
+    /* Written at once, not after the check's reply. */
+    assert_int_equal(test_submit(&a), 0);
+    assert_int_equal(link.sent_count, 2);
+    assert_string_equal(last_sent(), a.json);
+    /* The check's reply, even one that names power_on, is the check's. */
+    reply("{\"cmdName\":\"power_on\",\"errorCode\":\"0\",\"enable\":\"robot_disabled\"}");
+    assert_int_equal(chk.calls, 1);
+    assert_int_equal(chk.result.outcome, CMD_DONE);
+    assert_non_null(strstr(chk.reply, "robot_disabled"));
+    assert_int_equal(a.calls, 0);
+    /* power_on is in flight now, and its own reply answers it. */
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), 500);
+    reply("{\"cmdName\":\"power_on\",\"errorCode\":\"2\",\"errorMsg\":\"estop\"}");
+    assert_int_equal(a.calls, 1);
+    assert_int_equal(a.result.outcome, CMD_ROBOT_ERROR);
+    assert_string_equal(a.result.error_msg, "estop");
+    assert_true(chk.order < a.order);
+    assert_int_equal(queue.stats.unsolicited, 0);
+    assert_int_equal(link.sent_count, 2);
+}
+
+/* No check while a command is queued or in flight (or the link is down);
+ * once the queue is empty again, it is accepted. */
+static void check_never_while_a_command_is_in_flight(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job b = {.json = "{\"cmdName\":\"enable_robot\"}"};
+    struct job chk = {.json = CHECK_JSON};
+
+    assert_int_equal(test_submit(&a), 0);
+    assert_int_equal(test_submit(&b), 0);
+    assert_int_equal(submit_check(&chk, 300), -EBUSY);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(submit_check(&chk, 300), -EBUSY); /* b in flight */
+    assert_int_equal(link.sent_count, 2);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(cmd_queue_pending(&queue), 0);
+    assert_int_equal(submit_check(&chk, 300), 0);
+    assert_int_equal(link.sent_count, 3);
+    /* One at a time: a second check waits for the first. */
+    struct job chk2 = {.json = CHECK_JSON};
+    assert_int_equal(submit_check(&chk2, 300), -EBUSY);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(chk.calls, 1);
+    assert_int_equal(queue.stats.checks, 1);
+    assert_int_equal(chk2.calls, 0);
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(submit_check(&chk2, 300), -ENOTCONN);
+    assert_int_equal(link.sent_count, 3);
+}
+
+/*
+ * Commands during a check: the first goes out at once and its deadline
+ * runs from its own send; a second waits for the first's reply, as
+ * always (one PLC command at a time).
+ */
+static void commands_during_a_check_are_not_delayed(void **state)
+{
+    (void)state;
+    struct job chk = {.json = CHECK_JSON};
+    struct job a = {.json = "{\"cmdName\":\"power_on\"}"};
+    struct job b = {.json = "{\"cmdName\":\"enable_robot\"}"};
+
+    link.now = 5000;
+    assert_int_equal(submit_check(&chk, 300), 0);
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), 300);
+    link.now = 5100;
+    assert_int_equal(test_submit(&a), 0);
+    assert_string_equal(last_sent(), a.json);
+    assert_int_equal(test_submit(&b), 0);
+    assert_int_equal(link.sent_count, 2); /* b waits for a, not for the check */
+    link.now = 5150;
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(chk.calls, 1);
+    assert_int_equal(link.sent_count, 2); /* a was written already */
+    /* a's reply timeout counts from 5100, when it went out. */
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), 450);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(a.calls, 1);
+    assert_string_equal(last_sent(), b.json);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(b.calls, 1);
+    assert_true(chk.order < a.order && a.order < b.order);
+    /* A safety action during a check is written at once too. */
+    struct job chk2 = {.json = CHECK_JSON};
+    struct job u = {.json = "{\"cmdName\":\"pause_program\"}"};
+    assert_int_equal(submit_check(&chk2, 300), 0);
+    assert_int_equal(cmd_queue_submit_urgent(&queue, u.json, strlen(u.json), on_done, &u), 0);
+    assert_string_equal(last_sent(), u.json);
+    reply("{\"errorCode\":\"0\"}");
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(chk2.calls, 1);
+    assert_int_equal(u.calls, 1);
+    assert_int_equal(u.result.outcome, CMD_DONE);
+}
+
+/*
+ * An unanswered check restarts the link at its own bound; a command
+ * written behind it reads outcome unknown, one still queued not sent.
+ */
+static void unanswered_check_restarts_the_link(void **state)
+{
+    (void)state;
+    struct job chk = {.json = CHECK_JSON};
+    struct job a = {.json = "{\"cmdName\":\"play_program\"}"};
+    struct job b = {.json = "{\"cmdName\":\"power_off\"}"};
+
+    link.restart_disconnects = true;
+    link.now = 1000;
+    assert_int_equal(submit_check(&chk, 200), 0);
+    link.now = 1050;
+    test_submit(&a);
+    test_submit(&b);
+    link.now = 1199;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 0);
+    link.now = 1200; /* the check's bound, not the queue's 500 ms */
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 1);
+    assert_non_null(strstr(link.restart_why, "link check unanswered within 200 ms"));
+    assert_int_equal(chk.result.outcome, CMD_TIMEOUT);
+    assert_int_equal(queue.stats.checks_failed, 1);
+    assert_int_equal(a.result.outcome, CMD_LINK_DOWN);
+    assert_true(strncmp(a.result.error_msg, "outcome unknown", 15) == 0);
+    assert_int_equal(b.result.outcome, CMD_NOT_SENT);
+    assert_true(strncmp(b.result.error_msg, "not sent", 8) == 0);
+    assert_int_equal(link.sent_count, 2); /* the check and a; b never */
+    /* The check's late reply answers nothing after the reconnect. */
+    cmd_queue_set_connected(&queue, true);
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(queue.stats.unsolicited, 1);
+}
+
+/*
+ * Not sent against outcome unknown on every path: a safety action
+ * displacing the newest queued command at capacity (never written: not
+ * sent), a command whose write fails (not sent), the link going down
+ * with written safety actions and unwritten commands.
+ */
+static void not_sent_and_unknown_on_every_path(void **state)
+{
+    (void)state;
+    static struct job jobs[CMD_QUEUE_CAPACITY];
+    struct job u = {.json = "{\"cmdName\":\"stop_program\"}"};
+
+    for (unsigned i = 0; i < CMD_QUEUE_CAPACITY; i++) {
+        jobs[i] = (struct job){.json = "{\"cmdName\":\"rapid_rate\",\"rate_value\":0.5}"};
+        assert_int_equal(test_submit(&jobs[i]), 0);
+    }
+    assert_int_equal(cmd_queue_submit_urgent(&queue, u.json, strlen(u.json), on_done, &u), 0);
+    struct job *last = &jobs[CMD_QUEUE_CAPACITY - 1];
+    assert_int_equal(last->calls, 1);
+    assert_int_equal(last->result.outcome, CMD_NOT_SENT);
+    assert_string_equal(last->result.error_msg, "not sent: displaced by a safety action");
+    assert_int_equal(link.sent_count, 2); /* jobs[0] and the action */
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(jobs[0].result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(u.result.outcome, CMD_LINK_DOWN);
+    for (unsigned i = 1; i < CMD_QUEUE_CAPACITY - 1; i++)
+        assert_int_equal(jobs[i].result.outcome, CMD_NOT_SENT);
+    assert_int_equal(queue.stats.failed_link_down, 2);
+    assert_int_equal(queue.stats.not_sent, CMD_QUEUE_CAPACITY - 1);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -768,6 +968,13 @@ int main(void)
         cmocka_unit_test_setup_teardown(submit_from_done_while_down, setup, teardown),
         cmocka_unit_test_setup_teardown(unsolicited_when_idle, setup, teardown),
         cmocka_unit_test_setup_teardown(free_fails_everything_once, setup, teardown),
+        cmocka_unit_test_setup_teardown(check_reply_never_answers_a_command, setup, teardown),
+        cmocka_unit_test_setup_teardown(check_never_while_a_command_is_in_flight, setup,
+                                        teardown),
+        cmocka_unit_test_setup_teardown(commands_during_a_check_are_not_delayed, setup,
+                                        teardown),
+        cmocka_unit_test_setup_teardown(unanswered_check_restarts_the_link, setup, teardown),
+        cmocka_unit_test_setup_teardown(not_sent_and_unknown_on_every_path, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -300,6 +300,14 @@ static double result_state(const char *cmd)
     return gw_number(path);
 }
 
+/* The error text a PLC reads for 'cmd' (the first 40 bytes). */
+static const char *result_text(const char *cmd)
+{
+    char path[96];
+    snprintf(path, sizeof(path), "result.%s.error_msg", cmd);
+    return gw_text(path);
+}
+
 /* ---- triggers ---- */
 
 static void trigger_sends_on_rising_edge_only(void **state)
@@ -616,7 +624,7 @@ static void mailbox_refusals(void **state)
     /* Link down. */
     cmd_queue_set_connected(&queue, false);
     assert_int_equal(mailbox(1, NULL, 0, 3), EX_LINK_DOWN);
-    assert_int_equal(gw_number("mailbox.state"), CMD_LINK_DOWN);
+    assert_int_equal(gw_number("mailbox.state"), CMD_NOT_SENT);
     assert_int_equal(gw_number("mailbox.ack_seq"), 2);
     assert_int_equal(robot.sent_count, 2);
 }
@@ -919,7 +927,8 @@ static void link_down(void **state)
     (void)state;
     cmd_queue_set_connected(&queue, false);
     assert_int_equal(trigger("power_on"), EX_LINK_DOWN);
-    assert_int_equal(result_state("power_on"), CMD_LINK_DOWN);
+    assert_int_equal(result_state("power_on"), CMD_NOT_SENT);
+    assert_string_equal(result_text("power_on"), "not sent: the command link is down");
     assert_int_equal(regmap_get_number(&img, cmd_row("power_on"), 0), 0);
     /* A write of several setpoints: none sent, none kept. */
     const struct regmap_row *rate = cmd_row("rapid_rate.rate_value");
@@ -930,11 +939,16 @@ static void link_down(void **state)
     assert_int_equal(robot.sent_count, 0);
     /* Parameters alone are no command: they may be written while down. */
     assert_int_equal(write_text(cmd_row("load_program.programName"), "a.jks"), EX_NONE);
-    /* A command pending when the link goes down shows it. */
+    /* A command pending when the link goes down shows it: written, its
+     * outcome is unknown; queued behind it, it was never sent. */
     cmd_queue_set_connected(&queue, true);
     assert_int_equal(trigger("power_on"), EX_NONE);
+    assert_int_equal(trigger("enable_robot"), EX_NONE);
     cmd_queue_set_connected(&queue, false);
     assert_int_equal(result_state("power_on"), CMD_LINK_DOWN);
+    assert_string_equal(result_text("power_on"), "outcome unknown: the link went down");
+    assert_int_equal(result_state("enable_robot"), CMD_NOT_SENT);
+    assert_string_equal(result_text("enable_robot"), "not sent: the link went down");
     /* The reply timeout shows too. */
     cmd_queue_set_connected(&queue, true);
     rearm("power_on");
@@ -942,10 +956,47 @@ static void link_down(void **state)
     robot.now += 1000;
     cmd_queue_check_timeout(&queue);
     assert_int_equal(result_state("power_on"), CMD_TIMEOUT);
+    /* The PLC reads the first 40 bytes: they say what matters. */
+    assert_true(strncmp(result_text("power_on"), "outcome unknown: no reply in", 28) == 0);
     assert_false(queue.connected);
 }
 
 /* ---- robot information ---- */
+
+/* The link check's reply shows what it says about the robot, in either
+ * spelling of the manual and of real controllers; a failed one changes
+ * nothing. */
+static void link_check_reply_shows_the_robot_state(void **state)
+{
+    (void)state;
+    const char *reply1 = "{\"cmdName\":\"get_robot_state\",\"errorCode\":\"0\","
+                         "\"enable\":\"robot_enabled\",\"power\":\"powered on\"}";
+    struct cmd_result r;
+
+    assert_int_equal(gw_number("info.robot_enabled"), 0);
+    cmd_parse_reply(reply1, strlen(reply1), &r);
+    plc_commands_link_check_reply(&pc, "get_robot_state", &r);
+    assert_int_equal(gw_number("info.robot_enabled"), 1);
+    assert_int_equal(gw_number("info.robot_powered_on"), 1);
+    const char *reply2 = "{\"errorCode\":\"0\",\"enable\":\"robot_disabled\","
+                         "\"power\":\"powered_off\"}";
+    cmd_parse_reply(reply2, strlen(reply2), &r);
+    plc_commands_link_check_reply(&pc, "get_robot_state", &r);
+    assert_int_equal(gw_number("info.robot_enabled"), 0);
+    assert_int_equal(gw_number("info.robot_powered_on"), 0);
+    const char *reply3 = "{\"errorCode\":\"1\",\"enable\":\"robot_enabled\"}";
+    cmd_parse_reply(reply3, strlen(reply3), &r);
+    plc_commands_link_check_reply(&pc, "get_robot_state", &r);
+    assert_int_equal(gw_number("info.robot_enabled"), 0);
+    /* An unknown word reads as absent (0), not as the last value. */
+    cmd_parse_reply(reply1, strlen(reply1), &r);
+    plc_commands_link_check_reply(&pc, "get_robot_state", &r);
+    assert_int_equal(gw_number("info.robot_enabled"), 1);
+    const char *reply4 = "{\"errorCode\":\"0\",\"enable\":\"maybe\"}";
+    cmd_parse_reply(reply4, strlen(reply4), &r);
+    plc_commands_link_check_reply(&pc, "get_robot_state", &r);
+    assert_int_equal(gw_number("info.robot_enabled"), 0);
+}
 
 static void information_after_replies(void **state)
 {
@@ -1333,6 +1384,7 @@ int main(void)
         T(invalid_values),
         T(busy),
         T(link_down),
+        T(link_check_reply_shows_the_robot_state),
         T(information_after_replies),
         T(information_fetched_once_at_a_time),
         T(refresh_queues_behind_accepted_commands),

@@ -2,7 +2,9 @@
 /*
  * test_robot_link.c - the robot link on a real libuv loop against an
  * in-process TCP server: silence detection must not mistake the time spent
- * handling a large document for silence from the robot.
+ * handling a large document for silence from the robot; a connection
+ * dropped for a fault ends with an RST, never a FIN; keepalive and
+ * TCP_USER_TIMEOUT are set on the socket.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -10,7 +12,10 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <signal.h>
+#include <sys/socket.h>
 #include <stdlib.h>
 #include <string.h>
 #include <uv.h>
@@ -34,7 +39,28 @@ struct fixture {
     unsigned busy_ms; /* how long the first object's handling takes */
     int pushes;
     int push_limit; /* 0: no limit */
+    char peer_buf[4096];
+    ssize_t peer_end;  /* how the first connection ended for the robot: 0 not */
+    int keepalive, keepidle, keepintvl, user_timeout; /* on the link's socket */
 };
+
+static void on_peer_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
+{
+    struct fixture *fx = h->data;
+    (void)suggested;
+    *buf = uv_buf_init(fx->peer_buf, sizeof(fx->peer_buf));
+}
+
+/* The robot's side of the first connection: how did it end? */
+static void on_peer_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
+{
+    struct fixture *fx = s->data;
+    (void)buf;
+    if (nread < 0 && fx->peer_end == 0) {
+        fx->peer_end = nread;
+        uv_read_stop(s);
+    }
+}
 
 static void on_written(uv_write_t *req, int status)
 {
@@ -70,6 +96,7 @@ static void on_peer(uv_stream_t *server, int status)
     fx->peer.data = fx;
     assert_int_equal(uv_accept(server, (uv_stream_t *)&fx->peer), 0);
     fx->peer_open = true;
+    assert_int_equal(uv_read_start((uv_stream_t *)&fx->peer, on_peer_alloc, on_peer_read), 0);
 }
 
 static void on_object(struct robot_link *link, const char *json, size_t size)
@@ -88,8 +115,15 @@ static void on_object(struct robot_link *link, const char *json, size_t size)
 static void on_state(struct robot_link *link, enum robot_link_state state)
 {
     struct fixture *fx = link->user;
-    if (state == ROBOT_LINK_CONNECTED)
-        fx->connected++;
+    if (state != ROBOT_LINK_CONNECTED || fx->connected++ > 0)
+        return;
+    uv_os_fd_t fd;
+    socklen_t n = sizeof(int);
+    assert_int_equal(uv_fileno((uv_handle_t *)&link->tcp, &fd), 0);
+    assert_int_equal(getsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &fx->keepalive, &n), 0);
+    assert_int_equal(getsockopt(fd, IPPROTO_TCP, TCP_KEEPIDLE, &fx->keepidle, &n), 0);
+    assert_int_equal(getsockopt(fd, IPPROTO_TCP, TCP_KEEPINTVL, &fx->keepintvl, &n), 0);
+    assert_int_equal(getsockopt(fd, IPPROTO_TCP, TCP_USER_TIMEOUT, &fx->user_timeout, &n), 0);
 }
 
 static void on_link_closed(struct robot_link *link)
@@ -130,6 +164,7 @@ static void run_link(struct fixture *fx, unsigned run_ms)
         .reconnect_min_ms = 50,
         .reconnect_max_ms = 100,
         .silence_timeout_ms = SILENCE_MS,
+        .user_timeout_ms = 1500,
         .max_object = 4096,
     };
     struct robot_link_callbacks cb = {.on_object = on_object, .on_state = on_state};
@@ -172,6 +207,26 @@ static void real_silence_restarts(void **state)
     assert_true(fx.connected >= 2);
 }
 
+/*
+ * The robot goes quiet, the link gives up on the connection: the robot
+ * sees it reset (RST), not closed (FIN), so nothing the gateway had queued
+ * could reach it later. The socket had keepalive and TCP_USER_TIMEOUT.
+ */
+static void fault_close_is_abortive(void **state)
+{
+    (void)state;
+    struct fixture fx;
+    memset(&fx, 0, sizeof(fx));
+    fx.push_limit = 2;
+    run_link(&fx, SILENCE_MS * 4);
+    assert_true(fx.connected >= 2);
+    assert_int_equal(fx.peer_end, UV_ECONNRESET);
+    assert_int_equal(fx.keepalive, 1);
+    assert_int_equal(fx.keepidle, ROBOT_LINK_KEEPALIVE_IDLE_S);
+    assert_int_equal(fx.keepintvl, ROBOT_LINK_KEEPALIVE_INTERVAL_S);
+    assert_int_equal(fx.user_timeout, 1500);
+}
+
 int main(void)
 {
     signal(SIGPIPE, SIG_IGN); /* a write to a closed peer must not end the test */
@@ -179,6 +234,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(long_handling_is_not_silence),
         cmocka_unit_test(real_silence_restarts),
+        cmocka_unit_test(fault_close_is_abortive),
     };
     return cmocka_run_group_tests_name("robot_link", tests, NULL, NULL);
 }

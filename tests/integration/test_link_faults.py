@@ -15,7 +15,9 @@ command port holds unread. Each transition is logged once.
   test_link_faults.py          every test
   test_link_faults.py soak     the soak only (make valgrind runs it so)"""
 import os
+import json
 import select
+import signal
 import socket
 import statistics
 import sys
@@ -39,13 +41,16 @@ STATUS_LINK_STATE, COMMAND_LINK_STATE, STATUS_AGE = 16, 17, 18
 DOCUMENTS, FRAMING, GARBAGE = ir("documents_parsed"), ir("framing_errors"), ir("garbage_bytes")
 STATUS_RECONNECTS, COMMAND_RECONNECTS = ir("status_reconnects"), ir("command_reconnects")
 ROBOT_HANDLE = ir("robot_handle")
+LINK_CHECKS, LINK_CHECKS_FAILED = ir("link_checks"), ir("link_checks_failed")
+ROBOT_POWERED_ON = ir("robot_powered_on")
 CLEAR_ERROR = ADDR[("coil", "cmd_clear_error")]
 POWER_ON = ADDR[("coil", "cmd_power_on")]
 RAPID_RATE = ADDR[("holding_register", "rapid_rate")]
 NEVER = 0xFFFFFFFF
 DISCONNECTED, CONNECTING, CONNECTED, SILENT = 0, 1, 2, 3
 HANDLE_NOT_SENT, HANDLE_PENDING, HANDLE_ACCEPTED, HANDLE_FAILED = 0, 1, 2, 3
-CMD_DONE, CMD_TIMEOUT, CMD_LINK_DOWN = 2, 4, 5
+CMD_DONE, CMD_TIMEOUT, CMD_LINK_DOWN, CMD_NOT_SENT = 2, 4, 5, 8
+NOT_ANSWERING = 3  # input register 17: connected, no reply on this connection yet
 EX_NOT_PERMITTED, EX_BUSY, EX_LINK_DOWN = 0x01, 0x06, 0x0B
 # A loaded 2-core machine, a sanitizer build: slack on top of configured times.
 SLACK_S = 0.4
@@ -148,6 +153,8 @@ class NeverReadingPeer(Peer):
                     chunk = c.recv(65536)
                 except BlockingIOError:
                     break
+                except ConnectionResetError:
+                    break  # the gateway closes a failed link with an RST
                 if not chunk:
                     break
                 data += chunk
@@ -212,9 +219,13 @@ def test_controller_restart():
         check(dropped <= SLACK_S, "link bits dropped after %.0f ms" % (1000 * dropped))
         check(plc.ir(STATUS_LINK_STATE, 2)[0] in (DISCONNECTED, CONNECTING) and
               plc.ir(COMMAND_LINK_STATE)[0] in (DISCONNECTED, CONNECTING), "link states")
+        # clear_error was written: its outcome is unknown; power_on never
+        # left the gateway.
         check(result_state(plc, "clear_error") == CMD_LINK_DOWN and
-              result_state(plc, "power_on") == CMD_LINK_DOWN,
-              "in flight and queued commands not failed as link down")
+              result_state(plc, "power_on") == CMD_NOT_SENT,
+              "in flight and queued commands: states %d and %d, expected outcome unknown (5) "
+              "and not sent (8)" % (result_state(plc, "clear_error"),
+                                    result_state(plc, "power_on")))
         check(plc.ir(ROBOT_HANDLE)[0] == HANDLE_NOT_SENT, "handler still shown as set")
         # Refused connections for 1.5 s (a time, not a condition: it is
         # what makes the backoff reach its cap); meanwhile the PLC is
@@ -417,15 +428,20 @@ def test_command_port_never_answers():
     try:
         gw = Gateway(sim, config)
         plc = ModbusPlc(gw.modbus_port)
-        wait_until(lambda: links(plc) == (1, 1, 1), 5, "both links up, fresh")
+        # Connected, but a command port that never answers never reads up.
+        wait_until(lambda: links(plc) == (1, 0, 1) and
+                   plc.ir(COMMAND_LINK_STATE)[0] == NOT_ANSWERING, 5,
+                   "status up, command connected but not answering")
         check(plc.coil(CLEAR_ERROR, 1) == EX_NOT_PERMITTED,
               "a command accepted before the handler")
         # Every state the PLC can read, every 5 ms, until three restarts.
         seen = set()
+        command_up = set()
         start = time.monotonic()
         first_restart = None
         while plc.u32(COMMAND_RECONNECTS) < 3 and time.monotonic() < start + 10:
             seen.add(plc.ir(ROBOT_HANDLE)[0])
+            command_up.add(links(plc)[1])
             if first_restart is None and plc.u32(COMMAND_RECONNECTS) >= 1:
                 first_restart = time.monotonic() - start
             time.sleep(0.005)
@@ -444,6 +460,7 @@ def test_command_port_never_answers():
                  if l.startswith(("<3>", "<4>")) and "command link" in l]
         check(len(lines) <= 2, "%d restarts logged as:\n%s" % (restarts, "\n".join(lines)))
         check(HANDLE_ACCEPTED not in seen, "an unanswered handler read as accepted")
+        check(command_up == {0}, "command_link_up read 1 with nothing answered")
         check(HANDLE_FAILED in seen,
               "gateway bug: an unanswered handler never reads 3 (\"refused or unanswered\"); "
               "the PLC saw only %s: plc_commands.c sets 3 in on_done, then the reply "
@@ -513,7 +530,9 @@ def test_command_port_never_reads():
                                           "--command-port", str(peer.port)])
         pid = gw.proc.pid
         plc = ModbusPlc(gw.modbus_port)
-        wait_until(lambda: links(plc) == (1, 1, 1), 5, "both links up, fresh")
+        wait_until(lambda: links(plc) == (1, 0, 1) and
+                   plc.ir(COMMAND_LINK_STATE)[0] == NOT_ANSWERING, 5,
+                   "status up, command connected but not answering")
         outcomes = {}
         latencies = []
 
@@ -588,7 +607,7 @@ def test_one_port_up_other_down():
             check(plc.coil(CLEAR_ERROR, 0) == 0, "re-arming refused")
             check(plc.coil(CLEAR_ERROR, 1) == EX_LINK_DOWN, "command write with the link down")
             time.sleep(0.1)
-        check(result_state(plc, "clear_error") == CMD_LINK_DOWN, "result not 'link down'")
+        check(result_state(plc, "clear_error") == CMD_NOT_SENT, "result not 'not sent'")
         check(not sim_commands(sim), "the robot received %s" % sim_commands(sim))
         check_logged_once(gw, ["command link: cannot connect to", "status link: connected to"])
         plc.close()
@@ -619,6 +638,228 @@ def test_one_port_up_other_down():
         plc.close()
     finally:
         stop_gateway_and_sim(gw, sim)
+
+
+# ---- the command link check (link_check_ms) ----
+
+def ready(plc):
+    return (links(plc) == (1, 1, 1) and plc.ir(ROBOT_HANDLE)[0] == HANDLE_ACCEPTED
+            and plc.u32(ir("info_age_ms")) < 60000)
+
+
+def error_text(plc, command):
+    return plc.text(ir("result_%s_error_msg" % command), 20)
+
+
+def test_hung_command_server_reads_down():
+    """jakasim stopped (SIGSTOP): its kernel still accepts connections and
+    acknowledges what is sent, so neither TCP nor keepalive sees anything
+    wrong; the link check does. With the defaults (link_check_ms 1000,
+    reply_timeout_ms 2000) command_link_up reads 0 within 3 s of the hang,
+    and stays 0 while it lasts (reconnects succeed, nothing answers); it
+    reads 1 again once the controller answers. While the link is idle and
+    well, it is checked about once a second and never restarted, and the
+    checks' replies refresh input register 5062 (powered on)."""
+    config = "[robot]\nreconnect_max_ms = 1000\n"
+    sim = Sim("--log-commands", "--period-ms", "20")
+    gw = None
+    stopped = False
+    try:
+        gw = Gateway(sim, config)
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: ready(plc), 10, "ready")
+        check(plc.ir(ROBOT_POWERED_ON)[0] == 0, "powered on before power_on")
+        check(plc.coil(POWER_ON, 1) == 0, "power_on refused")
+        wait_until(lambda: result_state(plc, "power_on") == CMD_DONE, 5, "power_on done")
+        wait_until(lambda: plc.ir(ROBOT_POWERED_ON)[0] == 1, 3,
+                   "a link check's reply to show the robot powered on")
+        checks0, failed0 = plc.u32(LINK_CHECKS), plc.u32(LINK_CHECKS_FAILED)
+        reconnects0 = plc.u32(COMMAND_RECONNECTS)
+        wire0 = len(sim_commands(sim, "get_robot_state"))
+        idle_start = time.monotonic()
+        while time.monotonic() < idle_start + 3.5:
+            check(links(plc)[1] == 1, "the idle command link read down")
+            time.sleep(0.05)
+        checks = plc.u32(LINK_CHECKS) - checks0
+        wire = len(sim_commands(sim, "get_robot_state")) - wire0
+        print("  idle 3.5 s: %d link checks counted, %d received by the robot" % (checks, wire))
+        check(2 <= checks <= 5 and abs(wire - checks) <= 1,
+              "%d checks counted, %d on the wire in 3.5 s at link_check_ms 1000" % (checks, wire))
+        check(plc.u32(LINK_CHECKS_FAILED) == failed0 and
+              plc.u32(COMMAND_RECONNECTS) == reconnects0, "an idle healthy link was restarted")
+        os.kill(sim.proc.pid, signal.SIGSTOP)
+        stopped = True
+        hung = time.monotonic()
+        wait_until(lambda: links(plc)[1] == 0, 10, "command_link_up to read 0", interval=0.01)
+        took = time.monotonic() - hung
+        print("  command server hung -> command_link_up 0: %.0f ms (bound: link_check_ms + "
+              "min(reply_timeout_ms, link_check_ms) = 2000 ms)" % (1000 * took))
+        check(took <= 3.0, "the hung command server read up for %.0f ms" % (1000 * took))
+        # Reconnects succeed (the stopped controller's kernel accepts them),
+        # nothing answers: never up.
+        states = set()
+        end = time.monotonic() + 3
+        while time.monotonic() < end:
+            check(links(plc)[1] == 0, "a hung command server read up again")
+            states.add(plc.ir(COMMAND_LINK_STATE)[0])
+            time.sleep(0.02)
+        print("  while hung, command link states seen: %s" % sorted(states))
+        check(CONNECTED not in states, "state 2 (answering) while hung")
+        check(plc.u32(LINK_CHECKS_FAILED) >= failed0 + 1, "no failed check counted")
+        check(count_lines(gw, "link check unanswered within 1000 ms") >= 1,
+              "the failed check not logged:\n" + gw.output())
+        os.kill(sim.proc.pid, signal.SIGCONT)
+        stopped = False
+        resumed = time.monotonic()
+        wait_until(lambda: links(plc)[:2] == (1, 1), 15, "the links back")
+        print("  controller resumed -> command_link_up 1: %.0f ms"
+              % (1000 * (time.monotonic() - resumed)))
+        plc.close()
+    finally:
+        if stopped:
+            os.kill(sim.proc.pid, signal.SIGCONT)
+        stop_gateway_and_sim(gw, sim)
+
+
+def test_outcome_unknown_and_not_sent():
+    """power_on is written and never answered, clear_error is queued behind
+    it: at the reply timeout power_on reads outcome unknown (4, its text
+    says so), clear_error not sent (8), and the robot never receives
+    clear_error, not after the reconnect either. No link check goes out
+    while power_on is in flight (link_check_ms 200, well inside it)."""
+    reply_ms = 800
+    config = ("[robot]\nreconnect_min_ms = 50\nreconnect_max_ms = 200\nlink_check_ms = 200\n"
+              "[commands]\nreply_timeout_ms = %d\n" % reply_ms)
+    sim = Sim("--log-commands", "--period-ms", "20", "--ignore-command", "power_on")
+    gw = None
+    try:
+        gw = Gateway(sim, config)
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: ready(plc), 10, "ready")
+        wait_until(lambda: plc.u32(LINK_CHECKS) >= 2, 5, "two idle link checks")
+        check(plc.coil(POWER_ON, 1) == 0, "power_on refused")
+        written = time.monotonic()
+        check(plc.coil(CLEAR_ERROR, 1) == 0, "clear_error refused")
+        check(result_state(plc, "clear_error") == 1, "clear_error not pending")
+        wait_until(lambda: result_state(plc, "power_on") != 1, 5, "power_on's result")
+        took = time.monotonic() - written
+        states = (result_state(plc, "power_on"), result_state(plc, "clear_error"))
+        texts = (error_text(plc, "power_on"), error_text(plc, "clear_error"))
+        print("  after %.0f ms: power_on %d %r, clear_error %d %r"
+              % (1000 * took, states[0], texts[0], states[1], texts[1]))
+        check(states == (CMD_TIMEOUT, CMD_NOT_SENT), "states %s, expected (4, 8)" % (states,))
+        check(texts[0].startswith("outcome unknown") and "%d ms" % reply_ms in texts[0],
+              "power_on's text %r" % texts[0])
+        check(texts[1].startswith("not sent"), "clear_error's text %r" % texts[1])
+        check(took <= reply_ms / 1000 + SLACK_S, "timed out after %.0f ms" % (1000 * took))
+        wait_until(lambda: ready(plc), 5, "the link back")
+        checks = plc.u32(LINK_CHECKS)
+        wait_until(lambda: plc.u32(LINK_CHECKS) >= checks + 2, 5, "two more link checks")
+        names = [e[1] for e in sim_events(sim) if e[0] == "command"]
+        check(names.count("power_on") == 1, "power_on received %d times" % names.count("power_on"))
+        check("clear_error" not in names, "the robot received clear_error, reported not sent")
+        # Nothing else on power_on's connection: no check while it was in
+        # flight; the next request is the new connection's handler.
+        after = names[names.index("power_on") + 1:]
+        check(after and after[0] == "set_network_exception_handle",
+              "after power_on the robot received %s" % after[:3])
+        plc.close()
+    finally:
+        stop_gateway_and_sim(gw, sim)
+
+
+class InOrderPeer(Peer):
+    """A command port that answers every request in order, each reply no
+    sooner than its delay (get_robot_state: CHECK_DELAY_S, others at once),
+    and records when each request arrived."""
+
+    CHECK_DELAY_S = 0.5
+
+    def prepare(self, listener):
+        self.buf = b""
+        self.pending = []  # (release time, reply bytes)
+        self.arrivals = []  # (time, cmdName)
+
+    def accepted(self, conn):
+        self.buf = b""
+        self.pending = []
+
+    def tick(self, readable):
+        now = time.monotonic()
+        for c in readable:
+            try:
+                data = c.recv(65536)
+            except OSError:
+                data = b""
+            if not data:
+                self.conns.remove(c)
+                c.close()
+                continue
+            self.buf += data
+            decoder = json.JSONDecoder()
+            while self.buf.strip():
+                try:
+                    req, end = decoder.raw_decode(self.buf.decode())
+                except ValueError:
+                    break
+                self.buf = self.buf.decode()[end:].lstrip().encode()
+                name = req.get("cmdName")
+                self.arrivals.append((now, name))
+                delay = self.CHECK_DELAY_S if name == "get_robot_state" else 0
+                release = max([now + delay] + [p[0] for p in self.pending])
+                body = {"cmdName": name, "errorCode": "0", "errorMsg": "reply to %s" % name}
+                if name == "get_robot_state":
+                    body.update({"enable": "robot_enabled", "power": "powered_on"})
+                self.pending.append((release, json.dumps(body).encode()))
+        while self.pending and self.pending[0][0] <= now and self.conns:
+            self.conns[-1].sendall(self.pending.pop(0)[1])
+
+
+def test_command_during_a_check_goes_out_at_once():
+    """A controller slow to answer get_robot_state (500 ms) but answering in
+    order: a PLC command written while a check is in flight reaches the
+    robot at once, not after the check's reply, and its result is its own
+    reply (the check's never answers it)."""
+    peer = InOrderPeer()
+    sim = Sim("--period-ms", "20")
+    gw = None
+    config = ("[robot]\nlink_check_ms = 1000\n[commands]\nreply_timeout_ms = 2000\n")
+    try:
+        gw = Gateway(None, config, extra=["--status-port", str(sim.status_port),
+                                          "--command-port", str(peer.port)])
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: ready(plc), 10, "ready")
+        lags = []
+        for _ in range(3):
+            # Wait for a check to go out, then write at once.
+            seen = len([a for a in peer.arrivals if a[1] == "get_robot_state"])
+            wait_until(lambda: len([a for a in peer.arrivals
+                                    if a[1] == "get_robot_state"]) > seen, 5, "a check")
+            check_at = [a[0] for a in peer.arrivals if a[1] == "get_robot_state"][-1]
+            check(plc.pulse(CLEAR_ERROR) == 0, "clear_error refused")
+            written = time.monotonic()
+            wait_until(lambda: peer.arrivals[-1][1] == "clear_error", 5, "clear_error received")
+            received = peer.arrivals[-1][0]
+            check(written - check_at < InOrderPeer.CHECK_DELAY_S,
+                  "the write came after the check's reply")
+            lags.append(received - written)
+            wait_until(lambda: result_state(plc, "clear_error") == CMD_DONE, 5, "clear_error done")
+            check(error_text(plc, "clear_error") == "reply to clear_error",
+                  "clear_error answered with %r" % error_text(plc, "clear_error"))
+        # The gateway writes a command before it answers the Modbus write:
+        # the robot may have it before the PLC's write returns (0 ms).
+        print("  clear_error written during a check (reply held 500 ms): at the robot "
+              "%s ms after the write returned" % ", ".join("%.0f" % max(0.0, 1000 * x)
+                                                           for x in lags))
+        check(max(lags) < 0.25, "a command waited for the check: %.0f ms" % (1000 * max(lags)))
+        check(plc.u32(LINK_CHECKS_FAILED) == 0 and plc.u32(COMMAND_RECONNECTS) == 0,
+              "the slow checks restarted the link")
+        plc.close()
+    finally:
+        try:
+            stop_gateway_and_sim(gw, sim)
+        finally:
+            peer.close()
 
 
 # ---- the soak ----
@@ -684,7 +925,9 @@ def test_soak_reconnects():
 
 ALL = [test_controller_restart, test_status_stream_goes_silent, test_status_stream_of_garbage,
        test_command_port_never_answers, test_late_reply_never_matched,
-       test_command_port_never_reads, test_one_port_up_other_down, test_soak_reconnects]
+       test_command_port_never_reads, test_one_port_up_other_down,
+       test_hung_command_server_reads_down, test_outcome_unknown_and_not_sent,
+       test_command_during_a_check_goes_out_at_once, test_soak_reconnects]
 
 if __name__ == "__main__":
     run([test_soak_reconnects] if sys.argv[1:] == ["soak"] else ALL)
