@@ -136,13 +136,17 @@ $(BUILD)/bench/ref_slave: bench/ref_slave.c
 # server CPU, the stream's cost and memory. About 5 minutes: the memory
 # figure feeds a million documents (BENCH_MODBUS_FLAGS="--documents N" for
 # fewer). Then Modbus/TCP Security against plain Modbus TCP in one jakagw:
-# CPU per request, handshakes, memory per TLS connection.
+# CPU per request, handshakes, memory per TLS connection. Last, Modbus RTU
+# over socat ptys at 115200 baud against a bare libmodbus RTU slave, and
+# Modbus TCP alone and with an RTU master polling (bench_rtu, socat).
 bench: all $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands \
-       $(BUILD)/bench/bench_modbus $(BUILD)/bench/ref_slave $(BUILD)/bench/bench_tls
+       $(BUILD)/bench/bench_modbus $(BUILD)/bench/ref_slave $(BUILD)/bench/bench_tls \
+       $(BUILD)/bench/bench_rtu
 	@$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
 	@$(BUILD)/bench/bench_commands
 	@$(BUILD)/bench/bench_modbus --document tests/data/status-controller-a.json $(BENCH_MODBUS_FLAGS)
 	@$(BUILD)/bench/bench_tls
+	@$(BUILD)/bench/bench_rtu
 
 # Installs the Debian packages the build and the tests need, if missing,
 # saying which and why. DEPS_GROUPS="build tests ..." picks groups
@@ -218,8 +222,8 @@ valgrind: all unit-tests
 # libFuzzer targets (clang; 'make deps DEPS_GROUPS=fuzz'), with ASan and
 # UBSan: the robot's status stream, Modbus requests through the write path,
 # the configuration parser, the command queue and its reply parser, the PLC
-# mailboxes. make fuzz runs each for FUZZ_SECONDS, growing a corpus in
-# $(FUZZ_BUILD)/corpus-*; make fuzz-ci runs each from the committed seeds
+# mailboxes, the RTU framer. make fuzz runs each for FUZZ_SECONDS, growing a
+# corpus in $(FUZZ_BUILD)/corpus-*; make fuzz-ci runs each from the committed seeds
 # with a 10 s hang limit, and a crash or hang fails it with one line naming
 # the target and the input that caused it (CI runs it from make test).
 FUZZ_SECONDS ?= 60
@@ -227,10 +231,11 @@ FUZZ_SECONDS ?= 60
 # whole CI run has 20 minutes; make fuzz is for longer runs).
 CI_FUZZ_SECONDS ?= 20
 FUZZ_BUILD ?= build-fuzz
-FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox
+FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox fuzz_rtu
 FUZZ_SRCS := src/framer.c src/status.c src/json_arena.c src/regmap.c src/regmap_table.c src/mb_request.c src/log.c \
              src/command.c src/plc_commands.c src/config.c src/can_map.c src/can_map_table.c \
-             src/plc_write.c src/policy.c src/ip_allow.c src/regmap_rights.c src/tls.c
+             src/plc_write.c src/policy.c src/ip_allow.c src/regmap_rights.c src/tls.c \
+             src/rtu_frame.c
 FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' -g -O1 -Iinclude \
               $(PKG_CFLAGS) -fno-sanitize-recover=all
 FUZZ_OBJS := $(FUZZ_SRCS:%.c=$(FUZZ_BUILD)/obj/%.o)

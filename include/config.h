@@ -94,6 +94,16 @@ struct gw_config {
     uint32_t tls_default_rights_mask;
     /* Not a key: a listening socket for [tls] passed by systemd, 0: none. */
     int tls_listen_fd;
+    /* [rtu]: Modbus RTU on a serial line (mb_rtu.h) */
+    bool rtu_enabled;
+    char rtu_device[256];
+    uint32_t rtu_baud;
+    uint32_t rtu_parity;    /* enum mb_rtu_parity: none, even, odd */
+    uint32_t rtu_stop_bits; /* 1 or 2 */
+    uint32_t rtu_unit_id;   /* 1..247 */
+    bool rtu_rs485;         /* TIOCSRS485 */
+    char rtu_rights[160];   /* as written */
+    uint32_t rtu_rights_mask;
     /* [roles] */
     struct config_role roles[CONFIG_MAX_ROLES];
     unsigned role_count;

@@ -17,6 +17,7 @@
 #include "command_port.h"
 #include "config.h"
 #include "log.h"
+#include "mb_rtu.h"
 #include "mb_server.h"
 #include "mb_tls.h"
 #include "plc_commands.h"
@@ -44,6 +45,7 @@ enum {
     GATEWAY_PART_CAN = 8,
     GATEWAY_PART_POLICY = 16,
     GATEWAY_PART_WRITES = 32,
+    GATEWAY_PART_RTU = 64,
 };
 
 /* The policy's rows, as PLCs read its state. */
@@ -66,6 +68,10 @@ struct gateway {
     struct mb_server modbus;
     struct mb_tls *mbaps; /* the Modbus/TCP Security transport, [tls] enabled */
     struct can_mirror can; /* running when [can] enabled */
+    struct mb_rtu rtu;     /* running when [rtu] enabled */
+    /* gateway_start failed on a setting (the serial device refuses it):
+     * exit as for a bad configuration. */
+    bool config_error;
     struct gateway_counters counters;
     double gw_values[GW_VALUE_COUNT];
 

@@ -43,7 +43,8 @@
  * One server, several transports. How a connection's bytes arrive and
  * leave is a small table of functions (struct mb_transport), as libmodbus
  * keeps its backends: plain TCP (the listener of mb_server_start) and
- * Modbus/TCP Security (mb_tls.h, on a second listener of the same server).
+ * Modbus/TCP Security (mb_tls.h, on a second listener of the same server),
+ * and Modbus RTU on a serial line (mb_rtu.h, a client with no socket).
  * Framing, limits, deadlines, eviction, the clients counted and the write
  * checks are the server's, the same for every transport. A transport may
  * hold a new connection back (a TLS handshake): it is then pending, does
@@ -243,6 +244,22 @@ int mb_server_listen(struct mb_server *srv, const char *bind, uint16_t port, int
                      const struct mb_transport *transport, void *state);
 /* The port of that listener; -1 if none. */
 int mb_server_listen_port(const struct mb_server *srv);
+
+/*
+ * Adds a client that has no socket and no listener: a serial line (mb_rtu.h).
+ * Its transport puts complete requests in with mb_client_space() and
+ * mb_client_received() and gets every reply through its 'output', before
+ * mb_client_received() returns. It is admitted at once with 'rights' and
+ * is a client like any other (counted, heard of by on_client, answered by
+ * the same rules), but never evicted; the server releases it after
+ * 'idle_timeout_ms' without a request (0: never), and its transport hears
+ * of every close through 'closed'. Returns 0 with *out set, -ESHUTDOWN
+ * while the server stops, -ENOMEM, or -ECONNABORTED if it was closed while
+ * being admitted.
+ */
+int mb_server_attach(struct mb_server *srv, const char *peer,
+                     const struct mb_transport *transport, void *state, uint32_t rights,
+                     uint32_t idle_timeout_ms, struct mb_client **out);
 
 /* For transports: their connection. */
 void **mb_client_data(struct mb_client *c);

@@ -114,7 +114,16 @@ enum regmap_word_order {
     X(status_link_tls_failure)                                                 \
     X(command_link_tls_failure)                                                \
     X(link_checks)                                                             \
-    X(link_checks_failed)
+    X(link_checks_failed)                                                      \
+    X(rtu_line_state)                                                          \
+    X(rtu_frames)                                                              \
+    X(rtu_crc_errors)                                                          \
+    X(rtu_foreign_frames)                                                      \
+    X(rtu_broadcasts)                                                          \
+    X(rtu_overruns)                                                            \
+    X(rtu_gap_discards)                                                        \
+    X(rtu_turnaround_us)                                                       \
+    X(rtu_turnaround_max_us)
 
 enum gw_value {
 #define GW_ENUM(name) GW_##name,

@@ -27,10 +27,10 @@ group() { # name reason package...
 group build "to compile jakagw and jakasim: compiler, make, pkg-config, library headers (libssl-dev: OpenSSL 3 for Modbus/TCP Security and TLS to the robot)" \
     build-essential pkg-config \
     libuv1-dev libmodbus-dev libcjson-dev libinih-dev libsystemd-dev libssl-dev
-group tests "to run the tests: cmocka; python3 with pymodbus and serial_asyncio (pymodbus 3.0.0 imports it); mbpoll; systemd-analyze; valgrind (make valgrind); the openssl command (the TLS tests make their certificates with it and connect with s_client)" \
+group tests "to run the tests: cmocka; python3 with pymodbus and serial_asyncio (pymodbus 3.0.0 imports it); mbpoll; socat (the RTU tests join two ptys with it); systemd-analyze; valgrind (make valgrind); the openssl command (the TLS tests make their certificates with it and connect with s_client)" \
     libcmocka-dev \
     python3 python3-pymodbus python3-serial-asyncio \
-    mbpoll systemd valgrind openssl
+    mbpoll socat systemd valgrind openssl
 group can "to test the CAN mirror on a real kernel CAN stack in a VM: qemu, Debian's kernel and its can/vcan modules, busybox, candump, a venv for cantools" \
     qemu-system-x86 linux-image-amd64 busybox-static can-utils python3-venv
 group package "to build the Debian package and test it and the units (make deb, make test-package): debhelper, dpkg-dev, lintian, mmdebstrap for a fresh root filesystem to install it in, man-db and groff-base to check the man pages, procps for the kill the units' ExecReload runs (systemd-analyze verify looks for it)" \

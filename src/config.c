@@ -41,8 +41,8 @@ enum key_type {
     KEY_IP_LIST,    /* write_allow: literal addresses, parsed once here into
                        write_allow_addrs (ip_allow.h) */
     KEY_PATH,       /* a file name, loaded where it is used (gw_tls.h) */
-    KEY_RIGHTS,     /* default_rights: read, write or write classes, parsed
-                       into tls_default_rights_mask */
+    KEY_RIGHTS,     /* [tls] default_rights, [rtu] rights: read, write or
+                       write classes, parsed into the mask rights_mask() names */
     KEY_FINGERPRINT /* a SHA-256 fingerprint, or "" */
 };
 
@@ -70,6 +70,8 @@ static const char *const action_names[] = {"keep", "pause", "stop", NULL};
 static const char *const watch_names[] = {"heartbeat", "connection", "both", NULL};
 /* [tls] min_version. */
 static const char *const tls_version_names[] = {"1.2", "1.3", NULL};
+/* [rtu] parity: the index is enum mb_rtu_parity. */
+static const char *const parity_names[] = {"none", "even", "odd", NULL};
 
 static const struct key_info keys[] = {
     KEY("robot", "host", KEY_HOST, robot_host, 1, 0, "127.0.0.1"),
@@ -129,6 +131,14 @@ static const struct key_info keys[] = {
     KEY("tls", "handshake_timeout_ms", KEY_UINT, tls_handshake_timeout_ms, 100, 60000, "3000"),
     KEY("tls", "max_handshakes", KEY_UINT, tls_max_handshakes, 1, 1024, "16"),
     KEY("tls", "default_rights", KEY_RIGHTS, tls_default_rights, 0, 0, "read"),
+    KEY("rtu", "enabled", KEY_BOOL, rtu_enabled, 0, 1, "false"),
+    KEY("rtu", "device", KEY_PATH, rtu_device, 0, 0, ""),
+    KEY("rtu", "baud", KEY_UINT, rtu_baud, 1200, 921600, "19200"),
+    KEY_C("rtu", "parity", rtu_parity, parity_names, "even"),
+    KEY("rtu", "stop_bits", KEY_UINT, rtu_stop_bits, 1, 2, "1"),
+    KEY("rtu", "unit_id", KEY_UINT, rtu_unit_id, 1, 247, "1"),
+    KEY("rtu", "rs485", KEY_BOOL, rtu_rs485, 0, 1, "false"),
+    KEY("rtu", "rights", KEY_RIGHTS, rtu_rights, 0, 0, "read"),
 };
 
 #define N_KEYS (sizeof(keys) / sizeof(keys[0]))
@@ -257,6 +267,19 @@ static int parse_can_id(const char *text, uint32_t max, uint32_t *out, char *why
     return 0;
 }
 
+/* Where a KEY_RIGHTS key keeps its parsed rights. */
+static size_t rights_mask_offset(const struct key_info *k)
+{
+    if (k->offset == offsetof(struct gw_config, rtu_rights))
+        return offsetof(struct gw_config, rtu_rights_mask);
+    return offsetof(struct gw_config, tls_default_rights_mask);
+}
+
+static uint32_t *rights_mask(struct gw_config *cfg, const struct key_info *k)
+{
+    return (uint32_t *)((char *)cfg + rights_mask_offset(k));
+}
+
 static int set_key(struct gw_config *cfg, const struct key_info *k,
                    const char *value, char *why, size_t why_size)
 {
@@ -294,7 +317,7 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
         }
         if (regmap_parse_rights(value, &rights, why, why_size) != 0)
             return -EINVAL;
-        cfg->tls_default_rights_mask = rights;
+        *rights_mask(cfg, k) = rights;
         memcpy(member, value, strlen(value) + 1);
         return 0;
     }
@@ -758,9 +781,10 @@ int config_load(struct gw_config *cfg, const char *path, char *why,
 
 int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
 {
-    if (!cfg->modbus_enabled && !cfg->tls_enabled) {
+    if (!cfg->modbus_enabled && !cfg->tls_enabled && !cfg->rtu_enabled) {
         snprintf(why, why_size,
-                 "[modbus] enabled: false leaves nothing to serve without [tls] enabled = true");
+                 "[modbus] enabled: false leaves nothing to serve without [tls] enabled = true "
+                 "or [rtu] enabled = true");
         return -EINVAL;
     }
     if (cfg->tls_enabled) {
@@ -779,6 +803,24 @@ int config_validate(const struct gw_config *cfg, char *why, size_t why_size)
         if (cfg->modbus_enabled && cfg->tls_port == cfg->modbus_port &&
             (cfg->tls_bind[0] == '\0' || strcmp(cfg->tls_bind, cfg->modbus_bind) == 0)) {
             snprintf(why, why_size, "[tls] port: %u is [modbus] port too", cfg->tls_port);
+            return -EINVAL;
+        }
+    }
+    if (cfg->rtu_enabled) {
+        static const unsigned bauds[] = {1200, 2400, 4800, 9600, 19200, 38400, 57600,
+                                         115200, 230400, 460800, 921600};
+        bool known = false;
+        for (size_t i = 0; i < sizeof(bauds) / sizeof(bauds[0]); i++)
+            known = known || bauds[i] == cfg->rtu_baud;
+        if (cfg->rtu_device[0] == '\0') {
+            snprintf(why, why_size, "[rtu] device: required with [rtu] enabled = true");
+            return -EINVAL;
+        }
+        if (!known) {
+            snprintf(why, why_size,
+                     "[rtu] baud: %u is not a serial speed: 1200, 2400, 4800, 9600, 19200, "
+                     "38400, 57600, 115200, 230400, 460800 or 921600",
+                     cfg->rtu_baud);
             return -EINVAL;
         }
     }
@@ -869,7 +911,8 @@ bool config_key_equal(const struct gw_config *a, const struct gw_config *b, size
                 return false;
         return true;
     case KEY_RIGHTS:
-        return a->tls_default_rights_mask == b->tls_default_rights_mask;
+        return *(const uint32_t *)((const char *)a + rights_mask_offset(k)) ==
+               *(const uint32_t *)((const char *)b + rights_mask_offset(k));
     case KEY_FINGERPRINT: {
         uint8_t fa[32], fb[32];
         fingerprint_bytes(ma, fa);

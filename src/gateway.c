@@ -164,6 +164,24 @@ static void show_policy(struct gateway *gw)
     regmap_set_text(img, rows->write_owner, 0, p->owner_address);
 }
 
+/* The serial line's state and counters. */
+static void refresh_rtu_values(struct gateway *gw, double *v)
+{
+    static const struct mb_rtu_stats none;
+    bool on = gw->parts & GATEWAY_PART_RTU;
+    const struct mb_rtu_stats *s = on ? &gw->rtu.stats : &none;
+
+    v[GW_rtu_line_state] = on ? mb_rtu_state(&gw->rtu) : MB_RTU_OFF;
+    v[GW_rtu_frames] = (double)s->frames;
+    v[GW_rtu_crc_errors] = (double)s->crc_errors;
+    v[GW_rtu_foreign_frames] = (double)s->foreign_frames;
+    v[GW_rtu_broadcasts] = (double)s->broadcasts;
+    v[GW_rtu_overruns] = (double)s->overruns;
+    v[GW_rtu_gap_discards] = (double)s->gap_discards;
+    v[GW_rtu_turnaround_us] = s->turnaround_us;
+    v[GW_rtu_turnaround_max_us] = s->turnaround_max_us;
+}
+
 void gateway_refresh_values(struct gateway *gw)
 {
     double *v = gw->gw_values;
@@ -203,6 +221,7 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
     v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
     gw_tls_refresh_values(gw, v);
+    refresh_rtu_values(gw, v);
     regmap_encode_gw(&gw->image, v);
     plc_commands_refresh(&gw->commands);
     if (gw->parts & GATEWAY_PART_POLICY)
@@ -222,6 +241,8 @@ static void clear_counters(void *user)
     gw->modbus.stats.bad_frames = 0;
     can_mirror_clear_stats(&gw->can);
     gw_tls_clear_counters(gw);
+    if (gw->parts & GATEWAY_PART_RTU)
+        mb_rtu_clear_stats(&gw->rtu);
     log_notice("counters cleared by a Modbus client");
 }
 
@@ -521,6 +542,31 @@ static void set_constant_values(struct gateway *gw)
     v[GW_version_patch] = patch;
 }
 
+/* [rtu] enabled: the serial line, one more client of the Modbus server. */
+static int start_rtu(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    int rc;
+
+    if (!cfg->rtu_enabled)
+        return 0;
+    struct mb_rtu_config rc_cfg = {
+        .device = cfg->rtu_device,
+        .baud = cfg->rtu_baud,
+        .parity = (enum mb_rtu_parity)cfg->rtu_parity,
+        .stop_bits = cfg->rtu_stop_bits,
+        .unit_id = cfg->rtu_unit_id,
+        .rs485 = cfg->rtu_rs485,
+        .rights = cfg->rtu_rights_mask,
+        .active_ms = cfg->ne_time_limit_ms,
+    };
+    gw->parts |= GATEWAY_PART_RTU;
+    rc = mb_rtu_start(gw->loop, &gw->rtu, &gw->modbus, &rc_cfg);
+    if (rc == -ENOTTY)
+        gw->config_error = true;
+    return rc;
+}
+
 int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *cfg)
 {
     int rc;
@@ -578,6 +624,9 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = gw_tls_start(gw);
     if (rc)
         return rc;
+    rc = start_rtu(gw);
+    if (rc)
+        return rc;
     rc = start_links(gw);
     if (rc)
         return rc;
@@ -627,6 +676,11 @@ static void on_can_closed(struct can_mirror *m)
     part_closed(m->user);
 }
 
+static void on_rtu_closed(struct mb_rtu *rtu)
+{
+    part_closed(rtu->user);
+}
+
 void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
 {
     gw->close_cb = cb;
@@ -652,6 +706,13 @@ void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
     if (gw->parts & GATEWAY_PART_CAN) {
         gw->closing_parts++;
         can_mirror_close(&gw->can, on_can_closed);
+    }
+    if (gw->parts & GATEWAY_PART_RTU) {
+        /* After the server's shutdown began: the line's client has had
+         * its answers. */
+        gw->closing_parts++;
+        gw->rtu.user = gw;
+        mb_rtu_close(&gw->rtu, on_rtu_closed);
     }
     part_closed(gw);
 }

@@ -463,7 +463,7 @@ int main(int argc, char **argv)
     svc.gw.on_change = NULL;
     if (gateway_start(svc.loop, &svc.gw, &cfg) != 0) {
         log_err("cannot start; see the lines above");
-        stop_service(&svc, 1);
+        stop_service(&svc, svc.gw.config_error ? EXIT_CONFIG : 1);
     } else {
         svc.gw.on_change = on_gateway_change;
         svc.watchdog_on = sd_watchdog_enabled(0, &watchdog_usec) > 0;

@@ -61,6 +61,10 @@ struct mb_client {
     void *transport_data;      /* the transport's, per connection */
     uint32_t rights;           /* mb_write.rights */
     bool reading_paused;       /* mb_client_pause_reading */
+    uint32_t idle_timeout_ms;  /* 0: never */
+    /* No socket (mb_server_attach): bytes come and go through the
+     * transport alone, and only 'timer' is a handle. */
+    bool no_socket;
 };
 
 struct reply {
@@ -125,7 +129,8 @@ static void close_client(struct mb_client *c, const char *why)
     if (c->transport->closed)
         c->transport->closed(c->transport_state, c, c->state == CLIENT_PENDING);
     c->state = CLIENT_CLOSING;
-    uv_close((uv_handle_t *)&c->tcp, on_client_handle_closed);
+    if (!c->no_socket)
+        uv_close((uv_handle_t *)&c->tcp, on_client_handle_closed);
     uv_close((uv_handle_t *)&c->timer, on_client_handle_closed);
 }
 
@@ -164,11 +169,16 @@ static void release_client(struct mb_client *c, const char *why)
     client_gone(c);
     c->state = CLIENT_FLUSHING;
     c->used = 0;
-    uv_read_stop((uv_stream_t *)&c->tcp);
+    if (!c->no_socket)
+        uv_read_stop((uv_stream_t *)&c->tcp);
     if (c->transport->finish)
         c->transport->finish(c->transport_state, c);
     if (c->state != CLIENT_FLUSHING)
         return; /* the last words failed: closed */
+    if (c->no_socket) {
+        close_client(c, NULL); /* its replies went out through the transport */
+        return;
+    }
     if (uv_stream_get_write_queue_size((uv_stream_t *)&c->tcp) == 0 ||
         uv_shutdown(&c->shutdown, (uv_stream_t *)&c->tcp, on_client_shutdown) < 0) {
         close_client(c, NULL);
@@ -595,9 +605,8 @@ static void arm_deadline(struct mb_client *c)
 
     if (c->used)
         deadline = c->frame_start_ms + srv->cfg.frame_timeout_ms;
-    if (srv->cfg.idle_timeout_ms &&
-        c->last_activity_ms + srv->cfg.idle_timeout_ms < deadline)
-        deadline = c->last_activity_ms + srv->cfg.idle_timeout_ms;
+    if (c->idle_timeout_ms && c->last_activity_ms + c->idle_timeout_ms < deadline)
+        deadline = c->last_activity_ms + c->idle_timeout_ms;
     if (deadline == UINT64_MAX)
         uv_timer_stop(&c->timer);
     else
@@ -635,7 +644,8 @@ static void drain_client_reads(struct mb_client *c, int max_reads)
 {
     uv_os_fd_t fd;
 
-    if (c->state != CLIENT_OPEN || uv_fileno((uv_handle_t *)&c->tcp, &fd) != 0)
+    if (c->state != CLIENT_OPEN || c->no_socket ||
+        uv_fileno((uv_handle_t *)&c->tcp, &fd) != 0)
         return;
     for (int i = 0; i < max_reads && c->state == CLIENT_OPEN; i++) {
         uv_buf_t into;
@@ -705,11 +715,14 @@ static void on_client_timer(uv_timer_t *t)
                  (unsigned long long)(now - c->frame_start_ms), c->used);
         srv->stats.bad_frames++;
         release_client(c, why);
-    } else if (srv->cfg.idle_timeout_ms &&
-               now - c->last_activity_ms >= srv->cfg.idle_timeout_ms) {
+    } else if (c->idle_timeout_ms && now - c->last_activity_ms >= c->idle_timeout_ms) {
         snprintf(why, sizeof(why), "idle for %llu ms",
                  (unsigned long long)(now - c->last_activity_ms));
-        release_client(c, why);
+        /* A line (no socket) whose master pauses is no news: it counts
+         * again with its next request. */
+        if (c->no_socket)
+            log_debug("modbus: client %s no longer counted: %s", c->peer, why);
+        release_client(c, c->no_socket ? NULL : why);
     } else {
         arm_deadline(c);
     }
@@ -727,7 +740,9 @@ static struct mb_client *eviction_victim(struct mb_server *srv)
     struct mb_client *best = NULL;
 
     for (struct mb_client *c = srv->clients; c; c = c->next) {
-        if (c->state != CLIENT_OPEN)
+        /* A line with no socket (RTU) is not a connection a PLC can
+         * make again: never evicted. */
+        if (c->state != CLIENT_OPEN || c->no_socket)
             continue;
         if (!best) {
             best = c;
@@ -883,6 +898,7 @@ static void on_connection(uv_stream_t *listener, int status)
     }
     c->srv = srv;
     c->rights = REGMAP_RIGHTS_ALL;
+    c->idle_timeout_ms = srv->cfg.idle_timeout_ms;
     c->transport = l->transport;
     c->transport_state = l->state;
     uv_tcp_init(srv->loop, &c->tcp);
@@ -1298,7 +1314,7 @@ void mb_client_received(struct mb_client *c, size_t n)
 
 void mb_client_send_raw(struct mb_client *c, const uint8_t *data, size_t size)
 {
-    if (c->state != CLIENT_CLOSING && size > 0)
+    if (c->state != CLIENT_CLOSING && !c->no_socket && size > 0)
         send_bytes(c, data, size);
 }
 
@@ -1328,4 +1344,40 @@ void mb_client_release(struct mb_client *c, const char *why)
         close_client(c, why);
     else
         release_client(c, why);
+}
+
+int mb_server_attach(struct mb_server *srv, const char *peer,
+                     const struct mb_transport *transport, void *state, uint32_t rights,
+                     uint32_t idle_timeout_ms, struct mb_client **out)
+{
+    struct mb_client *c;
+
+    *out = NULL;
+    if (srv->closing)
+        return -ESHUTDOWN;
+    c = srv->calloc_client(1, sizeof(*c));
+    if (!c)
+        return -ENOMEM;
+    c->srv = srv;
+    c->no_socket = true;
+    c->transport = transport;
+    c->transport_state = state;
+    c->idle_timeout_ms = idle_timeout_ms;
+    snprintf(c->peer, sizeof(c->peer), "%s", peer);
+    snprintf(c->host, sizeof(c->host), "%s", peer);
+    uv_timer_init(srv->loop, &c->timer);
+    c->timer.data = c;
+    c->open_handles = 1;
+    srv->open_handles++;
+    c->accepted_ms = c->last_activity_ms = uv_now(srv->loop);
+    c->state = CLIENT_PENDING;
+    c->next = srv->clients;
+    if (srv->clients)
+        srv->clients->prev = c;
+    srv->clients = c;
+    mb_client_admit(c, rights);
+    if (c->state != CLIENT_OPEN)
+        return -ECONNABORTED; /* closed meanwhile: its transport heard why */
+    *out = c;
+    return 0;
 }

@@ -373,6 +373,29 @@ const struct regmap_row regmap_table_rows[] = {
     G_IR(97, command_link_tls_failure, REGMAP_U16, "",
          "[robot] tls: the same for the command port"),
 
+    /* ---- input registers: Modbus RTU on the serial line ([rtu]) ---- */
+    G_IR(5540, rtu_line_state, REGMAP_U16, "",
+         "Serial line: 0 off ([rtu] enabled = false), 1 open, no request for this unit "
+         "within time_limit_ms, 2 open and polled, 3 device absent or failed (opened "
+         "again every second)"),
+    G_IR(5542, rtu_frames, REGMAP_U32, "",
+         "RTU frames with a good CRC on the line, for every unit"),
+    G_IR(5544, rtu_crc_errors, REGMAP_U32, "",
+         "RTU byte runs dropped for a bad CRC (noise, a frame cut short)"),
+    G_IR(5546, rtu_foreign_frames, REGMAP_U32, "",
+         "RTU frames for other unit ids, skipped"),
+    G_IR(5548, rtu_broadcasts, REGMAP_U32, "",
+         "RTU broadcasts (unit 0): counted, never acted on"),
+    G_IR(5550, rtu_overruns, REGMAP_U32, "",
+         "RTU receive or send buffer overruns (bytes dropped up to the next silence)"),
+    G_IR(5552, rtu_gap_discards, REGMAP_U32, "",
+         "RTU frames discarded for a silence over 1.5 characters inside them"),
+    G_IR(5554, rtu_turnaround_us, REGMAP_U32, "us",
+         "The last RTU reply: from the request's last byte read to the reply written, "
+         "the 3.5-character silence included"),
+    G_IR(5556, rtu_turnaround_max_us, REGMAP_U32, "us",
+         "The longest RTU turnaround since start or the last counter reset"),
+
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",
          "1 powered off, 2 powered on, 3 disabled, 4 enabled"),

@@ -337,6 +337,53 @@ static void rules_between_keys(void **state)
     assert_non_null(strstr(why, "reconnect_min_ms"));
 }
 
+/* A literal, refused with a reason that contains 'expect'. */
+#define REFUSED(text, expect) expect_refused(text, sizeof(text) - 1, expect)
+
+static void rtu_keys(void **state)
+{
+    (void)state;
+    struct gw_config c;
+    char why[256];
+
+    config_defaults(&c);
+    assert_false(c.rtu_enabled);
+    assert_int_equal(c.rtu_baud, 19200);
+    assert_int_equal(c.rtu_parity, 1); /* even */
+    assert_int_equal(c.rtu_stop_bits, 1);
+    assert_int_equal(c.rtu_unit_id, 1);
+    assert_false(c.rtu_rs485);
+    assert_int_equal(c.rtu_rights_mask, REGMAP_RIGHTS_NONE);
+    expect_loaded("[rtu]\nenabled = true\ndevice = /dev/ttyS1\nbaud = 115200\nparity = none\n"
+                  "stop_bits = 2\nunit_id = 247\nrs485 = true\nrights = power, heartbeat\n",
+                  &c);
+    assert_int_equal(config_validate(&c, why, sizeof(why)), 0);
+    assert_int_equal(c.rtu_parity, 0);
+    assert_int_equal(c.rtu_unit_id, 247);
+    assert_true(c.rtu_rights_mask & REGMAP_RIGHT(REGMAP_CLASS_POWER));
+    assert_false(c.rtu_rights_mask & REGMAP_RIGHT(REGMAP_CLASS_MOTION));
+    /* [tls] default_rights keeps its own mask. */
+    assert_int_equal(c.tls_default_rights_mask, REGMAP_RIGHTS_NONE);
+    REFUSED("[rtu]\nunit_id = 0\n", "[rtu] unit_id: 0 is out of range 1..247");
+    REFUSED("[rtu]\nunit_id = 248\n", "1..247");
+    REFUSED("[rtu]\nparity = mark\n", "'mark' must be none, even or odd");
+    REFUSED("[rtu]\nstop_bits = 3\n", "1..2");
+    REFUSED("[rtu]\nrights = fly\n", "'fly' is not a write class");
+    /* Between keys: a device, and a speed a serial port has. */
+    config_defaults(&c);
+    assert_int_equal(config_set(&c, "rtu", "enabled", "true", why, sizeof(why)), 0);
+    assert_int_equal(config_validate(&c, why, sizeof(why)), -EINVAL);
+    assert_non_null(strstr(why, "[rtu] device: required"));
+    assert_int_equal(config_set(&c, "rtu", "device", "/dev/ttyS1", why, sizeof(why)), 0);
+    assert_int_equal(config_set(&c, "rtu", "baud", "12345", why, sizeof(why)), 0);
+    assert_int_equal(config_validate(&c, why, sizeof(why)), -EINVAL);
+    assert_non_null(strstr(why, "[rtu] baud: 12345 is not a serial speed"));
+    /* The line alone is something to serve. */
+    assert_int_equal(config_set(&c, "rtu", "baud", "9600", why, sizeof(why)), 0);
+    assert_int_equal(config_set(&c, "modbus", "enabled", "false", why, sizeof(why)), 0);
+    assert_int_equal(config_validate(&c, why, sizeof(why)), 0);
+}
+
 static void shipped_config_is_valid(void **state)
 {
     (void)state;
@@ -379,6 +426,8 @@ static void keys_compare_by_type(void **state)
         {"log", "level", "info", "INFO"},
         {"can", "base_id", "0x500", "1280"},
         {"robot", "connect_timeout_ms", "3000", "03000"},
+        {"rtu", "rights", "power, heartbeat", "heartbeat,power"},
+        {"rtu", "parity", "even", "EVEN"},
     };
     static const char *const changed[][4] = {
         {"robot", "tls_fingerprint", "",
@@ -387,6 +436,9 @@ static void keys_compare_by_type(void **state)
         {"modbus", "unit_id", "any", "0"},
         {"modbus", "idle_timeout_ms", "60000", "0"},
         {"tls", "client_ca", "/etc/a.crt", "/etc/b.crt"},
+        /* Each rights key compares its own mask, not the other's. */
+        {"rtu", "rights", "read", "power"},
+        {"tls", "default_rights", "read", "write"},
     };
     (void)state;
     for (size_t n = 0; n < sizeof(same) / sizeof(same[0]) + sizeof(changed) / sizeof(changed[0]);
@@ -454,6 +506,7 @@ int main(void)
         cmocka_unit_test(key_before_any_section),
         cmocka_unit_test(max_document_bytes_at_its_limits),
         cmocka_unit_test(rules_between_keys),
+        cmocka_unit_test(rtu_keys),
         cmocka_unit_test(keys_compare_by_type),
         cmocka_unit_test(role_names_are_utf8),
         cmocka_unit_test(shipped_config_is_valid),

@@ -3,7 +3,9 @@
  * test_mb_server.c - the Modbus server on a real loop and real sockets:
  * a connection that cannot be given memory is closed, and both listeners
  * keep serving the PLCs that come next; a PLC's socket is set to notice a
- * silent peer in seconds.
+ * silent peer in seconds; a client with no socket (the serial line's) is
+ * answered through its transport, counted, released when idle, and never
+ * evicted for a TCP newcomer.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -265,12 +267,102 @@ static void a_plc_socket_notices_a_silent_peer_in_seconds(void **state)
     pump_until_no_client(f);
 }
 
+/* A transport with no socket: what the server sent, and whether it closed. */
+struct line {
+    uint8_t out[512];
+    size_t out_size;
+    unsigned closes;
+    struct mb_client *client;
+};
+
+static void line_output(void *state, struct mb_client *c, const uint8_t *data, size_t size)
+{
+    struct line *l = state;
+    (void)c;
+    assert_true(l->out_size + size <= sizeof(l->out));
+    memcpy(l->out + l->out_size, data, size);
+    l->out_size += size;
+}
+
+static void line_closed(void *state, struct mb_client *c, bool was_pending)
+{
+    struct line *l = state;
+    assert_ptr_equal(c, l->client);
+    assert_false(was_pending);
+    l->closes++;
+    l->client = NULL;
+}
+
+static const struct mb_transport line_transport = {
+    .name = "line",
+    .output = line_output,
+    .closed = line_closed,
+};
+
+static void line_request(struct line *l, const uint8_t *req, size_t size)
+{
+    size_t room;
+    uint8_t *into = mb_client_space(l->client, &room);
+    assert_true(room >= size);
+    memcpy(into, req, size);
+    mb_client_received(l->client, size);
+}
+
+static void a_client_without_a_socket_is_served_counted_and_released(void **state)
+{
+    struct fixture *f = *state;
+    /* Static: the server's close in teardown still calls its transport. */
+    static struct line l;
+    /* The image as it is (no gateway fills it here): input register 0. */
+    uint16_t ir0 = f->img.mb->tab_input_registers[0];
+    const uint8_t magic_reply[] = {0, 1, 0, 0, 0, 5, 1, 4, 2, (uint8_t)(ir0 >> 8), (uint8_t)ir0};
+
+    memset(&l, 0, sizeof(l));
+    assert_int_equal(mb_server_attach(&f->srv, "line:test", &line_transport, &l,
+                                      REGMAP_RIGHTS_NONE, 100, &l.client),
+                     0);
+    assert_non_null(l.client);
+    assert_int_equal(f->srv.stats.clients, 1);
+    assert_string_equal(mb_client_peer(l.client), "line:test");
+    /* Answered at once, through the transport. */
+    line_request(&l, read_magic, sizeof(read_magic));
+    assert_int_equal(l.out_size, sizeof(magic_reply));
+    assert_memory_equal(l.out, magic_reply, sizeof(magic_reply));
+    assert_int_equal(f->srv.stats.requests, 1);
+
+    /* At max_clients, a TCP newcomer is admitted; the line is not evicted. */
+    f->srv.cfg.max_clients = 1;
+    int fd = connect_client(f);
+    for (int i = 0; i < 200 && f->srv.stats.clients < 2; i++)
+        uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
+    assert_int_equal(f->srv.stats.clients, 2);
+    assert_int_equal(l.closes, 0);
+    assert_int_equal(f->srv.stats.evictions, 0);
+    close(fd);
+
+    /* No request for its idle time: released, and its transport hears it. */
+    for (int i = 0; i < 1000 && l.closes == 0; i++)
+        uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
+    assert_int_equal(l.closes, 1);
+    assert_null(l.client);
+    pump_until_no_client(f);
+    assert_int_equal(f->srv.stats.clients, 0);
+
+    /* Attached again, then the server closes with it open (teardown). */
+    assert_int_equal(mb_server_attach(&f->srv, "line:test", &line_transport, &l,
+                                      REGMAP_RIGHTS_NONE, 0, &l.client),
+                     0);
+    assert_int_equal(f->srv.stats.clients, 1);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_setup_teardown(
             a_connection_without_memory_is_closed_and_the_next_is_served, setup, teardown),
         cmocka_unit_test_setup_teardown(both_listeners_resume_after_refusals, setup, teardown),
+        cmocka_unit_test_setup_teardown(a_client_without_a_socket_is_served_counted_and_released,
+                                        setup, teardown),
         cmocka_unit_test_setup_teardown(a_plc_socket_notices_a_silent_peer_in_seconds, setup,
                                         teardown),
     };

@@ -1,0 +1,150 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * mb_rtu.h - Modbus RTU on a serial line (RS-485 or RS-232), one more
+ * transport under the one Modbus server (mb_server.h).
+ *
+ * The line is a client of the server with no socket (mb_server_attach):
+ * its requests go through the same request checks, register map, write
+ * judgement, rights, single_owner and heartbeat policy, counters and
+ * shutdown as a TCP or TLS client's. This module only frames: it owns the
+ * serial port (termios, the kernel's RS-485 mode), cuts the bytes into
+ * frames (rtu_frame.h), hands the ones addressed to its unit id to the
+ * server as requests and sends the replies back with their CRC.
+ *
+ * Timing. The serial fd is watched by a uv_poll; each read is stamped with
+ * CLOCK_MONOTONIC. The end of a frame (3.5 character times of silence,
+ * 1.75 ms above 19200 baud) is finer than libuv's millisecond timers, so a
+ * timerfd under a second uv_poll fires at the last byte's time plus t3.5;
+ * the loop never blocks. A byte read more than t1.5 after the previous one
+ * marks a gap: a frame with a gap inside it is discarded. The times are
+ * those of the reads, not of the bytes on the wire: a host late to read
+ * sees longer gaps than the line had, so frames are also cut by their
+ * length and CRC (rtu_split), and a late reader keeps its sync.
+ *
+ * What is answered: a frame with a good CRC addressed to unit_id. A frame
+ * for another unit is counted and skipped; a broadcast (unit 0) is counted
+ * and never acted on, because no reply could tell the master whether a
+ * command was carried out. An RS-485 adapter that hears its own
+ * transmitter gives each reply back: the frame equal to the last reply,
+ * arriving within its wire time and 100 ms, is skipped, not taken for a
+ * request (which would be answered, and heard again). For [network_exception] watch = connection, the
+ * line counts as a connected client while a valid request addressed to
+ * this unit arrived within 'active_ms'.
+ *
+ * A device that is absent at start or goes away (a USB adapter unplugged,
+ * a read or write that fails) is a link fault: one log line, the state in
+ * the diagnostics, and a new open every second, TCP unaffected. A device
+ * that is not a terminal, or that refuses TIOCSRS485 with rs485 = true, is
+ * a configuration error at start (mb_rtu_start returns -ENOTTY).
+ *
+ * Life cycle as libuv handles: mb_rtu_start(), mb_rtu_close(cb); the
+ * struct is the caller's until cb runs.
+ */
+#ifndef JAKAGW_MB_RTU_H
+#define JAKAGW_MB_RTU_H
+
+#include <stdbool.h>
+#include <stdint.h>
+#include <uv.h>
+
+#include "log.h"
+#include "mb_server.h"
+#include "rtu_frame.h"
+
+enum mb_rtu_parity { MB_RTU_PARITY_NONE = 0, MB_RTU_PARITY_EVEN = 1, MB_RTU_PARITY_ODD = 2 };
+
+struct mb_rtu_config {
+    const char *device;
+    unsigned baud;
+    enum mb_rtu_parity parity;
+    unsigned stop_bits; /* 1 or 2 */
+    unsigned unit_id;   /* 1..247 */
+    bool rs485;         /* TIOCSRS485: the kernel drives RTS while sending */
+    uint32_t rights;    /* what the line may write (regmap_parse_rights) */
+    uint32_t active_ms; /* counted as a client this long after a request */
+};
+
+/* The line's state, as the diagnostics show it. */
+enum mb_rtu_state {
+    MB_RTU_OFF = 0,    /* [rtu] enabled = false */
+    MB_RTU_IDLE = 1,   /* open; no request for this unit within active_ms */
+    MB_RTU_POLLED = 2, /* open; a master polls this unit */
+    MB_RTU_FAULT = 3,  /* the device is absent or failed: retried every second */
+};
+
+struct mb_rtu_stats {
+    uint64_t frames;         /* frames with a good CRC, every unit */
+    uint64_t crc_errors;     /* runs of bytes that were no frame */
+    uint64_t foreign_frames; /* good frames for another unit, skipped */
+    uint64_t broadcasts;     /* good frames for unit 0, not acted on */
+    uint64_t overruns;       /* chunks longer than the receive buffer */
+    uint64_t gap_discards;   /* good frames with a silence inside them */
+    uint64_t echoes;         /* our own replies read back, skipped */
+    uint64_t replies;
+    uint32_t turnaround_us;     /* the last reply: request's last byte to write */
+    uint32_t turnaround_max_us;
+};
+
+/* Bytes kept between two silences: several frames glued together. */
+#define MB_RTU_RX_SIZE 1024
+#define MB_RTU_MAX_GAPS 64
+#define MB_RTU_TX_SIZE 1024
+
+struct mb_rtu {
+    uv_loop_t *loop;
+    struct mb_server *srv;
+    struct mb_rtu_config cfg;
+    char device[256];
+    char peer[48];
+    uint32_t t15_ns, t35_ns;
+    int fd;                  /* the serial port, -1: not open */
+    uv_poll_t serial;        /* watches fd */
+    bool serial_handle;      /* 'serial' initialised and not yet closed */
+    bool serial_closing;     /* its close callback is due */
+    int timer_fd;            /* the silence timer (timerfd) */
+    uv_poll_t silence;
+    uv_timer_t retry;        /* reopens a failed device every second */
+    struct mb_client *client; /* the server's client for this line, or NULL */
+    /* The chunk being received: bytes since the last silence of t3.5. */
+    uint8_t rx[MB_RTU_RX_SIZE];
+    size_t rx_used;
+    bool rx_overrun;
+    uint16_t gaps[MB_RTU_MAX_GAPS]; /* offsets of bytes after a gap > t1.5 */
+    size_t gap_count;
+    uint64_t last_rx_ns;     /* when the last bytes were read */
+    uint64_t request_end_ns; /* the frame being answered: its last read */
+    /* The last reply, as an adapter that hears its own transmitter gives
+     * it back: skipped when it comes back whole before echo_until_ns. */
+    uint8_t echo[RTU_MAX_ADU];
+    size_t echo_size;
+    uint64_t echo_until_ns;
+    uint32_t char_ns;        /* one character on the wire */
+    uint8_t tx[MB_RTU_TX_SIZE]; /* what the port did not take at once */
+    size_t tx_used;
+    bool tx_waiting;         /* polling for writable: tx_used was > 0 */
+    uint16_t transaction;
+    struct mb_rtu_stats stats;
+    struct log_ratelimit log_limit;
+    bool closing;
+    int open_handles;
+    void (*close_cb)(struct mb_rtu *rtu);
+    void *user;
+};
+
+/*
+ * Opens the line and starts serving it through 'srv'. Returns 0 (an absent
+ * device is a link fault, retried), -ENOTTY when the device is not a
+ * terminal or refuses rs485 (logged, naming the device: a configuration
+ * error), or another negative errno. Call mb_rtu_close() in every case.
+ */
+int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
+                 const struct mb_rtu_config *cfg);
+
+enum mb_rtu_state mb_rtu_state(const struct mb_rtu *rtu);
+
+void mb_rtu_clear_stats(struct mb_rtu *rtu);
+
+/* Closes the port and its handles; 'cb' runs when all are closed. */
+void mb_rtu_close(struct mb_rtu *rtu, void (*cb)(struct mb_rtu *rtu));
+
+#endif

@@ -1,0 +1,562 @@
+/* SPDX-License-Identifier: MIT */
+/* mb_rtu.c - see mb_rtu.h. */
+#include "mb_rtu.h"
+
+#include <errno.h>
+#include <fcntl.h>
+#include <linux/serial.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/ioctl.h>
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
+#include <sys/timerfd.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#define MBAP_SIZE 7
+#define RETRY_MS 1000
+/* How late an adapter's echo of our reply may come after its wire time
+ * (a USB adapter's latency timer is 16 ms by default). */
+#define ECHO_SLACK_NS 100000000ull
+
+static uint64_t now_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
+}
+
+static speed_t speed_of(unsigned baud)
+{
+    switch (baud) {
+    case 1200: return B1200;
+    case 2400: return B2400;
+    case 4800: return B4800;
+    case 9600: return B9600;
+    case 19200: return B19200;
+    case 38400: return B38400;
+    case 57600: return B57600;
+    case 115200: return B115200;
+    case 230400: return B230400;
+    case 460800: return B460800;
+    case 921600: return B921600;
+    default: return B0;
+    }
+}
+
+/* Unix98 pty slaves: majors 136-143. */
+static bool is_pseudo_terminal(int fd)
+{
+    struct stat st;
+    return fstat(fd, &st) == 0 && S_ISCHR(st.st_mode) && major(st.st_rdev) >= 136 &&
+           major(st.st_rdev) <= 143;
+}
+
+/* After termios: the kernel's RS-485 mode, and no stale input. */
+static int finish_setup(struct mb_rtu *rtu, int fd, char *why, size_t why_size)
+{
+    if (rtu->cfg.rs485) {
+        struct serial_rs485 rs;
+        memset(&rs, 0, sizeof(rs));
+        rs.flags = SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND;
+        if (ioctl(fd, TIOCSRS485, &rs) < 0) {
+            snprintf(why, why_size,
+                     "rs485 = true, but the driver refuses RS-485 mode (TIOCSRS485: %s)",
+                     strerror(errno));
+            return -ENOTTY;
+        }
+    }
+    tcflush(fd, TCIOFLUSH); /* nothing from before we listened */
+    return 0;
+}
+
+/*
+ * Sets the port raw at the configured speed and framing. Returns 0,
+ * -ENOTTY for a setting the device refuses (a configuration error, with
+ * 'why'), or another negative errno.
+ */
+static int configure_port(struct mb_rtu *rtu, int fd, char *why, size_t why_size)
+{
+    struct termios tio;
+    speed_t speed = speed_of(rtu->cfg.baud);
+
+    if (tcgetattr(fd, &tio) < 0) {
+        snprintf(why, why_size, "not a serial port: %s", strerror(errno));
+        return -ENOTTY;
+    }
+    cfmakeraw(&tio);
+    tio.c_cflag |= CLOCAL | CREAD;
+    tio.c_cflag &= ~(tcflag_t)(CSIZE | PARENB | PARODD | CSTOPB | CRTSCTS);
+    tio.c_cflag |= CS8;
+    if (rtu->cfg.parity != MB_RTU_PARITY_NONE)
+        tio.c_cflag |= PARENB;
+    if (rtu->cfg.parity == MB_RTU_PARITY_ODD)
+        tio.c_cflag |= PARODD;
+    if (rtu->cfg.stop_bits == 2)
+        tio.c_cflag |= CSTOPB;
+    tio.c_iflag &= ~(tcflag_t)(IXON | IXOFF | IXANY);
+    /* VMIN 1: with O_NONBLOCK a read with nothing to give fails with
+     * EAGAIN, and 0 means end of file (a hangup); VMIN 0 would return 0. */
+    tio.c_cc[VMIN] = 1;
+    tio.c_cc[VTIME] = 0;
+    if (speed == B0 || cfsetispeed(&tio, speed) < 0 || cfsetospeed(&tio, speed) < 0) {
+        snprintf(why, why_size, "baud %u is not supported", rtu->cfg.baud);
+        return -ENOTTY;
+    }
+    int rc = tcsetattr(fd, TCSANOW, &tio);
+    if (rc < 0 && errno == EINVAL && (tio.c_cflag & PARENB) && is_pseudo_terminal(fd)) {
+        /* Some kernels refuse a parity bit on a pty, which has no wire for
+         * it to be on: the same line without it. */
+        tio.c_cflag &= ~(tcflag_t)(PARENB | PARODD);
+        rc = tcsetattr(fd, TCSANOW, &tio);
+    }
+    if (rc < 0) {
+        snprintf(why, why_size, "cannot set baud %u: %s", rtu->cfg.baud, strerror(errno));
+        return -ENOTTY;
+    }
+    return finish_setup(rtu, fd, why, why_size);
+}
+
+static void on_serial(uv_poll_t *p, int status, int events);
+
+/* Opens and sets up the device. 0, -ENOTTY (why set) or -errno (why set). */
+static int open_line(struct mb_rtu *rtu, char *why, size_t why_size)
+{
+    int fd = open(rtu->device, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+    int rc;
+
+    if (fd < 0) {
+        rc = -errno;
+        snprintf(why, why_size, "%s", strerror(errno));
+        return rc;
+    }
+    rc = configure_port(rtu, fd, why, why_size);
+    if (rc == 0) {
+        rc = uv_poll_init(rtu->loop, &rtu->serial, fd);
+        if (rc < 0)
+            snprintf(why, why_size, "cannot watch it: %s", uv_strerror(rc));
+    }
+    if (rc < 0) {
+        close(fd);
+        return rc;
+    }
+    rtu->fd = fd;
+    rtu->serial.data = rtu;
+    rtu->serial_handle = true;
+    rtu->open_handles++;
+    rtu->rx_used = 0;
+    rtu->gap_count = 0;
+    rtu->rx_overrun = false;
+    rtu->tx_used = 0;
+    rtu->tx_waiting = false;
+    uv_poll_start(&rtu->serial, UV_READABLE, on_serial);
+    return 0;
+}
+
+static void maybe_finish_close(struct mb_rtu *rtu)
+{
+    if (rtu->closing && rtu->open_handles == 0 && rtu->close_cb)
+        rtu->close_cb(rtu);
+}
+
+static void on_handle_closed(uv_handle_t *h)
+{
+    struct mb_rtu *rtu = h->data;
+
+    if (h == (uv_handle_t *)&rtu->serial)
+        rtu->serial_closing = false;
+    rtu->open_handles--;
+    maybe_finish_close(rtu);
+}
+
+static void set_silence_timer(struct mb_rtu *rtu, uint64_t at_ns)
+{
+    struct itimerspec its;
+
+    memset(&its, 0, sizeof(its));
+    if (at_ns) {
+        its.it_value.tv_sec = (time_t)(at_ns / 1000000000ull);
+        its.it_value.tv_nsec = (long)(at_ns % 1000000000ull);
+    }
+    timerfd_settime(rtu->timer_fd, at_ns ? TFD_TIMER_ABSTIME : 0, &its, NULL);
+}
+
+/* Stops serving the port and closes it; the server's client goes too. */
+static void close_line(struct mb_rtu *rtu)
+{
+    if (rtu->client)
+        mb_client_release(rtu->client, NULL); /* 'closed' clears rtu->client */
+    if (rtu->fd < 0)
+        return;
+    uv_poll_stop(&rtu->serial);
+    rtu->serial_handle = false;
+    rtu->serial_closing = true;
+    uv_close((uv_handle_t *)&rtu->serial, on_handle_closed);
+    close(rtu->fd);
+    rtu->fd = -1;
+    rtu->rx_used = 0;
+    rtu->gap_count = 0;
+    rtu->tx_used = 0;
+    set_silence_timer(rtu, 0);
+}
+
+static void on_retry(uv_timer_t *t)
+{
+    struct mb_rtu *rtu = t->data;
+    char why[200];
+
+    if (rtu->closing || rtu->fd >= 0 || rtu->serial_closing)
+        return; /* the previous handle is still closing: next second */
+    if (open_line(rtu, why, sizeof(why)) != 0)
+        return; /* said once when it failed */
+    uv_timer_stop(&rtu->retry);
+    log_notice("rtu: %s: line up again (%u baud, unit %u)", rtu->device, rtu->cfg.baud,
+               rtu->cfg.unit_id);
+}
+
+static void start_retry(struct mb_rtu *rtu)
+{
+    uv_timer_start(&rtu->retry, on_retry, RETRY_MS, RETRY_MS);
+}
+
+/* The device failed: one line, the state, a new open every second. */
+static void line_fault(struct mb_rtu *rtu, const char *why)
+{
+    if (rtu->fd < 0 || rtu->closing)
+        return;
+    log_warn("rtu: %s: %s: line down; opening it again every second", rtu->device, why);
+    close_line(rtu);
+    start_retry(rtu);
+}
+
+/* Writes what is queued; the rest waits for the port to be writable. */
+static void flush_tx(struct mb_rtu *rtu)
+{
+    bool was_waiting = rtu->tx_waiting;
+
+    while (rtu->tx_used) {
+        ssize_t n = write(rtu->fd, rtu->tx, rtu->tx_used);
+        if (n > 0) {
+            memmove(rtu->tx, rtu->tx + n, rtu->tx_used - (size_t)n);
+            rtu->tx_used -= (size_t)n;
+            continue;
+        }
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK))
+            break;
+        line_fault(rtu, n < 0 ? strerror(errno) : "write failed");
+        return;
+    }
+    /* The poll changes only when a reply waits, or waited: nearly every
+     * reply goes out whole and costs no epoll_ctl. */
+    rtu->tx_waiting = rtu->tx_used > 0;
+    if (rtu->tx_waiting != was_waiting)
+        uv_poll_start(&rtu->serial, rtu->tx_waiting ? UV_READABLE | UV_WRITABLE : UV_READABLE,
+                      on_serial);
+}
+
+/* The server's reply (an MBAP frame) goes out as an RTU frame. */
+static void rtu_output(void *state, struct mb_client *c, const uint8_t *data, size_t size)
+{
+    struct mb_rtu *rtu = state;
+    uint8_t frame[RTU_MAX_ADU];
+    size_t pdu_size = size - MBAP_SIZE, n;
+    uint64_t suppressed;
+
+    (void)c;
+    if (rtu->fd < 0 || size <= MBAP_SIZE || pdu_size > RTU_MAX_ADU - 3)
+        return;
+    frame[0] = (uint8_t)rtu->cfg.unit_id;
+    memcpy(frame + 1, data + MBAP_SIZE, pdu_size);
+    /* Report server id names the unit asked for: the line's. */
+    if (frame[1] == 17 && pdu_size >= 3)
+        frame[3] = (uint8_t)rtu->cfg.unit_id;
+    n = rtu_append_crc(frame, 1 + pdu_size);
+    if (rtu->tx_used + n > sizeof(rtu->tx)) {
+        rtu->stats.overruns++;
+        if (log_ratelimit_pass(&rtu->log_limit, uv_now(rtu->loop), &suppressed))
+            log_warn("rtu: %s: the port does not take replies: one dropped", rtu->device);
+        return;
+    }
+    memcpy(rtu->tx + rtu->tx_used, frame, n);
+    rtu->tx_used += n;
+    uint64_t t = now_ns();
+    memcpy(rtu->echo, frame, n);
+    rtu->echo_size = n;
+    rtu->echo_until_ns = t + n * (uint64_t)rtu->char_ns + ECHO_SLACK_NS;
+    uint64_t us = t > rtu->request_end_ns ? (t - rtu->request_end_ns) / 1000 : 0;
+    rtu->stats.turnaround_us = us > UINT32_MAX ? UINT32_MAX : (uint32_t)us;
+    if (rtu->stats.turnaround_us > rtu->stats.turnaround_max_us)
+        rtu->stats.turnaround_max_us = rtu->stats.turnaround_us;
+    rtu->stats.replies++;
+    flush_tx(rtu);
+}
+
+static void rtu_closed(void *state, struct mb_client *c, bool was_pending)
+{
+    struct mb_rtu *rtu = state;
+    (void)was_pending;
+    if (rtu->client == c)
+        rtu->client = NULL;
+}
+
+static const struct mb_transport rtu_transport = {
+    .name = "rtu",
+    .output = rtu_output,
+    .closed = rtu_closed,
+};
+
+/* A frame with a good CRC: ours goes to the server as a request. */
+static void on_frame(void *user, const uint8_t *frame, size_t size)
+{
+    struct mb_rtu *rtu = user;
+    unsigned unit = frame[0];
+    size_t pdu_size = size - 3, room;
+    uint64_t suppressed;
+    uint8_t *into;
+
+    rtu->stats.frames++;
+    if (unit == RTU_BROADCAST) {
+        /* Never acted on: the master cannot learn the outcome. */
+        rtu->stats.broadcasts++;
+        return;
+    }
+    if (unit != rtu->cfg.unit_id) {
+        rtu->stats.foreign_frames++;
+        return;
+    }
+    if (size == rtu->echo_size && memcmp(frame, rtu->echo, size) == 0 &&
+        now_ns() <= rtu->echo_until_ns) {
+        rtu->echo_size = 0; /* our reply, heard back */
+        rtu->stats.echoes++;
+        return;
+    }
+    if (rtu->fd < 0)
+        return; /* the line failed while this chunk was being cut */
+    if (!rtu->client) {
+        int rc = mb_server_attach(rtu->srv, rtu->peer, &rtu_transport, rtu, rtu->cfg.rights,
+                                  rtu->cfg.active_ms, &rtu->client);
+        if (rc < 0) {
+            if (rc != -ESHUTDOWN &&
+                log_ratelimit_pass(&rtu->log_limit, uv_now(rtu->loop), &suppressed))
+                log_err("rtu: %s: cannot serve a request: %s", rtu->device, strerror(-rc));
+            return;
+        }
+    }
+    into = mb_client_space(rtu->client, &room);
+    if (room < MBAP_SIZE + pdu_size)
+        return; /* not reached: the server consumes every whole request */
+    rtu->transaction++;
+    into[0] = (uint8_t)(rtu->transaction >> 8);
+    into[1] = (uint8_t)rtu->transaction;
+    into[2] = into[3] = 0;
+    into[4] = (uint8_t)((pdu_size + 1) >> 8);
+    into[5] = (uint8_t)(pdu_size + 1);
+    /* The server judges the unit id of [modbus] unit_id; the line has
+     * already judged its own. */
+    into[6] = rtu->srv->cfg.unit_id >= 0 ? (uint8_t)rtu->srv->cfg.unit_id : (uint8_t)unit;
+    memcpy(into + MBAP_SIZE, frame + 1, pdu_size);
+    mb_client_received(rtu->client, MBAP_SIZE + pdu_size);
+}
+
+static void on_dropped(void *user, enum rtu_drop why, size_t size)
+{
+    struct mb_rtu *rtu = user;
+    (void)size;
+    if (why == RTU_DROP_GAP)
+        rtu->stats.gap_discards++;
+    else
+        rtu->stats.crc_errors++;
+}
+
+/* The line was silent for t3.5: what arrived since the last silence. */
+static void end_of_chunk(struct mb_rtu *rtu)
+{
+    struct rtu_split_hooks hooks = {.frame = on_frame, .dropped = on_dropped, .user = rtu};
+
+    rtu->request_end_ns = rtu->last_rx_ns;
+    if (!rtu->rx_overrun && rtu->rx_used)
+        rtu_split(rtu->rx, rtu->rx_used, rtu->gaps, rtu->gap_count, &hooks);
+    rtu->rx_used = 0;
+    rtu->gap_count = 0;
+    rtu->rx_overrun = false;
+}
+
+/* Reads what the port holds. Returns the bytes read, or -1 on a fault. */
+static ssize_t read_line(struct mb_rtu *rtu)
+{
+    uint8_t buf[512];
+    ssize_t total = 0;
+
+    while (rtu->fd >= 0) {
+        ssize_t n = read(rtu->fd, buf, sizeof(buf));
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK))
+            break;
+        if (n <= 0) {
+            line_fault(rtu, n < 0 ? strerror(errno) : "hung up");
+            return -1;
+        }
+        uint64_t t = now_ns();
+        if (rtu->rx_used && t - rtu->last_rx_ns > rtu->t15_ns &&
+            rtu->gap_count < MB_RTU_MAX_GAPS)
+            rtu->gaps[rtu->gap_count++] = (uint16_t)rtu->rx_used;
+        if (rtu->rx_overrun || rtu->rx_used + (size_t)n > sizeof(rtu->rx)) {
+            /* Longer than any run of frames: dropped up to the silence. */
+            if (!rtu->rx_overrun)
+                rtu->stats.overruns++;
+            rtu->rx_overrun = true;
+            rtu->rx_used = 0;
+            rtu->gap_count = 0;
+        } else {
+            memcpy(rtu->rx + rtu->rx_used, buf, (size_t)n);
+            rtu->rx_used += (size_t)n;
+        }
+        rtu->last_rx_ns = t;
+        total += n;
+        /* A terminal gives all it holds, up to the size asked: less means
+         * nothing is left, and the poll says when more comes. */
+        if ((size_t)n < sizeof(buf))
+            break;
+    }
+    if (total > 0)
+        set_silence_timer(rtu, rtu->last_rx_ns + rtu->t35_ns);
+    return total;
+}
+
+static void on_serial(uv_poll_t *p, int status, int events)
+{
+    struct mb_rtu *rtu = p->data;
+
+    if (status < 0) {
+        /* libuv says EBADF for any POLLERR: a read tells what happened (EIO
+         * when the other end of a pty went, or a USB adapter was pulled). */
+        if (read_line(rtu) >= 0)
+            line_fault(rtu, "the device reports an error");
+        return;
+    }
+    if (events & UV_WRITABLE)
+        flush_tx(rtu);
+    if (rtu->fd >= 0 && (events & (UV_READABLE | UV_DISCONNECT)))
+        read_line(rtu);
+}
+
+static void on_silence(uv_poll_t *p, int status, int events)
+{
+    struct mb_rtu *rtu = p->data;
+    uint64_t expirations;
+
+    (void)status, (void)events;
+    if (read(rtu->timer_fd, &expirations, sizeof(expirations)) < 0 && errno == EAGAIN)
+        return;
+    if (rtu->fd < 0 || rtu->closing)
+        return;
+    /* Bytes that have arrived count before the silence is judged. */
+    if (read_line(rtu) != 0)
+        return; /* more came (the timer is set again) or the line failed */
+    if (rtu->rx_used == 0 && !rtu->rx_overrun)
+        return;
+    if (now_ns() - rtu->last_rx_ns < rtu->t35_ns) {
+        set_silence_timer(rtu, rtu->last_rx_ns + rtu->t35_ns);
+        return;
+    }
+    end_of_chunk(rtu);
+}
+
+int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
+                 const struct mb_rtu_config *cfg)
+{
+    char why[200];
+    int rc;
+
+    memset(rtu, 0, sizeof(*rtu));
+    rtu->loop = loop;
+    rtu->srv = srv;
+    rtu->fd = -1;
+    rtu->timer_fd = -1;
+    if (!cfg->device || !cfg->device[0] || strlen(cfg->device) >= sizeof(rtu->device) ||
+        cfg->unit_id < 1 || cfg->unit_id > 247)
+        return -EINVAL;
+    rtu->cfg = *cfg;
+    snprintf(rtu->device, sizeof(rtu->device), "%s", cfg->device);
+    rtu->cfg.device = rtu->device;
+    snprintf(rtu->peer, sizeof(rtu->peer), "rtu:%s", cfg->device);
+    rtu->log_limit.interval_ms = 1000;
+    rtu_char_times(cfg->baud, cfg->parity != MB_RTU_PARITY_NONE, cfg->stop_bits, &rtu->t15_ns,
+                   &rtu->t35_ns);
+    rtu->char_ns = (uint32_t)((1 + 8 + (cfg->parity != MB_RTU_PARITY_NONE) + cfg->stop_bits) *
+                              1000000000ull / (cfg->baud ? cfg->baud : 19200));
+
+    uv_timer_init(loop, &rtu->retry);
+    rtu->retry.data = rtu;
+    rtu->open_handles++;
+    rtu->timer_fd = timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC);
+    if (rtu->timer_fd < 0) {
+        rc = -errno;
+        log_err("rtu: cannot make a timer: %s", strerror(errno));
+        return rc;
+    }
+    rc = uv_poll_init(loop, &rtu->silence, rtu->timer_fd);
+    if (rc < 0) {
+        log_err("rtu: cannot watch the timer: %s", uv_strerror(rc));
+        close(rtu->timer_fd);
+        rtu->timer_fd = -1;
+        return rc;
+    }
+    rtu->silence.data = rtu;
+    rtu->open_handles++;
+    uv_poll_start(&rtu->silence, UV_READABLE, on_silence);
+
+    rc = open_line(rtu, why, sizeof(why));
+    if (rc == -ENOTTY) {
+        log_err("rtu: device %s: %s", rtu->device, why);
+        return rc;
+    }
+    if (rc < 0) {
+        log_warn("rtu: %s: %s: line down; opening it again every second", rtu->device, why);
+        start_retry(rtu);
+        return 0;
+    }
+    log_notice("rtu: %s: %u baud, parity %s, %u stop bit%s, unit %u%s; t1.5 %u us, "
+               "t3.5 %u us",
+               rtu->device, cfg->baud,
+               cfg->parity == MB_RTU_PARITY_NONE   ? "none"
+               : cfg->parity == MB_RTU_PARITY_EVEN ? "even"
+                                                   : "odd",
+               cfg->stop_bits, cfg->stop_bits == 1 ? "" : "s", cfg->unit_id,
+               cfg->rs485 ? ", RS-485 mode" : "", rtu->t15_ns / 1000, rtu->t35_ns / 1000);
+    return 0;
+}
+
+enum mb_rtu_state mb_rtu_state(const struct mb_rtu *rtu)
+{
+    if (rtu->fd < 0)
+        return MB_RTU_FAULT;
+    return rtu->client ? MB_RTU_POLLED : MB_RTU_IDLE;
+}
+
+void mb_rtu_clear_stats(struct mb_rtu *rtu)
+{
+    memset(&rtu->stats, 0, sizeof(rtu->stats));
+}
+
+void mb_rtu_close(struct mb_rtu *rtu, void (*cb)(struct mb_rtu *rtu))
+{
+    rtu->closing = true;
+    rtu->close_cb = cb;
+    close_line(rtu);
+    if (rtu->open_handles == 0) {
+        maybe_finish_close(rtu);
+        return;
+    }
+    if (rtu->timer_fd >= 0) {
+        uv_close((uv_handle_t *)&rtu->silence, on_handle_closed);
+        close(rtu->timer_fd);
+        rtu->timer_fd = -1;
+    }
+    uv_close((uv_handle_t *)&rtu->retry, on_handle_closed);
+}
