@@ -213,6 +213,13 @@ test-load: all
 screenshot: all
 	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 scripts/screenshot.py
 
+# Network faults on loopback, each test in its own network namespace with
+# nftables (root): silent pulls, resets, random loss. make test runs it too,
+# with the first native build.
+.PHONY: test-faults
+test-faults: all
+	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/integration/test_faults.py
+
 # docs/register-map.md is generated from the table in src/regmap_table.c.
 docs: $(BUILD)/jakagw man
 	$(BUILD)/jakagw --print-map md > docs/register-map.md
