@@ -14,8 +14,9 @@
  * as an entry of the gateway's own, so its reply is matched by order and
  * never taken for a PLC command's; a PLC command submitted while it is in
  * flight is written at once behind it. Its reply must come within
- * min(reply_timeout_ms, link_check_ms), or the link is restarted
- * (abortively) and reads down. With the defaults (1000, 2000) a silently
+ * min(reply_timeout_ms, link_check_ms) (with a command written behind it,
+ * within that command's reply timeout from its send), or the link is
+ * restarted (abortively) and reads down. With the defaults (1000, 2000) a silently
  * dead idle link reads down within link_check_ms + 1000 ms = 2 s.
  *
  * The link reads "answering" (command_port_answering) once a reply has
