@@ -76,6 +76,12 @@ int command_port_init(uv_loop_t *loop, struct command_port *cp,
                       uint32_t reply_timeout_ms, uint32_t link_check_ms,
                       const struct command_port_hooks *hooks);
 
+/*
+ * A new link_check_ms (on reload; 0: no check): an idle period under way
+ * starts again at the new value, from now.
+ */
+void command_port_set_link_check(struct command_port *cp, uint32_t link_check_ms);
+
 /* Connected, and the controller has answered on this connection. */
 bool command_port_answering(const struct command_port *cp);
 
