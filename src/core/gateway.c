@@ -310,10 +310,15 @@ static void on_own_unknown(void *user, const struct cmd_def *def)
     enum policy_action action = strcmp(def->name, "stop_program") == 0    ? POLICY_STOP
                                 : strcmp(def->name, "pause_program") == 0 ? POLICY_PAUSE
                                                                           : POLICY_KEEP;
-    if (action != POLICY_KEEP && gw->policy.fault != POLICY_FAULT_NONE)
+    /* A controller that hangs would lose one on every reconnect. */
+    static struct log_ratelimit limit = {.interval_ms = 10000};
+    uint64_t suppressed;
+    if (action != POLICY_KEEP && gw->policy.fault != POLICY_FAULT_NONE &&
+        log_ratelimit_pass(&limit, uv_now(gw->loop), &suppressed))
         log_warn("network exception: %s's outcome is unknown (its connection was lost "
                  "before the reply); sent again once the command link is back, while "
-                 "the robot may move", def->name);
+                 "the robot may move (%llu more such lines suppressed)", def->name,
+                 (unsigned long long)suppressed);
     policy_action_unknown(&gw->policy, action);
 }
 
