@@ -119,7 +119,7 @@ struct can_frame_def {
     uint8_t signal_count;
 };
 
-/* The built-in table, in src/can_map_table.c. */
+/* The built-in table, in src/can/can_map_table.c. */
 extern const struct can_frame_def can_map_frames[];
 extern const unsigned can_map_frame_count;
 

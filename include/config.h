@@ -2,7 +2,7 @@
 /*
  * config.h - jakagw's settings: defaults, INI file (libinih), flags.
  *
- * Every key lives in one table (src/config.c) that gives its section, type,
+ * Every key lives in one table (src/core/config.c) that gives its section, type,
  * range and default; the INI parser and the command-line overrides both set
  * keys through config_set(), so a bad value gets the same one-line answer
  * wherever it comes from. Unknown keys are errors: a typo must not silently
@@ -104,6 +104,10 @@ struct gw_config {
     bool rtu_rs485;         /* TIOCSRS485 */
     char rtu_rights[160];   /* as written */
     uint32_t rtu_rights_mask;
+    /* [http]: metrics, status page */
+    bool http_enabled;
+    char http_bind[64];
+    uint32_t http_port;
     /* [roles] */
     struct config_role roles[CONFIG_MAX_ROLES];
     unsigned role_count;

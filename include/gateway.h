@@ -13,9 +13,11 @@
 #include <stdint.h>
 #include <uv.h>
 
+#include "audit.h"
 #include "can_mirror.h"
 #include "command_port.h"
 #include "config.h"
+#include "http_server.h"
 #include "log.h"
 #include "mb_rtu.h"
 #include "mb_server.h"
@@ -46,6 +48,7 @@ enum {
     GATEWAY_PART_POLICY = 16,
     GATEWAY_PART_WRITES = 32,
     GATEWAY_PART_RTU = 64,
+    GATEWAY_PART_HTTP = 128,
 };
 
 /* The policy's rows, as PLCs read its state. */
@@ -72,6 +75,8 @@ struct gateway {
     /* gateway_start failed on a setting (the serial device refuses it):
      * exit as for a bad configuration. */
     bool config_error;
+    struct audit audit;    /* who commanded the robot (audit.h) */
+    struct http_server http; /* running when [http] enabled (gw_http.h) */
     struct gateway_counters counters;
     double gw_values[GW_VALUE_COUNT];
 

@@ -103,6 +103,11 @@ struct mb_write {
     /* What the connection may write: a bit per enum regmap_write_class
      * (regmap_write_allowed); REGMAP_RIGHTS_ALL on plain Modbus TCP. */
     uint32_t rights;
+    /* Who writes, for the audit trail: the transport's name ("modbus",
+     * "mbaps"), and on mbaps the certificate's subject and role ("" none). */
+    const char *transport;
+    const char *subject;
+    const char *role;
 };
 
 struct mb_server_hooks {
@@ -124,6 +129,25 @@ struct mb_server_hooks {
     void *user;
 };
 
+/*
+ * The requests and exceptions above, broken down: by transport (0 plain
+ * Modbus TCP, 1 the listener of mb_server_listen, 2 the clients of
+ * mb_server_attach, such as the RTU line), function code and
+ * exception code. Their sums are the totals; they are cleared with them.
+ * The service time of each request counted (from its last byte to its
+ * reply queued) goes into a histogram with the upper bounds below.
+ */
+#define MB_STATS_TRANSPORTS 3
+#define MB_STATS_SERVICE_BUCKETS 9
+extern const double mb_stats_service_bounds_s[MB_STATS_SERVICE_BUCKETS];
+
+struct mb_server_breakdown {
+    uint64_t requests[MB_STATS_TRANSPORTS][128]; /* by function code */
+    uint64_t exceptions[MB_STATS_TRANSPORTS][16]; /* by exception code */
+    uint64_t service_buckets[MB_STATS_SERVICE_BUCKETS + 1]; /* the last: +Inf */
+    double service_seconds; /* their sum */
+};
+
 struct mb_server_stats {
     uint64_t requests;
     uint64_t exceptions;
@@ -131,6 +155,7 @@ struct mb_server_stats {
     uint64_t bad_frames;
     uint64_t refused_no_memory; /* connections closed for want of memory */
     unsigned clients;
+    struct mb_server_breakdown by;
 };
 
 struct mb_client;
@@ -290,12 +315,35 @@ void mb_client_received(struct mb_client *c, size_t n);
 void mb_client_send_raw(struct mb_client *c, const uint8_t *data, size_t size);
 /* A pending connection is closed this many ms from now unless admitted. */
 void mb_client_set_deadline(struct mb_client *c, uint64_t ms);
+/* Who the peer is, as its certificate says: subject and role (the audit
+ * trail, the status page). Copied; NULL is "". */
+void mb_client_set_identity(struct mb_client *c, const char *subject, const char *role);
 /* A pending connection becomes a client, with what it may write. */
 void mb_client_admit(struct mb_client *c, uint32_t rights);
 /* Closes at once ('why' logged, rate-limited; NULL: not logged). */
 void mb_client_close(struct mb_client *c, const char *why);
 /* The peer has finished (end of stream): replies already built still go. */
 void mb_client_release(struct mb_client *c, const char *why);
+
+/* One client being served, as mb_server_foreach_client shows it. */
+struct mb_client_info {
+    uint64_t id;           /* mb_write.client_id */
+    const char *peer;      /* address:port */
+    const char *host;      /* address */
+    const char *transport; /* "modbus", "mbaps" */
+    const char *subject;   /* the certificate's subject; "" none */
+    const char *role;      /* its role; "" none */
+    uint32_t rights;
+    uint64_t requests, exceptions;
+    uint64_t accepted_ms;
+    uint64_t last_request_ms; /* 0: none yet */
+};
+
+/* Calls 'cb' for every client served (not pending, not closing), newest
+ * first. 'cb' must not open or close connections. */
+void mb_server_foreach_client(const struct mb_server *srv,
+                              void (*cb)(void *user, const struct mb_client_info *info),
+                              void *user);
 
 /* Closes the listener and every client; 'cb' runs when all are closed. */
 void mb_server_close(struct mb_server *srv, void (*cb)(struct mb_server *srv));

@@ -32,6 +32,7 @@
 #include <stdbool.h>
 #include <stdint.h>
 
+#include "audit.h"
 #include "command.h"
 #include "log.h"
 #include "regmap.h"
@@ -61,6 +62,14 @@ struct plc_commands_config {
      */
     void (*start_sent)(void *user);
     void (*start_answered)(void *user);
+    /*
+     * A command sent by plc_commands_send_now ended with its outcome
+     * unknown (CMD_TIMEOUT, CMD_LINK_DOWN: written, no reply; the robot
+     * may never have had it). Called with 'gate_user'; may be NULL.
+     */
+    void (*own_unknown)(void *user, const struct cmd_def *def);
+    /* The audit trail: every command sent and its result (NULL: none). */
+    struct audit *audit;
 };
 
 /* The robot's network-exception handler, as the PLC reads it. */
@@ -112,6 +121,7 @@ struct plc_commands {
         const struct cmd_def *def;
     } staged_cmds[CMD_QUEUE_CAPACITY];
     unsigned staged, applied;
+    bool sending_frequent; /* the command being sent is a setpoint's */
     struct log_ratelimit refuse_log_limit;
     const struct regmap_row *mailbox_ack, *mailbox_done, *mailbox_code,
         *mailbox_arg;
@@ -159,8 +169,9 @@ void plc_commands_link_down(struct plc_commands *pc);
 
 /*
  * Sends 'name' (pause_program or stop_program) for the gateway itself,
- * past every gate; its result shows as the command's. Returns 0 or a
- * negative errno (-ENOTCONN: the command link is down).
+ * past every gate; its result shows as the command's, and an outcome
+ * unknown is also told to cfg.own_unknown. Returns 0 or a negative errno
+ * (-ENOTCONN: the command link is down).
  */
 int plc_commands_send_now(struct plc_commands *pc, const char *name);
 

@@ -209,7 +209,7 @@ struct regmap_row {
     enum regmap_write_class write_class;
 };
 
-/* The built-in table, in src/regmap_table.c. */
+/* The built-in table, in src/modbus/regmap_table.c. */
 extern const struct regmap_row regmap_table_rows[];
 extern const unsigned regmap_table_row_count;
 

@@ -24,9 +24,9 @@ group() { # name reason package...
     eval "REASON_$name=\$reason PKGS_$name=\"\$*\""
 }
 
-group build "to compile jakagw and jakasim: compiler, make, pkg-config, library headers (libssl-dev: OpenSSL 3 for Modbus/TCP Security and TLS to the robot)" \
+group build "to compile jakagw and jakasim: compiler, make, pkg-config, library headers (libssl-dev: OpenSSL 3 for Modbus/TCP Security and TLS to the robot; libmicrohttpd-dev: the HTTP server of /metrics and the status page)" \
     build-essential pkg-config \
-    libuv1-dev libmodbus-dev libcjson-dev libinih-dev libsystemd-dev libssl-dev
+    libuv1-dev libmodbus-dev libcjson-dev libinih-dev libsystemd-dev libssl-dev libmicrohttpd-dev
 group tests "to run the tests: cmocka; python3 with pymodbus and serial_asyncio (pymodbus 3.0.0 imports it); mbpoll; socat (the RTU tests join two ptys with it); systemd-analyze; valgrind (make valgrind); the openssl command (the TLS tests make their certificates with it and connect with s_client)" \
     libcmocka-dev \
     python3 python3-pymodbus python3-serial-asyncio \
@@ -37,11 +37,16 @@ group package "to build the Debian package and test it and the units (make deb, 
     debhelper dpkg-dev lintian mmdebstrap man-db groff-base procps
 group cross "to build, package and test for ARM boards (make ARCH=arm64|armhf): Debian's cross compilers, and qemu-user to run their binaries (the sysroot comes from mmdebstrap, group package)" \
     gcc-aarch64-linux-gnu gcc-arm-linux-gnueabihf qemu-user
+group netfault "to inject network faults in the fault-injection suite (test_faults.py): nftables (silent pulls, resets, random loss), iproute2 (ip, ss) in a namespace made with unshare (util-linux, always installed)" \
+    nftables iproute2
+
+group web "to test /metrics, the alert rules and the status page (tests/integration/test_http.py, make screenshot): promtool from prometheus, headless chromium driven by python3-selenium through chromium-driver" \
+    prometheus chromium chromium-driver python3-selenium
 
 group fuzz "to run the libFuzzer targets (make fuzz, make fuzz-ci): clang, and the libFuzzer and sanitizer runtimes it links, which Debian 12 ships apart in libclang-rt-14-dev" \
     clang libclang-rt-14-dev
 
-DEFAULT_GROUPS="build tests can package cross"
+DEFAULT_GROUPS="build tests web can package cross netfault"
 # CI's make test also runs the fuzz targets (make fuzz-ci).
 [ "${CI:-}" = true ] && DEFAULT_GROUPS="$DEFAULT_GROUPS fuzz"
 

@@ -432,7 +432,11 @@ def test_a_robot_message_cannot_forge_a_log_line():
         plc.close()
         wait_until(lambda: log_lines(gw, "command power_on"), 5, "the log line")
         out = gw.output()
-    lines = [l for l in out.splitlines() if "forged" in l]
+    # The audit trail's record of it is one escaped line too.
+    audit = [l for l in out.splitlines() if "forged" in l and l.startswith("<5>audit: ")]
+    check(len(audit) == 1 and audit[0].endswith("报警\\x0a<3>jakagw: forged\\x0d\\x1b[2K"),
+          "audit line: %r" % audit)
+    lines = [l for l in out.splitlines() if "forged" in l and not l.startswith("<5>audit: ")]
     check(len(lines) == 1 and lines[0].startswith("<5>command power_on: robot error (2) "),
           "forged text on %d lines: %r" % (len(lines), lines))
     check(lines[0].endswith("报警\\x0a<3>jakagw: forged\\x0d\\x1b[2K"),

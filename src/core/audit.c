@@ -1,0 +1,320 @@
+/* SPDX-License-Identifier: MIT */
+/* audit.c - the audit trail (audit.h). */
+#include "audit.h"
+
+#include "log.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <systemd/sd-journal.h>
+#include <time.h>
+#include <unistd.h>
+
+static void copy(char *out, size_t size, const char *in)
+{
+    snprintf(out, size, "%s", in ? in : "");
+}
+
+static uint64_t system_wall_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (uint64_t)ts.tv_sec * 1000 + (uint64_t)ts.tv_nsec / 1000000;
+}
+
+static uint64_t now_ms(const struct audit *a)
+{
+    return a->clock.now_ms(a->clock.user);
+}
+
+void audit_init(struct audit *a, const struct audit_clock *clock, const struct audit_sink *sink)
+{
+    memset(a, 0, sizeof(*a));
+    a->clock = *clock;
+    if (sink)
+        a->sink = *sink;
+    if (!a->sink.emit)
+        a->sink.emit = audit_default_emit;
+}
+
+void audit_set_writer(struct audit *a, const char *transport, const char *client,
+                      const char *subject, const char *role)
+{
+    if (!a)
+        return;
+    copy(a->writer.transport, sizeof(a->writer.transport), transport);
+    copy(a->writer.client, sizeof(a->writer.client), client);
+    copy(a->writer.subject, sizeof(a->writer.subject), subject);
+    copy(a->writer.role, sizeof(a->writer.role), role);
+    a->have_writer = true;
+}
+
+void audit_clear_writer(struct audit *a)
+{
+    if (!a)
+        return;
+    a->have_writer = false;
+}
+
+/* Emits a record and keeps it among the last ones. */
+static void record(struct audit *a, struct audit_record *r)
+{
+    r->seq = ++a->seq;
+    r->wall_ms = a->clock.wall_ms ? a->clock.wall_ms(a->clock.user) : system_wall_ms();
+    if (r->count == 0)
+        r->count = 1;
+    a->recorded++;
+    a->last[a->next] = *r;
+    a->next = (a->next + 1) % AUDIT_LAST;
+    if (a->count < AUDIT_LAST)
+        a->count++;
+    a->sink.emit(a->sink.user, r);
+}
+
+/*
+ * The same client, command and result (and, for a refusal, exception):
+ * not the address, so that a client writing all over the map is still one
+ * record per period, not one per address.
+ */
+static bool same_kind(const struct audit_record *x, const struct audit_record *y)
+{
+    return strcmp(x->who.transport, y->who.transport) == 0 &&
+           strcmp(x->who.client, y->who.client) == 0 &&
+           strcmp(x->who.subject, y->who.subject) == 0 &&
+           strcmp(x->command, y->command) == 0 && strcmp(x->result, y->result) == 0 &&
+           x->error_code == y->error_code;
+}
+
+/* Ends aggregate 'g': its count, if any after the first, as one record. */
+static void end_aggregate(struct audit *a, struct audit_aggregate *g)
+{
+    if (g->more) {
+        struct audit_record r = g->first;
+        r.count = g->more;
+        if (g->several)
+            copy(r.what, sizeof(r.what), "(several)");
+        r.error_code = g->last_code;
+        copy(r.error_msg, sizeof(r.error_msg), g->last_msg);
+        record(a, &r);
+    }
+    g->used = false;
+}
+
+/*
+ * A frequent record: the first of its kind in a period is recorded now, the
+ * others counted until the period ends.
+ */
+static void aggregate(struct audit *a, struct audit_record *r)
+{
+    uint64_t now = now_ms(a);
+    struct audit_aggregate *free_slot = NULL, *oldest = NULL;
+
+    for (unsigned i = 0; i < AUDIT_AGGREGATES; i++) {
+        struct audit_aggregate *g = &a->aggregates[i];
+        if (g->used && now - g->since_ms >= AUDIT_PERIOD_MS)
+            end_aggregate(a, g);
+        if (!g->used) {
+            if (!free_slot)
+                free_slot = g;
+            continue;
+        }
+        if (same_kind(&g->first, r)) {
+            if (strcmp(g->first.what, r->what) != 0)
+                g->several = true;
+            g->more++;
+            g->last_code = r->error_code;
+            copy(g->last_msg, sizeof(g->last_msg), r->error_msg);
+            return;
+        }
+        if (!oldest || g->since_ms < oldest->since_ms)
+            oldest = g;
+    }
+    if (!free_slot) {
+        /* More kinds at once than slots: the oldest period ends early. */
+        end_aggregate(a, oldest);
+        free_slot = oldest;
+    }
+    free_slot->used = true;
+    free_slot->since_ms = now;
+    free_slot->more = 0;
+    free_slot->several = false;
+    record(a, r);
+    free_slot->first = *r;
+}
+
+void audit_flush(struct audit *a)
+{
+    if (!a)
+        return;
+    uint64_t now = now_ms(a);
+    for (unsigned i = 0; i < AUDIT_AGGREGATES; i++) {
+        struct audit_aggregate *g = &a->aggregates[i];
+        if (g->used && now - g->since_ms >= AUDIT_PERIOD_MS)
+            end_aggregate(a, g);
+    }
+}
+
+void audit_finish(struct audit *a)
+{
+    if (!a)
+        return;
+    for (unsigned i = 0; i < AUDIT_AGGREGATES; i++)
+        if (a->aggregates[i].used)
+            end_aggregate(a, &a->aggregates[i]);
+}
+
+void audit_command_sent(struct audit *a, const void *key, const char *command, bool own,
+                        bool frequent)
+{
+    struct audit_pending_cmd *slot = NULL;
+
+    if (!a)
+        return;
+    for (unsigned i = 0; i < AUDIT_PENDING && !slot; i++)
+        if (!a->pending[i].key)
+            slot = &a->pending[i];
+    if (!slot) {
+        /* Never more pending than the queue holds; should it happen, the
+         * oldest is recorded with its outcome unknown, not dropped. */
+        slot = &a->pending[0];
+        for (unsigned i = 1; i < AUDIT_PENDING; i++)
+            if (a->pending[i].order < slot->order)
+                slot = &a->pending[i];
+        struct cmd_result unknown = {.outcome = CMD_PENDING};
+        copy(unknown.error_msg, sizeof(unknown.error_msg), "no longer followed");
+        audit_command_done(a, slot->key, &unknown);
+    }
+    memset(slot, 0, sizeof(*slot));
+    slot->key = key;
+    slot->order = ++a->order;
+    slot->frequent = frequent;
+    copy(slot->command, sizeof(slot->command), command);
+    if (own || !a->have_writer)
+        copy(slot->who.transport, sizeof(slot->who.transport), "gateway");
+    else
+        slot->who = a->writer;
+}
+
+static void count_command(struct audit *a, const char *command, const char *result)
+{
+    for (unsigned i = 0; i < a->counter_count; i++) {
+        struct audit_counter *c = &a->counters[i];
+        if (strcmp(c->command, command) == 0 && strcmp(c->result, result) == 0) {
+            c->n++;
+            return;
+        }
+    }
+    /* Bounded by the command table times the outcomes; past that, the
+     * last slot counts the rest. */
+    struct audit_counter *c = &a->counters[a->counter_count < AUDIT_COUNTERS
+                                               ? a->counter_count++
+                                               : AUDIT_COUNTERS - 1];
+    if (c->n == 0) {
+        copy(c->command, sizeof(c->command), command);
+        copy(c->result, sizeof(c->result), result);
+    }
+    c->n++;
+}
+
+void audit_command_done(struct audit *a, const void *key, const struct cmd_result *res)
+{
+    struct audit_pending_cmd *p = NULL;
+
+    if (!a)
+        return;
+    for (unsigned i = 0; i < AUDIT_PENDING; i++)
+        if (a->pending[i].key == key && (!p || a->pending[i].order < p->order))
+            p = &a->pending[i];
+    if (!p)
+        return; /* a command not sent through audit_command_sent */
+    struct audit_record r = {.who = p->who, .error_code = res->error_code};
+    copy(r.command, sizeof(r.command), p->command);
+    copy(r.result, sizeof(r.result), cmd_outcome_name(res->outcome));
+    count_command(a, r.command, r.result);
+    copy(r.error_msg, sizeof(r.error_msg), res->error_msg);
+    bool frequent = p->frequent;
+    p->key = NULL;
+    if (frequent)
+        aggregate(a, &r);
+    else
+        record(a, &r);
+}
+
+void audit_write_refused(struct audit *a, const char *transport, const char *client,
+                         const char *subject, const char *role, const char *what,
+                         int exception)
+{
+    if (!a)
+        return;
+    struct audit_record r = {.error_code = exception};
+    copy(r.who.transport, sizeof(r.who.transport), transport);
+    copy(r.who.client, sizeof(r.who.client), client);
+    copy(r.who.subject, sizeof(r.who.subject), subject);
+    copy(r.who.role, sizeof(r.who.role), role);
+    copy(r.command, sizeof(r.command), "write");
+    a->refused_writes[(unsigned)exception & 15]++;
+    copy(r.what, sizeof(r.what), what);
+    copy(r.result, sizeof(r.result), "refused");
+    snprintf(r.error_msg, sizeof(r.error_msg), "Modbus exception %02X", (unsigned)exception);
+    aggregate(a, &r);
+}
+
+unsigned audit_count(const struct audit *a)
+{
+    return a->count;
+}
+
+const struct audit_record *audit_get(const struct audit *a, unsigned i)
+{
+    unsigned oldest = (a->next + AUDIT_LAST - a->count) % AUDIT_LAST;
+    return i < a->count ? &a->last[(oldest + i) % AUDIT_LAST] : NULL;
+}
+
+bool audit_stderr_is_journal(void)
+{
+    const char *stream = getenv("JOURNAL_STREAM");
+    unsigned long long dev, ino;
+    struct stat st;
+
+    if (!stream || sscanf(stream, "%llu:%llu", &dev, &ino) != 2 ||
+        fstat(STDERR_FILENO, &st) != 0)
+        return false;
+    return (unsigned long long)st.st_dev == dev && (unsigned long long)st.st_ino == ino;
+}
+
+void audit_default_emit(void *user, const struct audit_record *r)
+{
+    /* Outside text (an errorMsg, a certificate's subject) as one line. */
+    char msg[6 * sizeof(r->error_msg)], subject[6 * sizeof(r->who.subject)];
+    char role[6 * sizeof(r->who.role)], client[6 * sizeof(r->who.client)];
+    char what[sizeof(r->command) + sizeof(r->what) + 2];
+    static int journal = -1;
+
+    (void)user;
+    log_escape(msg, sizeof(msg), r->error_msg, strlen(r->error_msg));
+    log_escape(subject, sizeof(subject), r->who.subject, strlen(r->who.subject));
+    log_escape(role, sizeof(role), r->who.role, strlen(r->who.role));
+    log_escape(client, sizeof(client), r->who.client, strlen(r->who.client));
+    snprintf(what, sizeof(what), "%s%s%s", r->command, r->what[0] ? " " : "", r->what);
+    if (journal < 0)
+        journal = audit_stderr_is_journal();
+    if (journal) {
+        int rc = sd_journal_send(
+            "MESSAGE=audit: %s by %s %s: %s%s%s (x%u)", what, r->who.transport, client,
+            r->result, msg[0] ? ": " : "", msg, r->count, "PRIORITY=5",
+            "SYSLOG_IDENTIFIER=jakagw", "JAKAGW_TRANSPORT=%s", r->who.transport,
+            "JAKAGW_CLIENT=%s", client, "JAKAGW_SUBJECT=%s", subject, "JAKAGW_ROLE=%s", role,
+            "JAKAGW_COMMAND=%s", r->command, "JAKAGW_WHAT=%s", r->what, "JAKAGW_RESULT=%s",
+            r->result, "JAKAGW_ERROR_CODE=%ld", r->error_code, "JAKAGW_ERROR_MSG=%s", msg,
+            "JAKAGW_COUNT=%u", r->count, NULL);
+        if (rc == 0)
+            return;
+    }
+    /* The logger escapes the line as a whole: the raw values here. */
+    log_notice("audit: command=%s what=\"%s\" result=\"%s\" transport=%s client=%s "
+               "subject=\"%s\" role=\"%s\" count=%u error_code=%ld error_msg=%s",
+               r->command, r->what, r->result, r->who.transport, r->who.client,
+               r->who.subject, r->who.role, r->count, r->error_code, r->error_msg);
+}

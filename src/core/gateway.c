@@ -1,0 +1,777 @@
+/* SPDX-License-Identifier: MIT */
+/* gateway.c - see gateway.h. */
+#include "gateway.h"
+
+#include "gw_http.h"
+#include "gw_tls.h"
+#include "log.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define NEVER_MS 4294967295.0
+
+static struct gateway *gateway_of_link(struct robot_link *link)
+{
+    return link->user;
+}
+
+static void notify_change(struct gateway *gw)
+{
+    if (gw->on_change)
+        gw->on_change(gw);
+}
+
+static void on_status_document(struct robot_link *link, const char *json,
+                               size_t size)
+{
+    struct gateway *gw = gateway_of_link(link);
+    bool was_fresh = gateway_status_fresh(gw);
+    /* Parse aside: a bad document must not wipe the last good status. */
+    int rc = status_parse(gw->scratch, json, size);
+
+    if (rc != STATUS_PARSE_OK) {
+        uint64_t suppressed;
+        gw->counters.parse_errors++;
+        if (log_ratelimit_pass(&gw->parse_log_limit, uv_now(gw->loop), &suppressed))
+            log_warn("status link: dropped a %zu-byte document: %s "
+                     "(%llu more since the last such line)",
+                     size, rc == STATUS_PARSE_BAD_JSON ? "not valid JSON"
+                                                       : "not a JSON object",
+                     (unsigned long long)suppressed);
+        return;
+    }
+    struct jaka_status *previous = gw->status;
+    gw->status = gw->scratch;
+    gw->scratch = previous;
+    gw->counters.documents_parsed++;
+    /* A fresh clock: the parse may have taken a while, and the age that
+     * PLCs read must count from when the data became available. */
+    uv_update_time(gw->loop);
+    gw->last_document_ms = uv_now(gw->loop);
+    gw->last_document_bytes = size;
+    policy_status_document(&gw->policy, gw->last_document_ms);
+    regmap_encode_status(&gw->image, gw->status);
+    if (!was_fresh)
+        notify_change(gw);
+}
+
+static void on_status_framing(struct robot_link *link, enum framer_event event,
+                              size_t size)
+{
+    struct gateway *gw = gateway_of_link(link);
+    uint64_t suppressed;
+    const char *what = "";
+
+    switch (event) {
+    case FRAMER_EVENT_GARBAGE:
+        gw->counters.framing_errors++;
+        gw->counters.garbage_bytes += size;
+        what = "skipped bytes that belong to no document";
+        break;
+    case FRAMER_EVENT_OVERSIZE:
+        gw->counters.framing_errors++;
+        gw->counters.oversize_documents++;
+        what = "dropped a document larger than max_document_bytes";
+        break;
+    case FRAMER_EVENT_TRUNCATED:
+        gw->counters.framing_errors++;
+        what = "dropped a document cut short by the next one";
+        break;
+    case FRAMER_EVENT_LEN_MISMATCH:
+        gw->counters.len_mismatches++;
+        what = "a document's \"len\" disagreed with its real end";
+        break;
+    case FRAMER_EVENT_OBJECT:
+        return;
+    }
+    if (log_ratelimit_pass(&gw->parse_log_limit, uv_now(gw->loop), &suppressed))
+        log_warn("status link: %s (%zu bytes; %llu more such events since the "
+                 "last line)",
+                 what, size, (unsigned long long)suppressed);
+}
+
+static void on_link_state(struct robot_link *link, enum robot_link_state state)
+{
+    struct gateway *gw = gateway_of_link(link);
+
+    if (state == ROBOT_LINK_CONNECTED && link->connections > 1)
+        gw->counters.status_reconnects++;
+    notify_change(gw);
+}
+
+static void check_policy(struct gateway *gw);
+
+static void on_command_state(struct command_port *cp, enum robot_link_state state)
+{
+    struct gateway *gw = cp->user;
+
+    if (state == ROBOT_LINK_CONNECTED) {
+        if (cp->link.connections > 1)
+            gw->counters.command_reconnects++;
+        plc_commands_link_up(&gw->commands);
+        /* An action still owed goes out at once, ahead of the rest. */
+        if (gw->parts & GATEWAY_PART_POLICY)
+            check_policy(gw);
+    } else {
+        plc_commands_link_down(&gw->commands);
+    }
+    notify_change(gw);
+}
+
+static void on_command_answering(struct command_port *cp, bool answering)
+{
+    (void)answering;
+    notify_change(cp->user);
+}
+
+/* A link check's reply: what it says about the robot shows in the map. */
+static void on_link_check_reply(struct command_port *cp, const char *query,
+                                const struct cmd_result *r)
+{
+    struct gateway *gw = cp->user;
+    plc_commands_link_check_reply(&gw->commands, query, r);
+}
+
+bool gateway_status_fresh(const struct gateway *gw)
+{
+    return gw->last_document_ms != 0 &&
+           gw->status_link.state == ROBOT_LINK_CONNECTED &&
+           uv_now(gw->loop) - gw->last_document_ms < gw->cfg.status_timeout_ms;
+}
+
+static double age_ms(const struct gateway *gw, uint64_t since)
+{
+    if (since == 0)
+        return NEVER_MS;
+    uint64_t age = uv_now(gw->loop) - since;
+    return age > NEVER_MS - 1 ? NEVER_MS - 1 : (double)age;
+}
+
+/* The policy's state, as PLCs read it. */
+static void show_policy(struct gateway *gw)
+{
+    struct regmap_image *img = &gw->image;
+    const struct policy *p = &gw->policy;
+    const struct gateway_policy_rows *rows = &gw->policy_rows;
+
+    regmap_set_number(img, rows->fault, 0, p->fault, true);
+    regmap_set_number(img, rows->fault_age_ms, 0,
+                      (double)policy_fault_age_ms(p, uv_now(gw->loop)), true);
+    regmap_set_number(img, rows->faults, 0, (double)(p->faults & 0xFFFF), true);
+    regmap_set_number(img, rows->motion_enabled, 0, p->motion_enabled, true);
+    regmap_set_text(img, rows->write_owner, 0, p->owner_address);
+}
+
+/* The serial line's state and counters. */
+static void refresh_rtu_values(struct gateway *gw, double *v)
+{
+    static const struct mb_rtu_stats none;
+    bool on = gw->parts & GATEWAY_PART_RTU;
+    const struct mb_rtu_stats *s = on ? &gw->rtu.stats : &none;
+
+    v[GW_rtu_line_state] = on ? mb_rtu_state(&gw->rtu) : MB_RTU_OFF;
+    v[GW_rtu_frames] = (double)s->frames;
+    v[GW_rtu_crc_errors] = (double)s->crc_errors;
+    v[GW_rtu_foreign_frames] = (double)s->foreign_frames;
+    v[GW_rtu_broadcasts] = (double)s->broadcasts;
+    v[GW_rtu_overruns] = (double)s->overruns;
+    v[GW_rtu_gap_discards] = (double)s->gap_discards;
+    v[GW_rtu_turnaround_us] = s->turnaround_us;
+    v[GW_rtu_turnaround_max_us] = s->turnaround_max_us;
+}
+
+void gateway_refresh_values(struct gateway *gw)
+{
+    double *v = gw->gw_values;
+    const struct mb_server_stats *mb = &gw->modbus.stats;
+    const struct gateway_counters *c = &gw->counters;
+    bool fresh = gateway_status_fresh(gw);
+
+    /* The constant values are set once, in set_constant_values(). */
+    v[GW_status_link_up] = gw->status_link.state == ROBOT_LINK_CONNECTED;
+    v[GW_command_link_up] = command_port_answering(&gw->command);
+    v[GW_status_fresh] = fresh;
+    v[GW_status_link_state] =
+        gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh ? 3
+                                                                : gw->status_link.state;
+    v[GW_command_link_state] = command_port_state(&gw->command);
+    v[GW_link_checks] = (double)gw->command.queue.stats.checks;
+    v[GW_link_checks_failed] = (double)gw->command.queue.stats.checks_failed;
+    v[GW_status_age_ms] = age_ms(gw, gw->last_document_ms);
+    v[GW_documents_parsed] = (double)c->documents_parsed;
+    v[GW_parse_errors] = (double)c->parse_errors;
+    v[GW_framing_errors] = (double)c->framing_errors;
+    v[GW_oversize_documents] = (double)c->oversize_documents;
+    v[GW_garbage_bytes] = (double)c->garbage_bytes;
+    v[GW_len_mismatches] = (double)c->len_mismatches;
+    v[GW_status_reconnects] = (double)c->status_reconnects;
+    v[GW_command_reconnects] = (double)c->command_reconnects;
+    v[GW_modbus_requests] = (double)mb->requests;
+    v[GW_modbus_exceptions] = (double)mb->exceptions;
+    v[GW_modbus_clients] = mb->clients;
+    v[GW_modbus_evictions] = (double)mb->evictions;
+    v[GW_uptime_s] = (double)((uv_now(gw->loop) - gw->started_ms) / 1000);
+    v[GW_last_document_bytes] = (double)gw->last_document_bytes;
+    v[GW_plc_heartbeat_age_ms] =
+        age_ms(gw, gw->policy.heartbeat_armed ? gw->policy.heartbeat_ms : 0);
+    v[GW_can_state] = gw->can.state;
+    v[GW_can_frames_sent] = (double)gw->can.stats.frames_sent;
+    v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
+    v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
+    gw_tls_refresh_values(gw, v);
+    refresh_rtu_values(gw, v);
+    regmap_encode_gw(&gw->image, v);
+    plc_commands_refresh(&gw->commands);
+    if (gw->parts & GATEWAY_PART_POLICY)
+        show_policy(gw);
+}
+
+static void clear_counters(void *user)
+{
+    struct gateway *gw = user;
+
+    memset(&gw->counters, 0, sizeof(gw->counters));
+    gw->command.queue.stats.checks = 0;
+    gw->command.queue.stats.checks_failed = 0;
+    gw->modbus.stats.requests = 0;
+    gw->modbus.stats.exceptions = 0;
+    gw->modbus.stats.evictions = 0;
+    gw->modbus.stats.bad_frames = 0;
+    memset(&gw->modbus.stats.by, 0, sizeof(gw->modbus.stats.by));
+    can_mirror_clear_stats(&gw->can);
+    gw_tls_clear_counters(gw);
+    if (gw->parts & GATEWAY_PART_RTU)
+        mb_rtu_clear_stats(&gw->rtu);
+    log_notice("counters cleared by a Modbus client");
+}
+
+static void before_request(void *user)
+{
+    gateway_refresh_values(user);
+}
+
+static void after_write(void *user, enum regmap_table table, unsigned address,
+                        unsigned count)
+{
+    struct gateway *gw = user;
+    (void)table, (void)address, (void)count; /* the transaction knows them */
+    plc_write_after(&gw->writes);
+}
+
+static bool robot_may_move(void *user)
+{
+    struct gateway *gw = user;
+    return policy_robot_may_move(gateway_status_fresh(gw), gw->status);
+}
+
+static void check_policy(struct gateway *gw)
+{
+    policy_check(&gw->policy, uv_now(gw->loop), robot_may_move(gw));
+}
+
+static void on_policy_timer(uv_timer_t *t)
+{
+    struct gateway *gw = t->data;
+    check_policy(gw);
+    audit_flush(&gw->audit);
+}
+
+/* The policy's action goes out as pause_program or stop_program. */
+static bool send_policy_action(void *user, enum policy_action action,
+                               enum policy_fault reason)
+{
+    struct gateway *gw = user;
+    static const char *const reasons[] = {"", "PLC heartbeat lost", "no Modbus client",
+                                          "motion enable dropped"};
+    const char *name = action == POLICY_STOP ? "stop_program" : "pause_program";
+    int rc = plc_commands_send_now(&gw->commands, name);
+    if (rc == 0)
+        log_warn("network exception: %s while the robot may move: sent %s; "
+                 "commands are refused until the PLC resets the fault",
+                 reasons[reason], name);
+    else if (!gw->policy.owed)
+        log_err("network exception: %s while the robot may move: cannot send %s "
+                "(%s); trying again on every check until it goes out",
+                reasons[reason], name, strerror(-rc));
+    return rc == 0;
+}
+
+/* The policy's action went out, and its outcome is unknown: owed again. */
+static void on_own_unknown(void *user, const struct cmd_def *def)
+{
+    struct gateway *gw = user;
+
+    /* Stopping: every command fails with the link; nothing is sent again. */
+    if (!(gw->parts & GATEWAY_PART_POLICY) || gw->close_cb)
+        return;
+    enum policy_action action = strcmp(def->name, "stop_program") == 0    ? POLICY_STOP
+                                : strcmp(def->name, "pause_program") == 0 ? POLICY_PAUSE
+                                                                          : POLICY_KEEP;
+    /* A controller that hangs would lose one on every reconnect. */
+    static struct log_ratelimit limit = {.interval_ms = 10000};
+    uint64_t suppressed;
+    if (action != POLICY_KEEP && gw->policy.fault != POLICY_FAULT_NONE &&
+        log_ratelimit_pass(&limit, uv_now(gw->loop), &suppressed))
+        log_warn("network exception: %s's outcome is unknown (its connection was lost "
+                 "before the reply); sent again once the command link is back, while "
+                 "the robot may move (%llu more such lines suppressed)", def->name,
+                 (unsigned long long)suppressed);
+    policy_action_unknown(&gw->policy, action);
+}
+
+/* The policy's say on every command the PLC side sends. */
+static int gate_command(void *user, const struct cmd_def *def, char *why, size_t size)
+{
+    struct gateway *gw = user;
+    return policy_gate_command(&gw->policy, uv_now(gw->loop), def, why, size);
+}
+
+/* Starts the PLC side sent: the robot may run before its status shows it. */
+static void on_start_sent(void *user)
+{
+    struct gateway *gw = user;
+    policy_start_sent(&gw->policy, uv_now(gw->loop));
+}
+
+static void on_start_answered(void *user)
+{
+    struct gateway *gw = user;
+    policy_start_answered(&gw->policy, uv_now(gw->loop));
+}
+
+/* Every write judged; the commands it sends, and a refusal, audited. */
+static int on_write(void *user, const struct mb_write *w)
+{
+    static const char *const tables[] = {"coil", "discrete input", "input register",
+                                         "holding register"};
+    struct gateway *gw = user;
+
+    audit_set_writer(&gw->audit, w->transport, w->client, w->subject, w->role);
+    int ex = plc_write_judge(&gw->writes, w);
+    audit_clear_writer(&gw->audit);
+    if (ex) {
+        char what[48];
+        snprintf(what, sizeof(what), "%s %u%s%.0u", tables[w->table % 4], w->address,
+                 w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
+        audit_write_refused(&gw->audit, w->transport, w->client, w->subject, w->role, what,
+                            ex);
+    }
+    return ex;
+}
+
+static void on_client(void *user, uint64_t client, bool open, unsigned clients)
+{
+    struct gateway *gw = user;
+    if (open)
+        policy_client_opened(&gw->policy, uv_now(gw->loop), clients);
+    else
+        policy_client_closed(&gw->policy, uv_now(gw->loop), client, clients);
+}
+
+static bool is_running(void *user)
+{
+    return gateway_status_fresh(user);
+}
+
+void gateway_describe(const struct gateway *gw, char *buf, size_t size)
+{
+    static const char *const names[] = {"disconnected", "connecting", "connected"};
+    snprintf(buf, size, "status link %s%s, command link %s%s, %u Modbus clients",
+             names[gw->status_link.state],
+             gw->status_link.state == ROBOT_LINK_CONNECTED &&
+                     !gateway_status_fresh(gw)
+                 ? " (silent)"
+                 : "",
+             names[gw->command.link.state],
+             command_port_state(&gw->command) == 3 ? " (not answering yet)" : "",
+             gw->modbus.stats.clients);
+}
+
+static int start_links(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct tls_context *tls;
+    int rc = gw_tls_robot_links(&gw->cfg, &tls, "robot links");
+    if (rc)
+        return rc;
+    struct robot_link_config lc = {
+        .name = "status",
+        .host = cfg->robot_host,
+        .port = (uint16_t)cfg->status_port,
+        .connect_timeout_ms = cfg->connect_timeout_ms,
+        .reconnect_min_ms = cfg->reconnect_min_ms,
+        .reconnect_max_ms = cfg->reconnect_max_ms,
+        .silence_timeout_ms = cfg->status_timeout_ms,
+        /* The kernel's bounds come a second after the gateway's own, so
+         * that what the PLC reads is the gateway's decision. */
+        .user_timeout_ms = cfg->status_timeout_ms + 1000,
+        .max_object = cfg->max_document_bytes,
+        .tls = tls,
+    };
+    struct robot_link_callbacks status_cb = {
+        .on_object = on_status_document,
+        .on_framing_error = on_status_framing,
+        .on_state = on_link_state,
+    };
+    rc = robot_link_init(gw->loop, &gw->status_link, &lc, &status_cb, gw);
+    if (rc) {
+        tls_context_unref(tls);
+        return rc;
+    }
+    gw->parts |= GATEWAY_PART_STATUS_LINK;
+    lc.name = "command";
+    lc.port = (uint16_t)cfg->command_port;
+    /* Replies come only when asked; silence is normal there, and the link
+     * check (link_check_ms) asks when it lasts. */
+    lc.silence_timeout_ms = 0;
+    lc.user_timeout_ms = cfg->reply_timeout_ms + 1000;
+    struct command_port_hooks hooks = {
+        .on_state = on_command_state,
+        .on_answering = on_command_answering,
+        .on_check_reply = on_link_check_reply,
+        .user = gw,
+    };
+    rc = command_port_init(gw->loop, &gw->command, &lc, cfg->reply_timeout_ms,
+                           cfg->link_check_ms, &hooks);
+    tls_context_unref(tls); /* each link holds its own reference */
+    if (rc)
+        return rc;
+    gw->parts |= GATEWAY_PART_COMMAND_LINK;
+    robot_link_start(&gw->status_link);
+    command_port_start(&gw->command);
+    return 0;
+}
+
+/* The CAN mirror's view each period: the model and values Modbus reads. */
+static void can_snapshot(void *user, struct can_inputs *in)
+{
+    struct gateway *gw = user;
+
+    gateway_refresh_values(gw);
+    in->status = gw->status;
+    in->gw = gw->gw_values;
+}
+
+static int start_can(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct can_mirror_config cc = {
+        .base_id = cfg->can_base_id,
+        .extended_ids = cfg->can_extended_ids,
+        .period_ms = cfg->can_period_ms,
+        .groups = cfg->can_groups,
+    };
+    int rc;
+
+    if (!cfg->can_enabled)
+        return 0;
+    snprintf(cc.interface, sizeof(cc.interface), "%s", cfg->can_interface);
+    rc = can_mirror_init(&gw->can, &cc, NULL, can_snapshot, gw);
+    if (rc) {
+        log_err("CAN mirror: the [can] settings do not fit the frame map");
+        return rc;
+    }
+    rc = can_mirror_start(gw->loop, &gw->can);
+    if (rc == 0)
+        gw->parts |= GATEWAY_PART_CAN;
+    return rc;
+}
+
+static uint64_t loop_now_ms(void *clock)
+{
+    return uv_now(clock);
+}
+
+static uint64_t loop_now_ms_of_gateway(void *user)
+{
+    return uv_now(((struct gateway *)user)->loop);
+}
+
+/* Binds the command rows to the command port's queue. */
+static int start_commands(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct plc_commands_config pcc = {
+        .motion = cfg->motion,
+        .allow_shutdown = cfg->allow_shutdown,
+        .robot_handle = cfg->ne_robot_time_limit_ms > 0,
+        .robot_time_limit_ms = cfg->ne_robot_time_limit_ms,
+        .robot_mot_type = cfg->ne_robot_action,
+        .require_robot_handle = cfg->ne_require_robot_handle,
+        .gate = gate_command,
+        .gate_user = gw,
+        .start_sent = on_start_sent,
+        .start_answered = on_start_answered,
+        .own_unknown = on_own_unknown,
+        .audit = &gw->audit,
+    };
+    return plc_commands_init(&gw->commands, &gw->image, &gw->command.queue, &pcc,
+                             loop_now_ms, gw->loop);
+}
+
+/* The network-exception policy: its rows, its state machine, its timer. */
+static int start_policy(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct gateway_policy_rows *rows = &gw->policy_rows;
+    struct policy_config pc = {
+        .time_limit_ms = cfg->ne_time_limit_ms,
+        .action = (enum policy_action)cfg->ne_action,
+        .watch = (enum policy_watch)(cfg->ne_watch + 1),
+        .motion_enable = cfg->ne_motion_enable,
+        .single_owner = cfg->ne_single_owner,
+        .start_unshown_max_ms = cfg->status_timeout_ms,
+    };
+    struct policy_sink sink = {.send_action = send_policy_action, .user = gw};
+
+    rows->fault = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault");
+    rows->fault_age_ms = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault_age_ms");
+    rows->faults = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "faults");
+    rows->write_owner = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "write_owner");
+    rows->motion_enabled = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion_enabled");
+    if (!rows->fault || !rows->fault_age_ms || !rows->faults || !rows->write_owner ||
+        !rows->motion_enabled)
+        return -EINVAL;
+    policy_init(&gw->policy, &pc, &sink);
+    uv_timer_init(gw->loop, &gw->policy_timer);
+    gw->policy_timer.data = gw;
+    gw->parts |= GATEWAY_PART_POLICY;
+    /* A tenth of the limit, 10..100 ms: reactions within limit + period. */
+    uint64_t period = cfg->ne_time_limit_ms / 10;
+    period = period < 10 ? 10 : period > 100 ? 100 : period;
+    uv_timer_start(&gw->policy_timer, on_policy_timer, period, period);
+    return 0;
+}
+
+
+/* The write transaction: every Modbus write, judged before it is answered. */
+static int start_writes(struct gateway *gw)
+{
+    struct plc_write_config wc = {
+        .read_only = gw->cfg.read_only,
+        .write_allow = gw->cfg.write_allow_addrs,
+    };
+    struct plc_write_hooks hooks = {
+        .now_ms = loop_now_ms_of_gateway,
+        .robot_may_move = robot_may_move,
+        .clear_counters = clear_counters,
+        .user = gw,
+    };
+    int rc = plc_write_init(&gw->writes, &gw->image, &gw->commands, &gw->policy, &wc, &hooks);
+    if (rc == 0)
+        gw->parts |= GATEWAY_PART_WRITES;
+    return rc;
+}
+
+/* The self-description values, which never change while running. */
+static void set_constant_values(struct gateway *gw)
+{
+    double *v = gw->gw_values;
+    unsigned major = 0, minor = 0, patch = 0;
+
+    sscanf(JAKAGW_VERSION, "%u.%u.%u", &major, &minor, &patch);
+    v[GW_map_magic] = REGMAP_MAGIC;
+    v[GW_map_version] = REGMAP_VERSION;
+    v[GW_map_crc] = gw->map.crc;
+    v[GW_word_order] = gw->image.word_order;
+    v[GW_address_base] = 0;
+    v[GW_probe_f32] = REGMAP_PROBE_F32;
+    v[GW_probe_u32] = REGMAP_PROBE_U32;
+    v[GW_version_major] = major;
+    v[GW_version_minor] = minor;
+    v[GW_version_patch] = patch;
+}
+
+/* [rtu] enabled: the serial line, one more client of the Modbus server. */
+static int start_rtu(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    int rc;
+
+    if (!cfg->rtu_enabled)
+        return 0;
+    struct mb_rtu_config rc_cfg = {
+        .device = cfg->rtu_device,
+        .baud = cfg->rtu_baud,
+        .parity = (enum mb_rtu_parity)cfg->rtu_parity,
+        .stop_bits = cfg->rtu_stop_bits,
+        .unit_id = cfg->rtu_unit_id,
+        .rs485 = cfg->rtu_rs485,
+        .rights = cfg->rtu_rights_mask,
+        .active_ms = cfg->ne_time_limit_ms,
+    };
+    gw->parts |= GATEWAY_PART_RTU;
+    rc = mb_rtu_start(gw->loop, &gw->rtu, &gw->modbus, &rc_cfg);
+    if (rc == -ENOTTY)
+        gw->config_error = true;
+    return rc;
+}
+
+int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *cfg)
+{
+    int rc;
+
+    memset(gw, 0, sizeof(*gw));
+    gw->loop = loop;
+    gw->cfg = *cfg;
+    gw->started_ms = uv_now(loop);
+    gw->parse_log_limit.interval_ms = 5000;
+    gw->command_log_limit.interval_ms = 5000;
+    rc = regmap_init(&gw->map);
+    if (rc)
+        return rc;
+    rc = regmap_image_init(&gw->image, &gw->map, (enum regmap_word_order)cfg->word_order);
+    if (rc)
+        return rc;
+    struct audit_clock clock = {.now_ms = loop_now_ms, .user = loop};
+    audit_init(&gw->audit, &clock, NULL);
+    gw->status = &gw->status_buffers[0];
+    gw->scratch = &gw->status_buffers[1];
+    /* Nothing received yet: every value reads as absent. */
+    regmap_encode_status(&gw->image, gw->status);
+    set_constant_values(gw);
+    rc = start_commands(gw);
+    if (rc)
+        return rc;
+    rc = start_policy(gw);
+    if (rc)
+        return rc;
+    rc = start_writes(gw);
+    if (rc)
+        return rc;
+    gateway_refresh_values(gw);
+
+    struct mb_server_config mc = {
+        .bind = cfg->modbus_bind,
+        .port = (uint16_t)cfg->modbus_port,
+        .max_clients = cfg->max_clients,
+        .idle_timeout_ms = cfg->idle_timeout_ms,
+        .frame_timeout_ms = cfg->frame_timeout_ms,
+        .unit_id = cfg->unit_id,
+        .listen_fd = cfg->modbus_listen_fd,
+        .no_plain = !cfg->modbus_enabled,
+    };
+    struct mb_server_hooks hooks = {
+        .before_request = before_request,
+        .on_write = on_write,
+        .on_client = on_client,
+        .after_write = after_write,
+        .is_running = is_running,
+        .user = gw,
+    };
+    gw->parts |= GATEWAY_PART_MODBUS;
+    rc = mb_server_start(loop, &gw->modbus, &mc, &gw->image, &hooks);
+    if (rc)
+        return rc;
+    rc = gw_tls_start(gw);
+    if (rc)
+        return rc;
+    rc = start_rtu(gw);
+    if (rc)
+        return rc;
+    rc = start_links(gw);
+    if (rc)
+        return rc;
+    rc = start_can(gw);
+    if (rc)
+        return rc;
+    return gw_http_start(gw);
+}
+
+static void part_closed(struct gateway *gw)
+{
+    if (--gw->closing_parts > 0)
+        return;
+    /* The commands failed by the links' close are in: the last counts. */
+    audit_finish(&gw->audit);
+    if (gw->parts & GATEWAY_PART_WRITES)
+        plc_write_free(&gw->writes);
+    if (gw->mbaps) {
+        mb_tls_free(gw->mbaps);
+        free(gw->mbaps);
+        gw->mbaps = NULL;
+    }
+    plc_commands_free(&gw->commands);
+    regmap_image_free(&gw->image);
+    regmap_free(&gw->map);
+    if (gw->close_cb)
+        gw->close_cb(gw);
+}
+
+static void on_link_closed(struct robot_link *link)
+{
+    part_closed(link->user);
+}
+
+static void on_policy_timer_closed(uv_handle_t *h)
+{
+    part_closed(h->data);
+}
+
+static void on_command_port_closed(struct command_port *cp)
+{
+    part_closed(cp->user);
+}
+
+static void on_server_closed(struct mb_server *srv)
+{
+    part_closed(srv->hooks.user);
+}
+
+static void on_can_closed(struct can_mirror *m)
+{
+    part_closed(m->user);
+}
+
+static void on_rtu_closed(struct mb_rtu *rtu)
+{
+    part_closed(rtu->user);
+}
+
+static void on_http_closed(struct http_server *srv)
+{
+    part_closed(srv->user);
+}
+
+void gateway_close(struct gateway *gw, void (*cb)(struct gateway *gw))
+{
+    gw->close_cb = cb;
+    /* Held until every close is issued: a part may finish synchronously. */
+    gw->closing_parts = 1;
+    if (gw->parts & GATEWAY_PART_MODBUS) {
+        gw->closing_parts++;
+        /* Requests that have arrived are answered before the clients go. */
+        mb_server_shutdown(&gw->modbus, on_server_closed);
+    }
+    if (gw->parts & GATEWAY_PART_STATUS_LINK) {
+        gw->closing_parts++;
+        robot_link_close(&gw->status_link, on_link_closed);
+    }
+    if (gw->parts & GATEWAY_PART_COMMAND_LINK) {
+        gw->closing_parts++;
+        command_port_close(&gw->command, on_command_port_closed);
+    }
+    if (gw->parts & GATEWAY_PART_POLICY) {
+        gw->closing_parts++;
+        uv_close((uv_handle_t *)&gw->policy_timer, on_policy_timer_closed);
+    }
+    if (gw->parts & GATEWAY_PART_CAN) {
+        gw->closing_parts++;
+        can_mirror_close(&gw->can, on_can_closed);
+    }
+    if (gw->parts & GATEWAY_PART_RTU) {
+        /* After the server's shutdown began: the line's client has had
+         * its answers. */
+        gw->closing_parts++;
+        gw->rtu.user = gw;
+        mb_rtu_close(&gw->rtu, on_rtu_closed);
+    }
+    if (gw->parts & GATEWAY_PART_HTTP) {
+        gw->closing_parts++;
+        http_server_close(&gw->http, on_http_closed);
+    }
+    part_closed(gw);
+}

@@ -1,0 +1,199 @@
+/* SPDX-License-Identifier: MIT */
+/* metrics.c - the Prometheus text format (metrics.h). */
+#include "metrics.h"
+
+#include <string.h>
+
+#define MS 1000.0
+
+void metrics_label_value(struct strbuf *out, const char *text)
+{
+    const char *run = text;
+    for (const char *p = text;; p++) {
+        const char *esc = *p == '\\' ? "\\\\" : *p == '"' ? "\\\"" : *p == '\n' ? "\\n" : NULL;
+        if (!esc && *p)
+            continue;
+        strbuf_append(out, run, (size_t)(p - run));
+        if (!*p)
+            break;
+        strbuf_append(out, esc, 2);
+        run = p + 1;
+    }
+}
+
+static void head(struct strbuf *out, const char *name, const char *type, const char *help)
+{
+    strbuf_printf(out, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
+}
+
+/* A metric without labels. */
+static void plain(struct strbuf *out, const char *name, const char *type, const char *help,
+                  double value)
+{
+    head(out, name, type, help);
+    strbuf_printf(out, "%s %.15g\n", name, value);
+}
+
+static const char *const exception_names[16] = {
+    [1] = "01", [2] = "02", [3] = "03", [4] = "04", [5] = "05", [6] = "06",
+    [8] = "08", [10] = "0A", [11] = "0B",
+};
+
+static void modbus_metrics(const struct gateway *gw, struct strbuf *out)
+{
+    const struct mb_server_stats *st = &gw->modbus.stats;
+    const struct mb_server_breakdown *by = &st->by;
+    /* Index 1 is the second listener's transport (mb_server_listen), 2
+     * the clients without a socket (mb_server_attach): the RTU line. */
+    const struct mb_transport *extra = gw->modbus.listeners[MB_LISTENER_EXTRA].transport;
+    const char *const transports[MB_STATS_TRANSPORTS] = {mb_transport_plain.name,
+                                                         extra ? extra->name : "mbaps",
+                                                         "rtu"};
+
+    head(out, "jakagw_modbus_requests_total", "counter",
+         "Modbus requests answered, by transport and function code (their sum is input "
+         "register modbus_requests).");
+    for (unsigned t = 0; t < MB_STATS_TRANSPORTS; t++)
+        for (unsigned fc = 0; fc < 128; fc++)
+            if (by->requests[t][fc] || (t == 0 && (fc == 3 || fc == 4)))
+                strbuf_printf(out,
+                              "jakagw_modbus_requests_total{transport=\"%s\",function=\"%u\"} "
+                              "%llu\n",
+                              transports[t], fc, (unsigned long long)by->requests[t][fc]);
+    head(out, "jakagw_modbus_exceptions_total", "counter",
+         "Modbus exception replies, by transport and exception code (their sum is input "
+         "register modbus_exceptions).");
+    for (unsigned t = 0; t < MB_STATS_TRANSPORTS; t++)
+        for (unsigned code = 0; code < 16; code++)
+            if (by->exceptions[t][code] || (t == 0 && code == 2))
+                strbuf_printf(out,
+                              "jakagw_modbus_exceptions_total{transport=\"%s\",code=\"%s\"} "
+                              "%llu\n",
+                              transports[t],
+                              exception_names[code] ? exception_names[code] : "other",
+                              (unsigned long long)by->exceptions[t][code]);
+    head(out, "jakagw_modbus_request_duration_seconds", "histogram",
+         "Time from a request's last byte to its reply queued.");
+    uint64_t cumulative = 0;
+    for (unsigned b = 0; b <= MB_STATS_SERVICE_BUCKETS; b++) {
+        cumulative += by->service_buckets[b];
+        if (b < MB_STATS_SERVICE_BUCKETS)
+            strbuf_printf(out, "jakagw_modbus_request_duration_seconds_bucket{le=\"%g\"} %llu\n",
+                          mb_stats_service_bounds_s[b], (unsigned long long)cumulative);
+        else
+            strbuf_printf(out,
+                          "jakagw_modbus_request_duration_seconds_bucket{le=\"+Inf\"} %llu\n",
+                          (unsigned long long)cumulative);
+    }
+    strbuf_printf(out, "jakagw_modbus_request_duration_seconds_sum %.9f\n", by->service_seconds);
+    strbuf_printf(out, "jakagw_modbus_request_duration_seconds_count %llu\n",
+                  (unsigned long long)cumulative);
+    head(out, "jakagw_modbus_clients", "gauge", "Modbus clients connected, by transport.");
+    strbuf_printf(out, "jakagw_modbus_clients{transport=\"modbus\"} %.15g\n",
+                  gw->gw_values[GW_modbus_clients] - gw->gw_values[GW_tls_clients]);
+    strbuf_printf(out, "jakagw_modbus_clients{transport=\"mbaps\"} %.15g\n",
+                  gw->gw_values[GW_tls_clients]);
+    plain(out, "jakagw_modbus_evictions_total", "counter",
+          "Modbus connections closed to admit a new one at max_clients.",
+          gw->gw_values[GW_modbus_evictions]);
+    plain(out, "jakagw_modbus_bad_frames_total", "counter",
+          "Modbus connections closed for a bad MBAP header or a reserved function code.",
+          (double)st->bad_frames);
+}
+
+static void command_metrics(const struct gateway *gw, struct strbuf *out)
+{
+    const struct audit *a = &gw->audit;
+
+    head(out, "jakagw_commands_total", "counter",
+         "Commands sent to the robot, by command and result (done, robot error, timeout, "
+         "link down, refused).");
+    for (unsigned i = 0; i < a->counter_count; i++) {
+        strbuf_printf(out, "jakagw_commands_total{command=\"");
+        metrics_label_value(out, a->counters[i].command);
+        strbuf_printf(out, "\",result=\"");
+        /* "robot error" as robot_error: label values without spaces. */
+        char result[sizeof(a->counters[i].result)];
+        snprintf(result, sizeof(result), "%s", a->counters[i].result);
+        for (char *p = result; *p; p++)
+            if (*p == ' ')
+                *p = '_';
+        metrics_label_value(out, result);
+        strbuf_printf(out, "\"} %llu\n", (unsigned long long)a->counters[i].n);
+    }
+    head(out, "jakagw_writes_refused_total", "counter",
+         "Modbus writes the gateway refused after judging them, by exception code.");
+    for (unsigned code = 0; code < 16; code++)
+        if (a->refused_writes[code] || code == 1)
+            strbuf_printf(out, "jakagw_writes_refused_total{code=\"%s\"} %llu\n",
+                          exception_names[code] ? exception_names[code] : "other",
+                          (unsigned long long)a->refused_writes[code]);
+}
+
+void metrics_render(const struct gateway *gw, struct strbuf *out)
+{
+    const double *v = gw->gw_values;
+
+    head(out, "jakagw_build_info", "gauge", "The gateway's version and register map.");
+    strbuf_printf(out, "jakagw_build_info{version=\"%s\",map_version=\"%d\",map_crc=\"%08X\"} 1\n",
+                  JAKAGW_VERSION, REGMAP_VERSION, (unsigned)v[GW_map_crc]);
+    head(out, "jakagw_link_up", "gauge", "Whether a robot link is connected (1) or not (0).");
+    strbuf_printf(out, "jakagw_link_up{link=\"status\"} %.0f\n", v[GW_status_link_up]);
+    strbuf_printf(out, "jakagw_link_up{link=\"command\"} %.0f\n", v[GW_command_link_up]);
+    plain(out, "jakagw_status_fresh", "gauge",
+          "Whether the status data is live (a document within status_timeout_ms).",
+          v[GW_status_fresh]);
+    plain(out, "jakagw_status_age_seconds", "gauge",
+          "Time since the last status document (4294967.295: none yet).",
+          v[GW_status_age_ms] / MS);
+    plain(out, "jakagw_uptime_seconds", "gauge", "Time since the gateway started.",
+          v[GW_uptime_s]);
+    plain(out, "jakagw_documents_parsed_total", "counter", "Status documents parsed.",
+          v[GW_documents_parsed]);
+    plain(out, "jakagw_parse_errors_total", "counter",
+          "Status documents dropped as not valid JSON or not an object.", v[GW_parse_errors]);
+    plain(out, "jakagw_framing_errors_total", "counter",
+          "Status stream framing errors (garbage, oversize, truncated documents).",
+          v[GW_framing_errors]);
+    head(out, "jakagw_reconnects_total", "counter", "Robot link reconnections, by link.");
+    strbuf_printf(out, "jakagw_reconnects_total{link=\"status\"} %.15g\n",
+                  v[GW_status_reconnects]);
+    strbuf_printf(out, "jakagw_reconnects_total{link=\"command\"} %.15g\n",
+                  v[GW_command_reconnects]);
+    modbus_metrics(gw, out);
+    command_metrics(gw, out);
+    plain(out, "jakagw_policy_fault", "gauge",
+          "The latched network-exception fault: 0 none, 1 heartbeat lost, 2 no Modbus client, "
+          "3 motion enable dropped.",
+          (double)gw->policy.fault);
+    plain(out, "jakagw_policy_faults_total", "counter", "Network-exception faults latched.",
+          (double)gw->policy.faults);
+    plain(out, "jakagw_write_owner_present", "gauge",
+          "Whether a Modbus client owns the write side (single_owner).",
+          gw->policy.owner_address[0] ? 1 : 0);
+    plain(out, "jakagw_plc_heartbeat_age_seconds", "gauge",
+          "Time since the PLC last changed plc_heartbeat (4294967.295: never).",
+          v[GW_plc_heartbeat_age_ms] / MS);
+    plain(out, "jakagw_robot_handler_state", "gauge",
+          "The robot's network-exception handler: 0 not sent, 1 pending, 2 accepted, 3 failed.",
+          (double)gw->commands.handle_state);
+    plain(out, "jakagw_can_state", "gauge", "The CAN mirror's state (input register can_state).",
+          v[GW_can_state]);
+    head(out, "jakagw_can_frames_total", "counter", "CAN frames of the mirror, by result.");
+    strbuf_printf(out, "jakagw_can_frames_total{result=\"sent\"} %.15g\n", v[GW_can_frames_sent]);
+    strbuf_printf(out, "jakagw_can_frames_total{result=\"dropped\"} %.15g\n",
+                  v[GW_can_frames_dropped]);
+    plain(out, "jakagw_can_errors_total", "counter", "CAN write errors.", v[GW_can_errors]);
+    plain(out, "jakagw_tls_handshakes_total", "counter",
+          "Modbus/TCP Security handshakes completed.", v[GW_tls_handshakes_ok]);
+    plain(out, "jakagw_tls_failures_total", "counter",
+          "Modbus/TCP Security handshakes failed.", v[GW_tls_failed_total]);
+    plain(out, "jakagw_http_requests_total", "counter", "HTTP requests answered.",
+          (double)gw->http.requests);
+    plain(out, "jakagw_http_connections_refused_total", "counter",
+          "HTTP connections closed at once: over the connection limit.",
+          (double)gw->http.refused);
+    plain(out, "jakagw_http_slow_closed_total", "counter",
+          "HTTP connections closed for sending a request or reading an answer too slowly.",
+          (double)gw->http.closed_slow);
+}

@@ -1,0 +1,1029 @@
+/* SPDX-License-Identifier: MIT */
+/* plc_commands.c - PLC writes that command the robot (plc_commands.h). */
+#include "plc_commands.h"
+
+#include "log.h"
+#include "policy.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define EX_NOT_PERMITTED MODBUS_EXCEPTION_ILLEGAL_FUNCTION
+#define EX_INVALID MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
+#define EX_BUSY MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY
+#define EX_LINK_DOWN MODBUS_EXCEPTION_GATEWAY_TARGET
+#define EX_FAILURE MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE
+
+/* A reply's word and the number its row shows for it. */
+struct info_word {
+    const char *text;
+    double value;
+};
+
+static const struct info_word program_states[] = {
+    {"idle", 0}, {"running", 1}, {"paused", 2}, {NULL, 0}};
+/* get_robot_state (4.12): the manual writes "powered on", jakasim and some
+ * controllers "powered_on". */
+static const struct info_word enable_states[] = {
+    {"robot_disabled", 0}, {"robot_enabled", 1}, {NULL, 0}};
+static const struct info_word power_states[] = {
+    {"powered_off", 0}, {"powered off", 0}, {"powered_on", 1}, {"powered on", 1}, {NULL, 0}};
+
+/* Robot information the status stream lacks: command, reply member, row,
+ * and the words a text value may take (NULL: a number). */
+static const struct info_item {
+    const char *cmd;
+    const char *key;
+    const char *row;
+    const struct info_word *words;
+} info_items[] = {
+    {"get_version", "version", "info.controller_version", NULL},
+    {"get_loaded_program", "programName", "info.loaded_program", NULL},
+    {"get_program_state", "programState", "info.program_state", program_states},
+    /* The link check's query (command_port.h). */
+    {"get_robot_state", "enable", "info.robot_enabled", enable_states},
+    {"get_robot_state", "power", "info.robot_powered_on", power_states},
+    {"get_payload", "mass", "info.payload_mass", NULL},
+    {"get_payload", "centroid", "info.payload_centroid[*]", NULL},
+    {"get_clsn_sensitivity", "sensitivityLevel", "info.collision_level", NULL},
+    /* The manual spells the reply member "tool offsets"; some send "_". */
+    {"get_tool_offsets", "tool_offsets", "info.tool_offsets[*]", NULL},
+    {"get_tool_offsets", "tool offsets", "info.tool_offsets[*]", NULL},
+    {"get_user_offsets", "user_offsets", "info.user_offsets[*]", NULL},
+    {"get_user_offsets", "user offsets", "info.user_offsets[*]", NULL},
+    {"get_dh_param", "alpha", "info.dh_alpha[*]", NULL},
+    {"get_dh_param", "a", "info.dh_a[*]", NULL},
+    {"get_dh_param", "d", "info.dh_d[*]", NULL},
+    {"get_dh_param", "joint_homeoff", "info.dh_joint_homeoff[*]", NULL},
+};
+static const char *const info_commands[PLC_INFO_COMMANDS] = {
+    "get_version",          "get_loaded_program", "get_program_state",
+    "get_payload",          "get_clsn_sensitivity", "get_tool_offsets",
+    "get_user_offsets",     "get_dh_param"};
+
+/* The gateway row "<prefix>.<member>". */
+static const struct regmap_row *path_row(const struct plc_commands *pc,
+                                         const char *prefix, const char *member)
+{
+    char path[96];
+    snprintf(path, sizeof(path), "%s.%s", prefix, member);
+    return regmap_find_path(pc->img->map, REGMAP_SRC_PATH, path);
+}
+
+static int bind_slot(struct plc_commands *pc, struct plc_slot *slot,
+                     enum plc_slot_kind kind, const char *prefix)
+{
+    slot->pc = pc;
+    slot->kind = kind;
+    slot->state = path_row(pc, prefix, "state");
+    slot->error_code = path_row(pc, prefix, "error_code");
+    slot->error_msg = path_row(pc, prefix, "error_msg");
+    if (!slot->state || !slot->error_code || !slot->error_msg) {
+        log_err("register map: no result rows for %s", prefix);
+        return -EINVAL;
+    }
+    return 0;
+}
+
+static const struct cmd_def *command_of(const char *path);
+static bool is_param_of(const struct regmap_row *row, const char *name);
+
+/*
+ * Finds 'member' among a command's mailbox arguments ("name[N]" takes N,
+ * a '#' or '$' suffix marks the kind). Returns how many values it takes,
+ * or 0 when it is not one of them.
+ */
+static unsigned mailbox_arg_count(const struct cmd_def *def, const char *member)
+{
+    char args[128];
+
+    snprintf(args, sizeof(args), "%s", def->mailbox_args);
+    for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        size_t n = strcspn(tok, "[#$");
+        if (strlen(member) == n && strncmp(tok, member, n) == 0)
+            return tok[n] == '[' ? (unsigned)atoi(tok + n + 1) : 1;
+    }
+    return 0;
+}
+
+/* Does a parameter row of 'def' give mailbox argument 'arg'? */
+static bool has_param_row(const struct regmap *map, const struct cmd_def *def,
+                          const char *arg, size_t arg_len)
+{
+    size_t n = strlen(def->name);
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const char *path = map->rows[r].path;
+        if (map->rows[r].source == REGMAP_SRC_CMD && !map->rows[r].fixed &&
+            strncmp(path, def->name, n) == 0 && path[n] == '.' &&
+            strncmp(path + n + 1, arg, arg_len) == 0 &&
+            (path[n + 1 + arg_len] == '\0' || path[n + 1 + arg_len] == '['))
+            return true;
+    }
+    return false;
+}
+
+/*
+ * The command table (cmd_def.mailbox_args) and the register table's
+ * parameter and setpoint rows ("<cmdName>.<member>") describe the same
+ * parameters twice: checked against each other at start, so that they
+ * cannot drift apart. Returns 0, or -EINVAL having logged the difference.
+ */
+static int check_parameter_rows(const struct regmap *map)
+{
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const struct regmap_row *row = &map->rows[r];
+        const char *dot = row->source == REGMAP_SRC_CMD ? strchr(row->path, '.') : NULL;
+        if (!dot)
+            continue;
+        const struct cmd_def *def = command_of(row->path);
+        if (!def) {
+            log_err("register map: row %s belongs to no command of the command table",
+                    row->name);
+            return -EINVAL;
+        }
+        if (!def->code)
+            continue; /* not in the mailbox: nothing to compare with */
+        char member[64];
+        snprintf(member, sizeof(member), "%.*s", (int)strcspn(dot + 1, "["), dot + 1);
+        unsigned count = mailbox_arg_count(def, member);
+        /* A parameter row gives the whole argument; a setpoint row one
+         * element of it, the others fixed by the row. */
+        if (count == 0 || (!row->fixed && count != row->elements)) {
+            log_err("register map: row %s (%s, %u values) does not match %s's arguments "
+                    "in the command table (%s)",
+                    row->name, row->path, row->elements, def->name, def->mailbox_args);
+            return -EINVAL;
+        }
+    }
+    /* The other way: a triggered command's every argument has its row. */
+    for (unsigned i = 0; i < cmd_table_count; i++) {
+        const struct cmd_def *def = &cmd_table[i];
+        char args[128];
+        bool triggered = false;
+        for (unsigned r = 0; r < map->row_count && !triggered; r++)
+            triggered = is_param_of(&map->rows[r], def->name);
+        if (!triggered || !def->code)
+            continue;
+        snprintf(args, sizeof(args), "%s", def->mailbox_args);
+        for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
+             tok = strtok_r(NULL, ",", &save)) {
+            size_t n = strcspn(tok, "[#$");
+            if (!has_param_row(map, def, tok, n)) {
+                log_err("register map: %s's argument %.*s has no parameter row", def->name,
+                        (int)n, tok);
+                return -EINVAL;
+            }
+        }
+    }
+    return 0;
+}
+
+int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
+                      struct cmd_queue *queue, const struct plc_commands_config *cfg,
+                      uint64_t (*now_ms)(void *clock), void *clock)
+{
+    char prefix[64];
+
+    memset(pc, 0, sizeof(*pc));
+    pc->img = img;
+    pc->queue = queue;
+    pc->cfg = *cfg;
+    pc->now_ms = now_ms;
+    pc->clock = clock;
+    pc->refuse_log_limit.interval_ms = 5000;
+    if (cmd_table_count > PLC_MAX_COMMANDS || check_parameter_rows(img->map) != 0)
+        return -EINVAL;
+    for (unsigned i = 0; i < cmd_table_count; i++) {
+        struct plc_slot *slot = &pc->slots[i];
+        slot->pc = pc;
+        slot->def = &cmd_table[i];
+        if (!cmd_table[i].code)
+            continue; /* not offered to PLCs on its own */
+        snprintf(prefix, sizeof(prefix), "result.%s", cmd_table[i].name);
+        if (bind_slot(pc, slot, PLC_SLOT_COMMAND, prefix))
+            return -EINVAL;
+    }
+    if (bind_slot(pc, &pc->mailbox, PLC_SLOT_MAILBOX, "mailbox") ||
+        bind_slot(pc, &pc->json, PLC_SLOT_JSON, "json"))
+        return -EINVAL;
+    for (unsigned i = 0; i < PLC_INFO_COMMANDS; i++) {
+        pc->info[i] = (struct plc_slot){.pc = pc, .kind = PLC_SLOT_INFO,
+                                        .def = cmd_find(info_commands[i])};
+        if (!pc->info[i].def)
+            return -EINVAL;
+    }
+    pc->mailbox_ack = path_row(pc, "mailbox", "ack_seq");
+    pc->mailbox_done = path_row(pc, "mailbox", "done_seq");
+    pc->mailbox_code = path_row(pc, "mailbox", "code");
+    pc->mailbox_arg = path_row(pc, "mailbox", "arg[*]");
+    pc->json_request = path_row(pc, "json", "request");
+    pc->json_trigger = path_row(pc, "json", "trigger");
+    pc->json_reply = path_row(pc, "json", "reply");
+    pc->json_truncated = path_row(pc, "json", "reply_truncated");
+    pc->json_length = path_row(pc, "json", "reply_length");
+    pc->info_age = path_row(pc, "info", "age_ms");
+    pc->handle_row = path_row(pc, "network_exception", "robot_handle");
+    pc->handle = (struct plc_slot){.pc = pc, .kind = PLC_SLOT_HANDLE,
+                                   .def = cmd_find("set_network_exception_handle")};
+    if (!pc->mailbox_ack || !pc->mailbox_done || !pc->mailbox_code ||
+        !pc->mailbox_arg || !pc->json_request || !pc->json_trigger ||
+        !pc->json_reply || !pc->json_truncated || !pc->json_length || !pc->info_age ||
+        !pc->handle_row || !pc->handle.def) {
+        log_err("register map: mailbox rows missing");
+        return -EINVAL;
+    }
+    return 0;
+}
+
+void plc_commands_free(struct plc_commands *pc)
+{
+    /* Only a write's staged commands; queued ones belong to the queue. */
+    plc_commands_discard(pc);
+}
+
+static void set_result(struct plc_slot *slot, enum cmd_outcome outcome, long code,
+                       const char *msg)
+{
+    struct regmap_image *img = slot->pc->img;
+    if (!slot->state)
+        return;
+    regmap_set_number(img, slot->state, 0, outcome, true);
+    regmap_set_number(img, slot->error_code, 0, (double)code, true);
+    regmap_set_text(img, slot->error_msg, 0, msg);
+}
+
+/* A number as JSON shows it: floats from f32 registers at their precision. */
+static cJSON *number_item(double v, bool from_float)
+{
+    if (from_float) {
+        char text[32];
+        snprintf(text, sizeof(text), "%.7g", v);
+        v = strtod(text, NULL);
+    }
+    return cJSON_CreateNumber(v);
+}
+
+/* Why a command could not be built from what the PLC wrote. */
+enum build_result {
+    BUILT = 0,
+    BUILD_INVALID,   /* the PLC's values do not make a command: 03 */
+    BUILD_NO_MEMORY, /* cJSON could not allocate: 04, nothing sent */
+};
+
+/*
+ * Sets obj.key, where key may be "name[i]" (the array grows with nulls).
+ * Takes 'item', which may be NULL (its allocation failed). Returns false
+ * when an allocation failed: 'item' is freed then, and 'obj' stays valid.
+ */
+static bool set_member(cJSON *obj, const char *key, cJSON *item)
+{
+    char name[64];
+    const char *bracket = strchr(key, '[');
+
+    if (!item)
+        return false;
+    if (!bracket) {
+        cJSON_DeleteItemFromObjectCaseSensitive(obj, key);
+        if (!cJSON_AddItemToObject(obj, key, item)) {
+            cJSON_Delete(item);
+            return false;
+        }
+        return true;
+    }
+    snprintf(name, sizeof(name), "%.*s", (int)(bracket - key), key);
+    int index = atoi(bracket + 1);
+    cJSON *array = cJSON_GetObjectItemCaseSensitive(obj, name);
+    if (!cJSON_IsArray(array)) {
+        array = cJSON_CreateArray();
+        if (!array || !cJSON_AddItemToObject(obj, name, array)) {
+            cJSON_Delete(array);
+            cJSON_Delete(item);
+            return false;
+        }
+    }
+    /* Every create is checked: an unchecked one left the array short and
+     * this loop spinning for ever. */
+    while (cJSON_GetArraySize(array) <= index) {
+        cJSON *filler = cJSON_CreateNull();
+        if (!filler || !cJSON_AddItemToArray(array, filler)) {
+            cJSON_Delete(filler);
+            cJSON_Delete(item);
+            return false;
+        }
+    }
+    if (!cJSON_ReplaceItemInArray(array, index, item)) {
+        cJSON_Delete(item);
+        return false;
+    }
+    return true;
+}
+
+/* Adds the value of element 'i' of a parameter row under its JSON path. */
+static enum build_result add_param(const struct plc_commands *pc, cJSON *obj,
+                                   const struct regmap_row *row, unsigned i)
+{
+    char path[96];
+    regmap_expand(path, sizeof(path), row->path, row->index + i, i);
+    const char *key = strchr(path, '.') + 1;
+    cJSON *item;
+
+    if (row->type == REGMAP_STR) {
+        char text[256];
+        regmap_get_text(pc->img, row, i, text, sizeof(text));
+        if (!text[0])
+            return BUILD_INVALID; /* a text parameter must be given */
+        item = cJSON_CreateString(text);
+    } else {
+        item = number_item(regmap_get_number(pc->img, row, i), row->type == REGMAP_F32);
+    }
+    return set_member(obj, key, item) ? BUILT : BUILD_NO_MEMORY;
+}
+
+/* A new object with cmdName first, as the manual writes commands. */
+static cJSON *new_command(const char *name)
+{
+    cJSON *obj = cJSON_CreateObject();
+    if (obj && !cJSON_AddStringToObject(obj, "cmdName", name)) {
+        cJSON_Delete(obj);
+        return NULL;
+    }
+    return obj;
+}
+
+static bool is_param_of(const struct regmap_row *row, const char *name)
+{
+    size_t n = strlen(name);
+    return row->source == REGMAP_SRC_CMD && !row->fixed &&
+           strncmp(row->path, name, n) == 0 && row->path[n] == '.';
+}
+
+/* The command 'def' with the parameters in its holding registers. */
+static cJSON *build_triggered(const struct plc_commands *pc, const struct cmd_def *def,
+                              enum build_result *result)
+{
+    cJSON *obj = new_command(def->name);
+
+    *result = obj ? BUILT : BUILD_NO_MEMORY;
+    for (unsigned r = 0; obj && r < pc->img->map->row_count; r++) {
+        const struct regmap_row *row = &pc->img->map->rows[r];
+        if (!is_param_of(row, def->name))
+            continue;
+        for (unsigned i = 0; i < row->elements; i++) {
+            *result = add_param(pc, obj, row, i);
+            if (*result != BUILT) {
+                cJSON_Delete(obj);
+                return NULL;
+            }
+        }
+    }
+    return obj;
+}
+
+/* A setpoint row's command: its fixed members and the value written. */
+static cJSON *build_setpoint(const struct regmap_written *w, const struct cmd_def *def,
+                             enum build_result *result)
+{
+    const struct regmap_row *row = w->row;
+    char fixed[160], text[176], path[96];
+
+    *result = BUILD_NO_MEMORY;
+    regmap_expand(fixed, sizeof(fixed), row->fixed, w->source_index, w->element);
+    snprintf(text, sizeof(text), "{%s}", fixed);
+    /* The members come from the register table, so only a failed
+     * allocation keeps them from parsing. */
+    cJSON *members = cJSON_Parse(text);
+    cJSON *obj = cJSON_IsObject(members) ? new_command(def->name) : NULL;
+    if (!obj) {
+        cJSON_Delete(members);
+        return NULL;
+    }
+    while (members->child) {
+        cJSON *m = cJSON_DetachItemViaPointer(members, members->child);
+        if (!cJSON_AddItemToObject(obj, m->string, m)) {
+            cJSON_Delete(m);
+            cJSON_Delete(members);
+            cJSON_Delete(obj);
+            return NULL;
+        }
+    }
+    cJSON_Delete(members);
+    regmap_expand(path, sizeof(path), row->path, w->source_index, w->element);
+    if (!set_member(obj, strchr(path, '.') + 1,
+                    number_item(w->value, row->type == REGMAP_F32))) {
+        cJSON_Delete(obj);
+        return NULL;
+    }
+    *result = BUILT;
+    return obj;
+}
+
+/* The mailbox's command, from its code and arguments (cmd_def.mailbox_args). */
+static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def *def,
+                            enum build_result *result)
+{
+    char args[128], name[64];
+    unsigned next = 0;
+    cJSON *obj = new_command(def->name);
+
+    *result = BUILD_NO_MEMORY;
+    if (!obj)
+        return NULL;
+    snprintf(args, sizeof(args), "%s", def->mailbox_args);
+    for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        size_t n = strlen(tok);
+        char mark = n && (tok[n - 1] == '#' || tok[n - 1] == '$') ? tok[--n] : 0;
+        tok[n] = '\0';
+        if (mark == '$') {
+            char path[96];
+            snprintf(path, sizeof(path), "%s.%s", def->name, tok);
+            const struct regmap_row *row =
+                regmap_find_path(pc->img->map, REGMAP_SRC_CMD, path);
+            *result = row ? add_param(pc, obj, row, 0) : BUILD_INVALID;
+            if (*result != BUILT)
+                goto fail;
+            continue;
+        }
+        unsigned count = 1;
+        char *bracket = strchr(tok, '[');
+        if (bracket) {
+            count = (unsigned)atoi(bracket + 1);
+            *bracket = '\0';
+        }
+        for (unsigned k = 0; k < count; k++) {
+            if (next >= pc->mailbox_arg->elements)
+                goto invalid;
+            double v = regmap_get_number(pc->img, pc->mailbox_arg, next++);
+            if (mark == '#' && v != nearbyint(v))
+                goto invalid; /* a whole number was expected */
+            if (bracket)
+                snprintf(name, sizeof(name), "%s[%u]", tok, k);
+            else
+                snprintf(name, sizeof(name), "%s", tok);
+            if (!set_member(obj, name, number_item(v, mark != '#'))) {
+                *result = BUILD_NO_MEMORY;
+                goto fail;
+            }
+        }
+    }
+    *result = BUILT;
+    return obj;
+invalid:
+    *result = BUILD_INVALID;
+fail:
+    cJSON_Delete(obj);
+    return NULL;
+}
+
+/*
+ * Does any member name appear twice? cJSON finds the first, a controller
+ * may act on the last: a second "cmdName" could smuggle motion past the
+ * checks made on the first.
+ */
+static bool has_repeated_member(const cJSON *obj)
+{
+    for (const cJSON *a = obj->child; a; a = a->next)
+        for (const cJSON *b = a->next; b; b = b->next)
+            if (a->string && b->string && strcmp(a->string, b->string) == 0)
+                return true;
+    return false;
+}
+
+/* The JSON mailbox's command: the PLC's text, if it is a command. */
+static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd_def **def,
+                                 enum build_result *result)
+{
+    char text[512];
+    const char *end = NULL;
+    regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
+    /* One object and nothing after it: the robot must act on exactly what
+     * is judged here. */
+    cJSON *obj = cJSON_ParseWithOpts(text, &end, true);
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(obj, "cmdName");
+    if (!cJSON_IsObject(obj) || !cJSON_IsString(name) || !name->valuestring[0] ||
+        has_repeated_member(obj)) {
+        cJSON_Delete(obj);
+        *result = BUILD_INVALID;
+        return NULL;
+    }
+    *def = cmd_find(name->valuestring);
+    *result = BUILT;
+    return obj;
+}
+
+enum action { ACT_NONE, ACT_TRIGGER, ACT_SETPOINT, ACT_MAILBOX, ACT_JSON };
+
+static const struct cmd_def *command_of(const char *path)
+{
+    char name[64];
+    snprintf(name, sizeof(name), "%.*s", (int)strcspn(path, "."), path);
+    return cmd_find(name);
+}
+
+/* What writing 'w' asks for; sets *def and *slot. */
+static enum action action_of(struct plc_commands *pc, const struct regmap_written *w,
+                             const struct cmd_def **def, struct plc_slot **slot)
+{
+    const struct regmap_row *row = w->row;
+
+    *def = NULL;
+    *slot = NULL;
+    if (row->source == REGMAP_SRC_CMD) {
+        *def = command_of(row->path);
+        if (!*def)
+            return ACT_NONE;
+        *slot = &pc->slots[*def - cmd_table];
+        if (row->fixed)
+            return ACT_SETPOINT;
+        /* A trigger sends on 0 -> 1 only: a repeated write is no command. */
+        if (!strchr(row->path, '.'))
+            return w->value != 0 && w->previous == 0 ? ACT_TRIGGER : ACT_NONE;
+        return ACT_NONE;
+    }
+    if (row == pc->json_trigger) {
+        *slot = &pc->json;
+        return w->value != 0 && w->previous == 0 ? ACT_JSON : ACT_NONE;
+    }
+    if (row->source == REGMAP_SRC_PATH && strcmp(row->path, "mailbox.seq") == 0) {
+        *slot = &pc->mailbox;
+        /* The same sequence number again is the same command: done already. */
+        if (w->value == w->previous)
+            return ACT_NONE;
+        *def = cmd_find_code((unsigned)regmap_get_number(pc->img, pc->mailbox_code, 0));
+        return ACT_MAILBOX;
+    }
+    return ACT_NONE;
+}
+
+static cJSON *build(struct plc_commands *pc, enum action act, const struct regmap_written *w,
+                    const struct cmd_def **def, enum build_result *result)
+{
+    *result = BUILD_INVALID;
+    switch (act) {
+    case ACT_TRIGGER:
+        return build_triggered(pc, *def, result);
+    case ACT_SETPOINT:
+        return build_setpoint(w, *def, result);
+    case ACT_MAILBOX:
+        return *def ? build_mailbox(pc, *def, result) : NULL;
+    case ACT_JSON:
+        return parse_json_request(pc, def, result);
+    case ACT_NONE:
+        break;
+    }
+    return NULL;
+}
+
+void plc_commands_begin(struct plc_commands *pc)
+{
+    plc_commands_discard(pc);
+}
+
+void plc_commands_discard(struct plc_commands *pc)
+{
+    for (unsigned i = pc->applied; i < pc->staged; i++)
+        free(pc->staged_cmds[i].json);
+    pc->staged = 0;
+    pc->applied = 0;
+}
+
+/* Refuses with 'ex', showing why in the slot's result registers. */
+static int refuse(struct plc_slot *slot, int ex, enum cmd_outcome outcome, const char *why)
+{
+    if (slot && slot->state && !slot->pending)
+        set_result(slot, outcome, 0, why);
+    return ex;
+}
+
+/*
+ * A name the command table does not know could be anything, motion
+ * included (a controller may read "Joint_Move" as joint_move): only with
+ * motion allowed may it go out, and then it is judged as motion.
+ */
+static int refuse_unknown_json_command(struct plc_commands *pc, const cJSON *cmd)
+{
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(cmd, "cmdName");
+    uint64_t suppressed;
+
+    if (log_ratelimit_pass(&pc->refuse_log_limit, pc->now_ms(pc->clock), &suppressed))
+        log_notice("JSON mailbox: refused cmdName \"%s\": not in the command table, and "
+                   "only [commands] motion = true lets other commands through "
+                   "(%llu more refusals since the last such line)",
+                   cJSON_IsString(name) ? name->valuestring : "", (unsigned long long)suppressed);
+    return refuse(&pc->json, EX_NOT_PERMITTED, CMD_REFUSED,
+                  "not in the command table: motion is off");
+}
+
+/* The gates, in order, for a command that passed validation. */
+static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *def,
+                struct plc_slot *slot)
+{
+    /* Unknown (JSON mailbox only, with motion on): judged as motion. */
+    unsigned flags = def ? def->flags : CMD_MOTION;
+
+    if ((flags & CMD_MOTION) && !pc->cfg.motion)
+        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+                      "motion is off: [commands] motion = true enables it");
+    if ((flags & CMD_SHUTDOWN) && !pc->cfg.allow_shutdown)
+        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+                      "shutdown is off: [commands] allow_shutdown = true enables it");
+    if (!pc->queue->connected)
+        return refuse(slot, EX_LINK_DOWN, CMD_NOT_SENT, "not sent: the command link is down");
+    /* Pausing and stopping are never held back for want of the handler. */
+    bool halts = flags & CMD_HALTS;
+    if (pc->cfg.require_robot_handle && pc->cfg.robot_handle && !halts &&
+        pc->handle_state != PLC_HANDLE_ACCEPTED)
+        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+                      "the robot has not accepted its network-exception handler");
+    if (pc->cfg.gate) {
+        char why[96] = "";
+        int ex = pc->cfg.gate(pc->cfg.gate_user, def, why, sizeof(why));
+        if (ex)
+            return refuse(slot, ex, CMD_REFUSED, why);
+    }
+    /* A setpoint may queue behind itself; a command or mailbox may not. */
+    if (act != ACT_SETPOINT && slot->pending)
+        return EX_BUSY;
+    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY)
+        return EX_BUSY;
+    return 0;
+}
+
+int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
+{
+    const struct cmd_def *def;
+    struct plc_slot *slot;
+    enum action act = action_of(pc, w, &def, &slot);
+    enum build_result built;
+    int ex;
+
+    if (act == ACT_NONE)
+        return 0;
+    cJSON *cmd = build(pc, act, w, &def, &built);
+    if (!cmd)
+        return built == BUILD_NO_MEMORY
+                   ? refuse(slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent")
+                   : refuse(slot, EX_INVALID, CMD_INVALID,
+                            act == ACT_MAILBOX && !def ? "unknown command code"
+                            : act == ACT_JSON          ? "not a JSON command with a cmdName"
+                                                       : "invalid parameters");
+    if (act == ACT_JSON && !def && !pc->cfg.motion)
+        ex = refuse_unknown_json_command(pc, cmd);
+    else
+        ex = gate(pc, act, def, slot);
+    if (ex) {
+        cJSON_Delete(cmd);
+        return ex;
+    }
+    /* Built once, here: applying sends exactly what was judged. */
+    char *json;
+    if (act == ACT_JSON) {
+        /* Exactly the PLC's text goes to the robot. */
+        char text[512];
+        regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
+        json = strdup(text);
+    } else {
+        json = cJSON_PrintUnformatted(cmd);
+    }
+    cJSON_Delete(cmd);
+    if (!json)
+        return refuse(slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent");
+    pc->staged_cmds[pc->staged].json = json;
+    pc->staged_cmds[pc->staged].def = def;
+    pc->staged++;
+    return 0;
+}
+
+static void on_done(void *user, const struct cmd_result *r);
+static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state);
+
+/* The command's name for the audit trail: the table's, or the JSON's. */
+static void audit_sent(struct plc_commands *pc, struct plc_slot *slot, const char *json,
+                       const struct cmd_def *def, bool own)
+{
+    char name[48] = "";
+
+    if (!pc->cfg.audit)
+        return;
+    if (def) {
+        snprintf(name, sizeof(name), "%s", def->name);
+    } else {
+        cJSON *doc = cJSON_Parse(json);
+        const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+        snprintf(name, sizeof(name), "%s", cJSON_IsString(n) ? n->valuestring : "?");
+        cJSON_Delete(doc);
+    }
+    audit_command_sent(pc->cfg.audit, slot, name, own, pc->sending_frequent);
+}
+
+static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *json,
+                   const struct cmd_def *def)
+{
+    /* Pause and stop go out at once, ahead of whatever waits. */
+    int rc = def && (def->flags & CMD_HALTS)
+                 ? cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot)
+                 : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+    audit_sent(pc, slot, json, def, false);
+    if (rc < 0) {
+        char why[96];
+        snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
+        /* The write was accepted: whatever kept the command from going
+         * out, the robot never got it. */
+        struct cmd_result r = {.outcome = CMD_NOT_SENT};
+        snprintf(r.error_msg, sizeof(r.error_msg), "%s", why);
+        audit_command_done(pc->cfg.audit, slot, &r);
+        set_result(slot, CMD_NOT_SENT, 0, why);
+        /* The mailbox's sequence number is finished too: a PLC waiting on
+         * done_seq must not wait for ever. */
+        if (slot->kind == PLC_SLOT_MAILBOX)
+            regmap_set_number(pc->img, pc->mailbox_done, 0,
+                              regmap_get_number(pc->img, pc->mailbox_ack, 0), true);
+        return;
+    }
+    slot->pending++;
+    if (slot->state)
+        set_result(slot, CMD_PENDING, 0, "");
+    /* The policy counts the robot as running from now on, until the
+     * status can show it. */
+    if (policy_command_starts_motion(def)) {
+        slot->starts_pending++;
+        if (pc->cfg.start_sent)
+            pc->cfg.start_sent(pc->cfg.gate_user);
+    }
+}
+
+void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
+{
+    const struct cmd_def *def;
+    struct plc_slot *slot;
+    enum action act = action_of(pc, w, &def, &slot);
+
+    if (act == ACT_NONE || pc->applied == pc->staged)
+        return; /* the second: not checked, so not staged (not reached) */
+    struct plc_staged *st = &pc->staged_cmds[pc->applied++];
+    def = st->def;
+    if (act == ACT_MAILBOX || act == ACT_JSON)
+        slot->def = def; /* one pending at a time: its refresh, its log line */
+    if (act == ACT_MAILBOX)
+        regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
+    pc->sending_frequent = act == ACT_SETPOINT;
+    submit(pc, slot, st->json, def);
+    pc->sending_frequent = false;
+    free(st->json);
+    st->json = NULL;
+}
+
+/* Maps a reply member onto an info row. */
+static void store_info(struct plc_commands *pc, const struct info_item *item,
+                       const cJSON *value)
+{
+    const struct regmap_row *row =
+        regmap_find_path(pc->img->map, REGMAP_SRC_PATH, item->row);
+    if (!row || !value)
+        return;
+    if (row->type == REGMAP_STR) {
+        if (cJSON_IsString(value))
+            regmap_set_text(pc->img, row, 0, value->valuestring);
+        return;
+    }
+    if (cJSON_IsArray(value)) {
+        /* Nested arrays (one per frame) are read row after row. */
+        unsigned i = 0;
+        const cJSON *e;
+        cJSON_ArrayForEach(e, value) {
+            if (cJSON_IsArray(e)) {
+                const cJSON *x;
+                cJSON_ArrayForEach(x, e) {
+                    if (i < row->elements)
+                        regmap_set_number(pc->img, row, i, cJSON_IsNumber(x) ? x->valuedouble : 0,
+                                          cJSON_IsNumber(x));
+                    i++;
+                }
+            } else {
+                if (i < row->elements)
+                    regmap_set_number(pc->img, row, i, cJSON_IsNumber(e) ? e->valuedouble : 0,
+                                      cJSON_IsNumber(e));
+                i++;
+            }
+        }
+        for (; i < row->elements; i++)
+            regmap_set_number(pc->img, row, i, 0, false);
+        return;
+    }
+    double v = 0;
+    bool ok = true;
+    if (cJSON_IsNumber(value)) {
+        v = value->valuedouble;
+    } else if (cJSON_IsString(value)) {
+        char *end;
+        v = strtod(value->valuestring, &end);
+        ok = end != value->valuestring && *end == '\0';
+        for (const struct info_word *w = item->words; !ok && w && w->text; w++)
+            if (strcmp(value->valuestring, w->text) == 0) {
+                v = w->value;
+                ok = true;
+            }
+    } else {
+        ok = false;
+    }
+    regmap_set_number(pc->img, row, 0, v, ok);
+}
+
+static void fetch_info(struct plc_commands *pc, const char *name)
+{
+    for (unsigned i = 0; i < PLC_INFO_COMMANDS; i++) {
+        struct plc_slot *slot = &pc->info[i];
+        if (strcmp(slot->def->name, name) != 0 || slot->pending)
+            continue;
+        char json[96];
+        snprintf(json, sizeof(json), "{\"cmdName\":\"%s\"}", name);
+        if (cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot) == 0)
+            slot->pending++;
+    }
+}
+
+/* Maps the members of an accepted reply to 'name' onto their rows. */
+static void store_reply(struct plc_commands *pc, const char *name, const struct cmd_result *r)
+{
+    cJSON *doc = cJSON_ParseWithLength(r->reply, r->reply_size);
+    for (unsigned i = 0; i < sizeof(info_items) / sizeof(info_items[0]); i++)
+        if (strcmp(info_items[i].cmd, name) == 0)
+            store_info(pc, &info_items[i],
+                       cJSON_GetObjectItemCaseSensitive(doc, info_items[i].key));
+    cJSON_Delete(doc);
+}
+
+static void record_info(struct plc_commands *pc, const struct plc_slot *slot,
+                        const struct cmd_result *r)
+{
+    if (r->outcome != CMD_DONE)
+        return;
+    store_reply(pc, slot->def->name, r);
+    pc->info_updated_ms = pc->now_ms(pc->clock);
+}
+
+void plc_commands_link_check_reply(struct plc_commands *pc, const char *name,
+                                   const struct cmd_result *r)
+{
+    if (r->outcome == CMD_DONE && r->reply)
+        store_reply(pc, name, r);
+}
+
+/* The JSON mailbox shows the reply itself, cut to its block if longer. */
+static void record_json_reply(struct plc_commands *pc, const struct cmd_result *r)
+{
+    char text[1024];
+    size_t cap = (size_t)pc->json_reply->str_regs * 2;
+    size_t n = r->reply ? r->reply_size : 0;
+
+    if (cap > sizeof(text) - 1)
+        cap = sizeof(text) - 1;
+    if (n > cap) {
+        n = cap;
+        /* Never cut a UTF-8 sequence in two. */
+        while (n > 0 && ((unsigned char)r->reply[n] & 0xC0) == 0x80)
+            n--;
+    }
+    if (n)
+        memcpy(text, r->reply, n);
+    text[n] = '\0';
+    regmap_set_text(pc->img, pc->json_reply, 0, text);
+    regmap_set_number(pc->img, pc->json_truncated, 0, r->reply && r->reply_size > n, true);
+    regmap_set_number(pc->img, pc->json_length, 0, r->reply ? (double)r->reply_size : 0, true);
+}
+
+static void on_done(void *user, const struct cmd_result *r)
+{
+    struct plc_slot *slot = user;
+    struct plc_commands *pc = slot->pc;
+
+    if (slot->kind != PLC_SLOT_INFO)
+        audit_command_done(pc->cfg.audit, slot, r);
+    slot->pending--;
+    if (slot->starts_pending > 0) {
+        /* One pending at a time for these slots: this is the start. */
+        slot->starts_pending--;
+        if (pc->cfg.start_answered)
+            pc->cfg.start_answered(pc->cfg.gate_user);
+    }
+    /* Several commands of one setpoint (an FC15 of outputs): the result
+     * stays pending until the last is answered, and the first failure
+     * among them is what it shows then. */
+    if (r->outcome != CMD_DONE && !slot->failed) {
+        slot->failed = true;
+        slot->failure = *r;
+        slot->failure.reply = NULL;
+    }
+    if (slot->pending > 0 && slot->kind == PLC_SLOT_COMMAND)
+        return;
+    if (slot->failed && slot->kind == PLC_SLOT_COMMAND && r->outcome == CMD_DONE)
+        r = &slot->failure;
+    slot->failed = false;
+    if (slot->kind == PLC_SLOT_INFO) {
+        record_info(pc, slot, r);
+        return;
+    }
+    if (slot->kind == PLC_SLOT_HANDLE) {
+        set_handle_state(pc, r->outcome == CMD_DONE ? PLC_HANDLE_ACCEPTED : PLC_HANDLE_FAILED);
+        if (r->outcome == CMD_DONE)
+            log_notice("robot accepted its network-exception handler");
+        else
+            log_err("robot did not accept set_network_exception_handle: %s (%ld) %s; "
+                    "commands are refused until it does",
+                    cmd_outcome_name(r->outcome), r->error_code, r->error_msg);
+        return;
+    }
+    set_result(slot, r->outcome, r->error_code, r->error_msg);
+    if (slot->kind == PLC_SLOT_MAILBOX)
+        regmap_set_number(pc->img, pc->mailbox_done, 0,
+                          regmap_get_number(pc->img, pc->mailbox_ack, 0), true);
+    if (slot->kind == PLC_SLOT_JSON)
+        record_json_reply(pc, r);
+    if (r->outcome != CMD_DONE)
+        log_notice("command %s: %s (%ld) %s",
+                   slot->def ? slot->def->name : slot->kind == PLC_SLOT_JSON ? "from the JSON mailbox" : "from the mailbox",
+                   cmd_outcome_name(r->outcome), r->error_code, r->error_msg);
+    if (r->outcome == CMD_DONE && slot->def && slot->def->refresh[0])
+        fetch_info(pc, slot->def->refresh);
+}
+
+/* A command the gateway sent for itself (plc_commands_send_now). */
+static void on_own_done(void *user, const struct cmd_result *r)
+{
+    struct plc_slot *slot = user;
+    struct plc_commands *pc = slot->pc;
+    const struct cmd_def *def = slot->def;
+    bool unknown = r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN;
+
+    on_done(slot, r);
+    if (unknown && pc->cfg.own_unknown)
+        pc->cfg.own_unknown(pc->cfg.gate_user, def);
+}
+
+static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state)
+{
+    pc->handle_state = state;
+    regmap_set_number(pc->img, pc->handle_row, 0, state, true);
+}
+
+void plc_commands_link_up(struct plc_commands *pc)
+{
+    if (pc->cfg.robot_handle) {
+        char json[128];
+        /* First on every connection: queued before any PLC command. */
+        snprintf(json, sizeof(json),
+                 "{\"cmdName\":\"set_network_exception_handle\",\"timeLimit\":%u,"
+                 "\"motType\":%u}",
+                 (unsigned)pc->cfg.robot_time_limit_ms, pc->cfg.robot_mot_type);
+        int rc = cmd_queue_submit(pc->queue, json, strlen(json), on_done, &pc->handle);
+        if (rc == 0) {
+            audit_sent(pc, &pc->handle, json, pc->handle.def, true);
+            pc->handle.pending++;
+            if (pc->handle_state != PLC_HANDLE_FAILED)
+                set_handle_state(pc, PLC_HANDLE_PENDING);
+        } else {
+            set_handle_state(pc, PLC_HANDLE_FAILED);
+        }
+    }
+    for (unsigned i = 0; i < PLC_INFO_COMMANDS; i++)
+        fetch_info(pc, info_commands[i]);
+}
+
+void plc_commands_link_down(struct plc_commands *pc)
+{
+    /* A new connection must set it again; a failure stays visible until
+     * the robot accepts it. */
+    if (pc->handle_state != PLC_HANDLE_FAILED)
+        set_handle_state(pc, PLC_HANDLE_NOT_SENT);
+}
+
+int plc_commands_send_now(struct plc_commands *pc, const char *name)
+{
+    const struct cmd_def *def = cmd_find(name);
+    if (!def)
+        return -EINVAL;
+    struct plc_slot *slot = &pc->slots[def - cmd_table];
+    char json[96];
+    snprintf(json, sizeof(json), "{\"cmdName\":\"%s\"}", name);
+    /* Written now, ahead of whatever the PLC queued. */
+    int rc = cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_own_done, slot);
+    if (rc == 0) {
+        audit_sent(pc, slot, json, def, true);
+        slot->pending++;
+        if (slot->state)
+            set_result(slot, CMD_PENDING, 0, "");
+    }
+    return rc;
+}
+
+void plc_commands_refresh(struct plc_commands *pc)
+{
+    double age = pc->info_updated_ms ? (double)(pc->now_ms(pc->clock) - pc->info_updated_ms)
+                                     : 4294967295.0;
+    regmap_set_number(pc->img, pc->info_age, 0, age, true);
+}

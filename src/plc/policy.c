@@ -1,0 +1,299 @@
+/* SPDX-License-Identifier: MIT */
+/* policy.c - the network-exception policy's state machine (policy.h). */
+#include "policy.h"
+
+#include <modbus.h>
+#include <stdio.h>
+#include <string.h>
+
+void policy_init(struct policy *p, const struct policy_config *cfg,
+                 const struct policy_sink *sink)
+{
+    memset(p, 0, sizeof(*p));
+    p->cfg = *cfg;
+    p->sink = *sink;
+}
+
+static bool heartbeat_expired(const struct policy *p, uint64_t now_ms)
+{
+    return p->heartbeat_armed && now_ms - p->heartbeat_ms >= p->cfg.time_limit_ms;
+}
+
+static void clear_owner(struct policy *p)
+{
+    p->owner = 0;
+    p->owner_address[0] = '\0';
+}
+
+int policy_may_write(const struct policy *p, uint64_t client)
+{
+    if (!p->cfg.single_owner || p->owner == 0 || p->owner == client)
+        return 0;
+    return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+}
+
+void policy_heartbeat(struct policy *p, uint64_t now_ms, uint64_t client,
+                      const char *address, double value)
+{
+    /* Only a change counts: a PLC stuck writing the same value is silent. */
+    if (!p->heartbeat_armed || value != p->heartbeat_value) {
+        p->heartbeat_ms = now_ms;
+        p->heartbeat_armed = true;
+    }
+    p->heartbeat_value = value;
+    if (p->cfg.single_owner && p->owner == 0) {
+        p->owner = client;
+        snprintf(p->owner_address, sizeof(p->owner_address), "%s", address);
+    }
+}
+
+void policy_client_opened(struct policy *p, uint64_t now_ms, unsigned clients)
+{
+    (void)now_ms;
+    p->clients = clients;
+    p->connection_armed = true;
+}
+
+void policy_client_closed(struct policy *p, uint64_t now_ms, uint64_t client,
+                          unsigned clients)
+{
+    p->clients = clients;
+    if (clients == 0)
+        p->no_client_since_ms = now_ms;
+    if (client == p->owner)
+        clear_owner(p);
+}
+
+/* Sends 'action' for 'reason', or keeps it owed when it cannot go out now. */
+static void act(struct policy *p, enum policy_action action, enum policy_fault reason)
+{
+    if (action == POLICY_KEEP || !p->sink.send_action)
+        return;
+    if (p->sink.send_action(p->sink.user, action, reason))
+        p->owed = POLICY_KEEP;
+    else if (action > p->owed)
+        p->owed = action; /* stop outranks pause */
+}
+
+static void latch(struct policy *p, uint64_t now_ms, enum policy_fault reason,
+                  enum policy_action action)
+{
+    p->fault = reason;
+    p->fault_since_ms = now_ms;
+    p->faults++;
+    act(p, action, reason);
+}
+
+void policy_action_unknown(struct policy *p, enum policy_action action)
+{
+    if (p->fault == POLICY_FAULT_NONE || action == POLICY_KEEP)
+        return;
+    if (action > p->owed)
+        p->owed = action; /* stop outranks pause */
+}
+
+void policy_reset(struct policy *p)
+{
+    p->fault = POLICY_FAULT_NONE;
+    p->fault_since_ms = 0;
+    p->owed = POLICY_KEEP;
+}
+
+#define START_UNSHOWN_MAX_MS_DEFAULT 10000
+
+void policy_start_sent(struct policy *p, uint64_t now_ms)
+{
+    (void)now_ms;
+    p->starts_unanswered++;
+}
+
+void policy_start_answered(struct policy *p, uint64_t now_ms)
+{
+    if (p->starts_unanswered > 0)
+        p->starts_unanswered--;
+    if (p->starts_unanswered == 0) {
+        p->start_unshown = true;
+        p->start_answered_ms = now_ms;
+    }
+}
+
+void policy_status_document(struct policy *p, uint64_t now_ms)
+{
+    /* Only a document received well after the reply can show the start: a
+     * controller answers before its next status push reflects the new
+     * program state, and jakasim's 8 ms push is no promise for a real
+     * one, so the first documents after the reply prove nothing. */
+    if (p->starts_unanswered == 0 && p->start_unshown &&
+        now_ms >= p->start_answered_ms + POLICY_START_SETTLE_MS)
+        p->start_unshown = false;
+}
+
+bool policy_start_unshown(const struct policy *p, uint64_t now_ms)
+{
+    uint32_t max = p->cfg.start_unshown_max_ms ? p->cfg.start_unshown_max_ms
+                                               : START_UNSHOWN_MAX_MS_DEFAULT;
+    /* Unanswered, it may start any moment: the command queue bounds that
+     * (a reply, a reply timeout or the link's loss answers every one). */
+    if (p->starts_unanswered > 0)
+        return true;
+    return p->start_unshown && now_ms - p->start_answered_ms < max;
+}
+
+/* Does the robot run, or may it run: what the status shows, or a start
+ * sent that it cannot show yet. */
+static bool may_run(const struct policy *p, uint64_t now_ms, bool robot_moving)
+{
+    return robot_moving || policy_start_unshown(p, now_ms);
+}
+
+#define LOST(reason) (1u << (reason))
+
+/*
+ * The one rule for every watched signal: which are lost now, as a set of
+ * LOST(reason). A signal counts only once armed (a first heartbeat change,
+ * a first client, a first 1 on the motion-enable coil), and is judged as a
+ * level, never as an edge.
+ */
+static unsigned lost_signals(const struct policy *p, uint64_t now_ms)
+{
+    unsigned lost = 0;
+
+    if ((p->cfg.watch & POLICY_WATCH_HEARTBEAT) && heartbeat_expired(p, now_ms))
+        lost |= LOST(POLICY_FAULT_HEARTBEAT);
+    if ((p->cfg.watch & POLICY_WATCH_CONNECTION) && p->connection_armed &&
+        p->clients == 0 && now_ms - p->no_client_since_ms >= p->cfg.time_limit_ms)
+        lost |= LOST(POLICY_FAULT_NO_CLIENT);
+    if (p->cfg.motion_enable && p->motion_enable_armed && !p->motion_enabled)
+        lost |= LOST(POLICY_FAULT_MOTION_ENABLE);
+    return lost;
+}
+
+/* Motion enable's own action is always pause; the others' is configured. */
+static enum policy_action action_for(const struct policy *p, enum policy_fault reason)
+{
+    return reason == POLICY_FAULT_MOTION_ENABLE ? POLICY_PAUSE : p->cfg.action;
+}
+
+/*
+ * Applies the rule: signals lost while the robot runs or may run latch the
+ * first of them (in the order of enum policy_fault) and send the strongest
+ * of their actions. Under a latched fault nothing is repeated, except
+ * motion enable's pause, once per drop.
+ */
+static void apply_rule(struct policy *p, uint64_t now_ms, bool running)
+{
+    unsigned lost = lost_signals(p, now_ms);
+
+    if (lost == 0 || !running)
+        return;
+    if (p->fault == POLICY_FAULT_NONE) {
+        enum policy_fault first = POLICY_FAULT_NONE;
+        enum policy_action action = POLICY_KEEP;
+        for (enum policy_fault r = POLICY_FAULT_HEARTBEAT; r <= POLICY_FAULT_MOTION_ENABLE;
+             r++) {
+            if (!(lost & LOST(r)))
+                continue;
+            if (first == POLICY_FAULT_NONE)
+                first = r;
+            if (action_for(p, r) > action)
+                action = action_for(p, r); /* stop outranks pause */
+        }
+        if (lost & LOST(POLICY_FAULT_MOTION_ENABLE))
+            p->motion_enable_paused = true;
+        latch(p, now_ms, first, action);
+        return;
+    }
+    if ((lost & LOST(POLICY_FAULT_MOTION_ENABLE)) && !p->motion_enable_paused) {
+        /* Its own reason, not the latched one's: the log says why. */
+        p->motion_enable_paused = true;
+        act(p, POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+    }
+}
+
+void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
+                          bool robot_moving)
+{
+    p->motion_enabled = value;
+    if (value) {
+        p->motion_enable_armed = true;
+        p->motion_enable_paused = false; /* the next drop pauses again */
+        return;
+    }
+    /* Idle, nothing to pause: the coil at 0 already keeps programs and
+     * motion from starting (policy_gate_command). Running or about to,
+     * it pauses at once, whatever fault is latched already. */
+    apply_rule(p, now_ms, may_run(p, now_ms, robot_moving));
+}
+
+void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving)
+{
+    bool running = may_run(p, now_ms, robot_moving);
+
+    /* An owner whose heartbeat expired gives the write side up. */
+    if (p->owner && heartbeat_expired(p, now_ms))
+        clear_owner(p);
+    /* Latched: an action that could not go out is tried again while the
+     * robot may move. */
+    if (p->fault != POLICY_FAULT_NONE && p->owed != POLICY_KEEP && running)
+        act(p, p->owed, p->fault);
+    apply_rule(p, now_ms, running);
+}
+
+bool policy_blocks_commands(const struct policy *p)
+{
+    return p->fault != POLICY_FAULT_NONE ||
+           (p->cfg.motion_enable && !p->motion_enabled);
+}
+
+uint64_t policy_fault_age_ms(const struct policy *p, uint64_t now_ms)
+{
+    return p->fault == POLICY_FAULT_NONE ? 0 : now_ms - p->fault_since_ms;
+}
+
+bool policy_robot_may_move(bool status_fresh, const struct jaka_status *status)
+{
+    if (!status_fresh || !status)
+        return true; /* blind: assume the worst */
+    const struct status_num *inpos = status_num_at(status, STATUS_F_inpos, 0);
+    const struct status_num *interp = status_num_at(status, STATUS_F_interp_state, 0);
+    /* interp_state 1 loading, 3 running: a program may move the arm. */
+    bool running = interp->present && (interp->value == 1 || interp->value == 3);
+    return running || (inpos->present && inpos->value == 0);
+}
+
+bool policy_command_starts_motion(const struct cmd_def *def)
+{
+    /* Unknown to the table: judged as motion. */
+    return !def || (def->flags & (CMD_MOTION | CMD_STARTS_MOTION));
+}
+
+int policy_gate_command(struct policy *p, uint64_t now_ms, const struct cmd_def *def,
+                        char *why, size_t size)
+{
+    static const char *const names[] = {"", "the PLC heartbeat", "the Modbus connection",
+                                        "motion enable"};
+
+    if (def && strcmp(def->name, "stop_program") == 0)
+        return 0; /* stopping is never refused */
+    if (p->fault != POLICY_FAULT_NONE) {
+        snprintf(why, size, "network-exception fault %d latched: reset it first", p->fault);
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    if (!policy_command_starts_motion(def))
+        return 0;
+    unsigned lost = lost_signals(p, now_ms);
+    if (lost) {
+        /* The PLC asks the robot to run without the signal: the rule as
+         * if the start had gone out, so the outcome does not depend on
+         * whether the start came before or after the loss. */
+        apply_rule(p, now_ms, true);
+        snprintf(why, size, "%s lost: fault %d latched",
+                 names[p->fault <= POLICY_FAULT_MOTION_ENABLE ? p->fault : 0], p->fault);
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    if (policy_blocks_commands(p)) {
+        snprintf(why, size, "motion enable is 0");
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    return 0;
+}

@@ -1,0 +1,507 @@
+/* SPDX-License-Identifier: MIT */
+/* command.c - the command table and the command queue (command.h). */
+#include "command.h"
+
+#include <cJSON.h>
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+/*
+ * Mailbox codes are part of the PLC interface: never renumber one; add new
+ * commands with new codes. 'refresh' names the information the gateway
+ * fetches again after the command was accepted.
+ */
+const struct cmd_def cmd_table[] = {
+    {"power_on", 0, 1, "", ""},
+    {"power_off", 0, 2, "", ""},
+    {"enable_robot", 0, 3, "", ""},
+    {"disable_robot", 0, 4, "", ""},
+    {"clear_error", 0, 5, "", ""},
+    {"shutdown", CMD_SHUTDOWN, 6, "", ""},
+    {"load_program", 0, 10, "get_loaded_program", "programName$"},
+    {"play_program", CMD_STARTS_MOTION, 11, "get_program_state", ""},
+    {"pause_program", CMD_HALTS, 12, "get_program_state", ""},
+    {"resume_program", CMD_STARTS_MOTION, 13, "get_program_state", ""},
+    {"stop_program", CMD_HALTS, 14, "get_program_state", ""},
+    {"rapid_rate", 0, 20, "", "rate_value"},
+    {"set_digital_output", 0, 21, "", "type#,index#,value#"},
+    {"set_analog_output", 0, 22, "", "type#,index#,value"},
+    {"set_tool_id", 0, 23, "", "tool_id#"},
+    {"set_user_id", 0, 24, "", "user_frame_id#"},
+    {"set_payload", 0, 25, "get_payload", "mass,centroid[3]"},
+    {"set_clsn_sensitivity", 0, 26, "get_clsn_sensitivity", "sensitivityVal#"},
+    {"joint_move", CMD_MOTION, 30, "", "jointPosition[6],speed,accel,relFlag#"},
+    {"end_move", CMD_MOTION, 31, "", "endPosition[6],speed,accel"},
+    {"moveL", CMD_MOTION, 32, "", "cartPosition[6],speed,accel,relFlag#,tol"},
+    /* Sent by the gateway itself, or through the JSON mailbox only. */
+    {"get_loaded_program", 0, 0, "", ""},
+    {"get_program_state", 0, 0, "", ""},
+    {"get_version", 0, 0, "", ""},
+    {"get_payload", 0, 0, "", ""},
+    {"get_clsn_sensitivity", 0, 0, "", ""},
+    {"set_network_exception_handle", 0, 0, "", ""},
+    {"get_tool_offsets", 0, 0, "", ""},
+    {"get_user_offsets", 0, 0, "", ""},
+    {"get_dh_param", 0, 0, "", ""},
+    /* Through the JSON mailbox: what they change is fetched again. */
+    {"set_tool_offsets", 0, 0, "get_tool_offsets", ""},
+    {"set_user_offsets", 0, 0, "get_user_offsets", ""},
+    /* Chapter 4's queries, through the JSON mailbox: none moves the arm. */
+    {"get_data", 0, 0, "", ""},
+    {"get_joint_pos", 0, 0, "", ""},
+    {"get_tcp_pos", 0, 0, "", ""},
+    {"get_robot_state", 0, 0, "", ""},
+    {"kine_forward", 0, 0, "", ""},
+    {"kine_inverse", 0, 0, "", ""},
+    {"get_digital_input_status", 0, 0, "", ""},
+    {"get_funcdi_status", 0, 0, "", ""},
+    {"get_extio_status", 0, 0, "", ""},
+    {"get_tio_vout_param", 0, 0, "", ""},
+    {"get_tool_payload", 0, 0, "", ""},
+    {"get_compliant_type", 0, 0, "", ""},
+    {"get_admit_ctrl_config", 0, 0, "", ""},
+    {"get_torque_sensor_comm", 0, 0, "", ""},
+    {"get_torsenosr_brand", 0, 0, "", ""},
+    {"get_torq_sensor_identify_staus", 0, 0, "", ""},
+    {"get_torq_sensor_payload_identify_result", 0, 0, "", ""},
+    {"get_traj_config", 0, 0, "", ""},
+    {"get_traj_sample_status", 0, 0, "", ""},
+    {"get_exist_traj_file_name", 0, 0, "", ""},
+    {"is_in_servomove", 0, 0, "", ""},
+    {"drag_status", 0, 0, "", ""},
+    {"protective_stop_status", 0, 0, "", ""},
+    {"emergency_stop_status", 0, 0, "", ""},
+    {"query_user_defined_variable", 0, 0, "", ""},
+    {"wait_complete", 0, 0, "", ""},
+    /* Settings that move nothing by themselves. */
+    {"set_tool_payload", 0, 0, "", ""},
+    {"set_tio_vout_param", 0, 0, "", ""},
+    {"set_torque_sensor_comm", 0, 0, "", ""},
+    {"set_torsenosr_brand", 0, 0, "", ""},
+    {"set_traj_config", 0, 0, "", ""},
+    {"set_servo_move_filter", 0, 0, "", ""},
+    {"modify_user_defined_variable", 0, 0, "", ""},
+    {"generate_traj_exe_file", 0, 0, "", ""},
+    {"remove_traj_file", 0, 0, "", ""},
+    {"rename_traj_file_name", 0, 0, "", ""},
+    {"disable_force_control", 0, 0, "", ""},
+    /* Motion of any kind, recognised in the JSON mailbox. */
+    {"jog", CMD_MOTION, 0, "", ""},
+    {"movc", CMD_MOTION, 0, "", ""},
+    {"servo_move", CMD_MOTION, 0, "", ""},
+    {"servo_j", CMD_MOTION, 0, "", ""},
+    {"servo_p", CMD_MOTION, 0, "", ""},
+    {"torque_control_enable", CMD_MOTION, 0, "", ""},
+    /* These move the arm, or let forces move it. */
+    {"start_torq_sensor_payload_identify", CMD_MOTION, 0, "", ""},
+    {"enable_admittance_ctrl", CMD_MOTION, 0, "", ""},
+    {"set_compliant_type", CMD_MOTION, 0, "", ""},
+    {"set_traj_sample_mode", CMD_MOTION, 0, "", ""},
+    {"set_admit_ctrl_config", CMD_MOTION, 0, "", ""},
+    {"set_compliance_condition", CMD_MOTION, 0, "", ""},
+    {"set_vel_compliant_ctrl", CMD_MOTION, 0, "", ""},
+    {"set_torque_sensor_mode", CMD_MOTION, 0, "", ""},
+};
+const unsigned cmd_table_count = sizeof(cmd_table) / sizeof(cmd_table[0]);
+
+/* Equal names, where a space matches an underscore: the manual writes
+ * "joint move" for joint_move, and some controllers may accept either. */
+static bool same_name(const char *table_name, const char *name)
+{
+    for (; *table_name && *name; table_name++, name++)
+        if (*table_name != *name && !(*table_name == '_' && *name == ' '))
+            return false;
+    return *table_name == *name;
+}
+
+const struct cmd_def *cmd_find(const char *name)
+{
+    for (unsigned i = 0; i < cmd_table_count; i++)
+        if (same_name(cmd_table[i].name, name))
+            return &cmd_table[i];
+    return NULL;
+}
+
+const struct cmd_def *cmd_find_code(unsigned code)
+{
+    for (unsigned i = 0; code && i < cmd_table_count; i++)
+        if (cmd_table[i].code == code)
+            return &cmd_table[i];
+    return NULL;
+}
+
+const char *cmd_outcome_name(enum cmd_outcome outcome)
+{
+    static const char *const names[] = {
+        [CMD_IDLE] = "idle",         [CMD_PENDING] = "pending",
+        [CMD_DONE] = "done",         [CMD_ROBOT_ERROR] = "robot error",
+        [CMD_TIMEOUT] = "timeout",   [CMD_LINK_DOWN] = "link down",
+        [CMD_INVALID] = "invalid",   [CMD_REFUSED] = "refused",
+        [CMD_NOT_SENT] = "not sent",
+    };
+    return (unsigned)outcome < sizeof(names) / sizeof(names[0]) ? names[outcome] : "?";
+}
+
+void cmd_parse_reply(const char *json, size_t size, struct cmd_result *r)
+{
+    cJSON *doc = cJSON_ParseWithLength(json, size);
+    const cJSON *code = cJSON_GetObjectItemCaseSensitive(doc, "errorCode");
+    const cJSON *msg = cJSON_GetObjectItemCaseSensitive(doc, "errorMsg");
+
+    memset(r, 0, sizeof(*r));
+    r->reply = json;
+    r->reply_size = size;
+    if (!cJSON_IsObject(doc)) {
+        r->outcome = CMD_ROBOT_ERROR;
+        r->error_code = -1;
+        snprintf(r->error_msg, sizeof(r->error_msg), "reply is not a JSON object");
+    } else if (cJSON_IsNumber(code) || (cJSON_IsString(code) && code->valuestring[0])) {
+        char *end = NULL;
+        /* Real controllers send "0", "1", "2", "-1", "3"; some a number. */
+        /* A number outside long's range would be undefined to convert. */
+        bool huge = cJSON_IsNumber(code) &&
+                    !(code->valuedouble > -2147483648.0 && code->valuedouble < 2147483648.0);
+        r->error_code = cJSON_IsNumber(code) ? (huge ? -1 : (long)code->valuedouble)
+                                             : strtol(code->valuestring, &end, 10);
+        if (huge) {
+            r->outcome = CMD_ROBOT_ERROR;
+            snprintf(r->error_msg, sizeof(r->error_msg), "errorCode %g is out of range",
+                     code->valuedouble);
+        } else if (cJSON_IsString(code) && *end != '\0') {
+            r->outcome = CMD_ROBOT_ERROR;
+            r->error_code = -1;
+            snprintf(r->error_msg, sizeof(r->error_msg), "errorCode '%.60s' is not a number",
+                     code->valuestring);
+        } else {
+            r->outcome = r->error_code == 0 ? CMD_DONE : CMD_ROBOT_ERROR;
+        }
+    } else {
+        r->outcome = CMD_ROBOT_ERROR;
+        r->error_code = -1;
+        snprintf(r->error_msg, sizeof(r->error_msg), "reply has no errorCode");
+    }
+    if (cJSON_IsString(msg) && r->error_msg[0] == '\0')
+        snprintf(r->error_msg, sizeof(r->error_msg), "%s", msg->valuestring);
+    cJSON_Delete(doc);
+}
+
+void cmd_queue_init(struct cmd_queue *q, const struct cmd_ops *ops,
+                    uint32_t timeout_ms)
+{
+    memset(q, 0, sizeof(*q));
+    q->ops = *ops;
+    q->timeout_ms = timeout_ms;
+}
+
+static struct cmd_entry *entry_at(struct cmd_queue *q, unsigned i)
+{
+    return &q->entries[(q->head + i) % CMD_QUEUE_CAPACITY];
+}
+
+/* Removes the head entry and reports 'r' to its owner. */
+static void finish_head(struct cmd_queue *q, const struct cmd_result *r)
+{
+    struct cmd_entry e = *entry_at(q, 0);
+
+    q->head = (q->head + 1) % CMD_QUEUE_CAPACITY;
+    q->count--;
+    q->in_flight = false;
+    free(e.json);
+    e.done(e.user, r);
+}
+
+static void fail_head(struct cmd_queue *q, enum cmd_outcome outcome, const char *why)
+{
+    struct cmd_result r = {.outcome = outcome};
+    snprintf(r.error_msg, sizeof(r.error_msg), "%s", why);
+    finish_head(q, &r);
+}
+
+/*
+ * A command lost with its connection. Written, the robot may have acted on
+ * it: its outcome is unknown. Never written, the robot never got it. The
+ * texts lead with that, since a PLC reads their first 40 bytes.
+ */
+static void fail_head_lost(struct cmd_queue *q, const char *why_sent,
+                           const char *why_not_sent)
+{
+    if (entry_at(q, 0)->sent) {
+        q->stats.failed_link_down++;
+        fail_head(q, CMD_LINK_DOWN, why_sent);
+    } else {
+        q->stats.not_sent++;
+        fail_head(q, CMD_NOT_SENT, why_not_sent);
+    }
+}
+
+/* Writes an entry; 0 or the send's error. */
+static int write_entry(struct cmd_queue *q, struct cmd_entry *e)
+{
+    int rc = q->ops.send(q->ops.io, e->json, e->size);
+    if (rc < 0)
+        return rc;
+    e->sent = true;
+    e->sent_at_ms = q->ops.now_ms(q->ops.io);
+    q->stats.sent++;
+    return 0;
+}
+
+/* The head is in flight: its reply's deadline runs from when it went out. */
+static void start_flight(struct cmd_queue *q)
+{
+    const struct cmd_entry *head = entry_at(q, 0);
+
+    q->in_flight = true;
+    q->sent_at_ms = head->sent_at_ms;
+    q->flight_timeout_ms = head->timeout_ms ? head->timeout_ms : q->timeout_ms;
+    if (q->ops.sent)
+        q->ops.sent(q->ops.io);
+}
+
+/* Puts the head in flight, writing it unless it went out already. */
+static void send_next(struct cmd_queue *q)
+{
+    while (q->count > 0 && !q->in_flight && q->connected) {
+        struct cmd_entry *e = entry_at(q, 0);
+        int rc = e->sent ? 0 : write_entry(q, e);
+        if (rc < 0) {
+            char why[96];
+            snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
+            q->stats.not_sent++;
+            fail_head(q, CMD_NOT_SENT, why);
+            continue;
+        }
+        start_flight(q);
+    }
+}
+
+/*
+ * Entry 'e' (a command, not a check) was just written behind the link
+ * check in flight. The check's own bound is short (it is there to find a
+ * dead idle link), but the command's reply now comes only after the
+ * check's: the connection is given the command's whole reply timeout,
+ * counted from its own send, before it is cut. Else a command, a safety
+ * action above all, written just before the check's bound would be cut
+ * with the link after a few milliseconds and read "outcome unknown"
+ * (possibly never delivered) where it would have had reply_timeout_ms.
+ */
+static void extend_check_for(struct cmd_queue *q, const struct cmd_entry *e)
+{
+    if (!q->in_flight || !entry_at(q, 0)->check || e->check)
+        return;
+    uint64_t need = e->sent_at_ms - q->sent_at_ms + q->timeout_ms;
+    if (need > q->flight_timeout_ms)
+        q->flight_timeout_ms = need > UINT32_MAX ? UINT32_MAX : (uint32_t)need;
+}
+
+/* Is every entry before 'n' a link check written already? Then nothing
+ * waits: the entry at 'n' may be written at once, behind them. */
+static bool only_checks_before(struct cmd_queue *q, unsigned n)
+{
+    for (unsigned i = 0; i < n; i++) {
+        const struct cmd_entry *e = entry_at(q, i);
+        if (!e->check || !e->sent)
+            return false;
+    }
+    return true;
+}
+
+int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
+                     cmd_done_cb done, void *user)
+{
+    if (!q->connected)
+        return -ENOTCONN;
+    if (q->count == CMD_QUEUE_CAPACITY)
+        return -EBUSY;
+    char *copy = malloc(size);
+    if (!copy)
+        return -ENOMEM;
+    memcpy(copy, json, size);
+    struct cmd_entry *e = entry_at(q, q->count);
+    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
+    q->count++;
+    /* Only an empty queue sends at once: a command submitted from a done
+     * callback, while others wait, must not jump ahead of them. Behind a
+     * link check nothing waits: the command goes out at once, pipelined,
+     * and its reply is matched after the check's. */
+    bool empty = !q->in_flight && q->count == 1;
+    if (empty || only_checks_before(q, q->count - 1)) {
+        /* Sent now: a failure here is the caller's to report. */
+        int rc = write_entry(q, e);
+        if (rc < 0) {
+            q->count--;
+            free(copy);
+            return rc;
+        }
+        if (empty)
+            start_flight(q);
+        else
+            extend_check_for(q, e);
+    }
+    return 0;
+}
+
+int cmd_queue_submit_check(struct cmd_queue *q, const char *json, size_t size,
+                           uint32_t timeout_ms, cmd_done_cb done, void *user)
+{
+    if (!q->connected)
+        return -ENOTCONN;
+    /* A command in flight or queued: the link is in use, and its own
+     * reply timeout watches it. */
+    if (q->in_flight || q->count > 0)
+        return -EBUSY;
+    char *copy = malloc(size);
+    if (!copy)
+        return -ENOMEM;
+    memcpy(copy, json, size);
+    struct cmd_entry *e = entry_at(q, 0);
+    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user,
+                            .check = true, .timeout_ms = timeout_ms};
+    q->count = 1;
+    int rc = write_entry(q, e);
+    if (rc < 0) {
+        q->count = 0;
+        free(copy);
+        return rc;
+    }
+    q->stats.checks++;
+    start_flight(q);
+    return 0;
+}
+
+int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
+                            cmd_done_cb done, void *user)
+{
+    struct cmd_entry displaced = {0};
+
+    if (!q->connected)
+        return -ENOTCONN;
+    if (!q->in_flight && q->count == 0)
+        return cmd_queue_submit(q, json, size, done, user);
+    if (q->count == CMD_QUEUE_CAPACITY) {
+        /* Room for safety first: the newest unwritten command gives way.
+         * It is told only at the end, once the queue is whole again, since
+         * its callback may submit or drop the link. */
+        if (entry_at(q, q->count - 1)->sent)
+            return -EBUSY; /* every entry written already */
+        displaced = *entry_at(q, q->count - 1);
+        q->count--;
+    }
+    char *copy = malloc(size);
+    int rc = copy ? 0 : -ENOMEM;
+    unsigned at = 0;
+    if (copy) {
+        memcpy(copy, json, size);
+        /* Behind what is written already, ahead of what is not. */
+        while (at < q->count && entry_at(q, at)->sent)
+            at++;
+        for (unsigned i = q->count; i > at; i--)
+            *entry_at(q, i) = *entry_at(q, i - 1);
+        struct cmd_entry *e = entry_at(q, at);
+        *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
+        q->count++;
+        rc = write_entry(q, e);
+        if (rc < 0) {
+            for (unsigned i = at; i + 1 < q->count; i++)
+                *entry_at(q, i) = *entry_at(q, i + 1);
+            q->count--;
+            free(copy);
+        } else if (at > 0) {
+            extend_check_for(q, e);
+        }
+    }
+    if (displaced.json) {
+        if (rc < 0) {
+            /* Not sent after all: the displaced command keeps its place. */
+            *entry_at(q, q->count) = displaced;
+            q->count++;
+        } else {
+            struct cmd_result r = {.outcome = CMD_NOT_SENT};
+            snprintf(r.error_msg, sizeof(r.error_msg), "not sent: displaced by a safety action");
+            q->stats.not_sent++;
+            free(displaced.json);
+            displaced.done(displaced.user, &r);
+        }
+    }
+    if (rc == 0 && !q->in_flight)
+        send_next(q); /* at == 0: it is the head now */
+    return rc;
+}
+
+static void fail_all(struct cmd_queue *q, const char *why_sent, const char *why_not_sent)
+{
+    while (q->count > 0)
+        fail_head_lost(q, why_sent, why_not_sent);
+}
+
+void cmd_queue_set_connected(struct cmd_queue *q, bool connected)
+{
+    q->connected = connected;
+    /* Also when already marked down (after a reply timeout): whatever is
+     * still queued then must not wait for a connection that is gone. */
+    if (!connected)
+        fail_all(q, "outcome unknown: the link went down",
+                 "not sent: the link went down");
+}
+
+void cmd_queue_on_reply(struct cmd_queue *q, const char *json, size_t size)
+{
+    struct cmd_result r;
+
+    if (!q->in_flight) {
+        q->stats.unsolicited++;
+        return;
+    }
+    cmd_parse_reply(json, size, &r);
+    q->stats.replies++;
+    if (r.outcome == CMD_ROBOT_ERROR)
+        q->stats.robot_errors++;
+    finish_head(q, &r);
+    send_next(q);
+}
+
+void cmd_queue_check_timeout(struct cmd_queue *q)
+{
+    if (!q->in_flight ||
+        q->ops.now_ms(q->ops.io) - q->sent_at_ms < q->flight_timeout_ms)
+        return;
+    char why[96], msg[64];
+    bool check = entry_at(q, 0)->check;
+    unsigned limit = (unsigned)q->flight_timeout_ms;
+    if (check)
+        snprintf(why, sizeof(why), "link check unanswered within %u ms", limit);
+    else
+        snprintf(why, sizeof(why), "no reply within %u ms; the outcome is unknown", limit);
+    snprintf(msg, sizeof(msg), "outcome unknown: no reply in %u ms", limit);
+    q->stats.timeouts++;
+    if (check)
+        q->stats.checks_failed++;
+    /* The connection is condemned from here: nothing a callback submits
+     * may be written to it. */
+    q->connected = false;
+    fail_head(q, CMD_TIMEOUT, msg);
+    /* The late reply must never answer the next command: drop the
+     * connection it would come on, and what was queued behind it. */
+    fail_all(q, "outcome unknown: link restarted", "not sent: link restarted");
+    q->ops.restart_link(q->ops.io, why);
+}
+
+uint64_t cmd_queue_next_deadline_ms(const struct cmd_queue *q)
+{
+    if (!q->in_flight)
+        return UINT64_MAX;
+    uint64_t elapsed = q->ops.now_ms(q->ops.io) - q->sent_at_ms;
+    return elapsed >= q->flight_timeout_ms ? 0 : q->flight_timeout_ms - elapsed;
+}
+
+unsigned cmd_queue_pending(const struct cmd_queue *q)
+{
+    return q->count;
+}
+
+void cmd_queue_free(struct cmd_queue *q)
+{
+    fail_all(q, "outcome unknown: the gateway stopped", "not sent: the gateway is stopping");
+}

@@ -1,0 +1,744 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
+"""The HTTP side ([http] enabled): Prometheus metrics, /status.json, the
+status page in a real browser, the audit trail, and what hostile HTTP
+clients can do to the gateway (nothing to Modbus).
+
+Real clients throughout: the real jakasim and jakagw, pymodbus as the PLC,
+Debian's promtool on /metrics and on the alert rules, headless Chromium
+driven by selenium for the page, raw sockets for the abuse.
+
+    test_http.py [NAME...]   only the tests whose name contains a NAME
+"""
+import http.client
+import json
+import os
+import re
+import shutil
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import contextlib
+
+from harness import (JAKAGW, Gateway, ModbusPlc, Sim, TestFailure, check, free_port,
+                     log_lines, map_rows, port_open, run, wait_until)
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+ALERTS = os.path.join(ROOT, "docs", "jakagw-alerts.yml")
+ALERTS_TEST = os.path.join(ROOT, "tests", "prometheus", "jakagw-alerts-test.yml")
+
+ROWS = {(r["table"], r["name"]): int(r["address"]) for r in map_rows()}
+IR = {name: addr for (table, name), addr in ROWS.items() if table == "input_register"}
+COIL = {name: addr for (table, name), addr in ROWS.items() if table == "coil"}
+DI = {name: addr for (table, name), addr in ROWS.items() if table == "discrete_input"}
+RESULT_STATE = IR["power_on_state"] if "power_on_state" in IR else None
+
+FIXED_NAMES = ("jakagw_link_up", "jakagw_status_age_seconds", "jakagw_modbus_requests_total",
+               "jakagw_commands_total", "jakagw_policy_fault")
+
+
+def http_config(port, extra=""):
+    return "[http]\nenabled = true\nport = %d\n%s" % (port, extra)
+
+
+class Http:
+    """A gateway's HTTP endpoint."""
+
+    def __init__(self, port):
+        self.port = port
+
+    def get(self, path, method="GET", headers=None, timeout=10):
+        conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=timeout)
+        try:
+            conn.request(method, path, headers=headers or {})
+            r = conn.getresponse()
+            return r.status, dict(r.getheaders()), r.read()
+        finally:
+            conn.close()
+
+    def metrics(self):
+        status, headers, body = self.get("/metrics")
+        check(status == 200, "/metrics answered %d" % status)
+        return body.decode()
+
+    def status(self, registers=False):
+        status, headers, body = self.get("/status.json" + ("?registers=1" if registers else ""))
+        check(status == 200 and headers.get("Content-Type") == "application/json",
+              "/status.json answered %d %s" % (status, headers))
+        return json.loads(body)
+
+
+def parse_metrics(text):
+    """{(name, frozenset(labels.items())): value} of the text format."""
+    out = {}
+    for line in text.splitlines():
+        if not line or line.startswith("#"):
+            continue
+        m = re.match(r'^([a-zA-Z_:][a-zA-Z0-9_:]*)(\{(.*)\})? (\S+)$', line)
+        check(m, "not a sample line: %r" % line)
+        labels = dict(re.findall(r'(\w+)="((?:[^"\\]|\\.)*)"', m.group(3) or ""))
+        out[(m.group(1), frozenset(labels.items()))] = float(m.group(4))
+    return out
+
+
+def metric(samples, name, **labels):
+    return samples[(name, frozenset(labels.items()))]
+
+
+def metric_sum(samples, name):
+    return sum(v for (n, _), v in samples.items() if n == name)
+
+
+def promtool(*args, stdin=None):
+    return subprocess.run(["promtool"] + list(args), input=stdin, capture_output=True,
+                          text=True, timeout=60)
+
+
+def u32(regs):
+    return regs[0] << 16 | regs[1]
+
+
+@contextlib.contextmanager
+def running(sim_args=(), config=""):
+    """harness.running, keeping the gateway's log after it stopped
+    (gw.final_output) and waiting for the robot's data to be live."""
+    sim = Sim(*sim_args)
+    gw = None
+    try:
+        gw = Gateway(sim, config)
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: plc.di(DI["status_fresh"])[0] == 1 and
+                   plc.di(DI["command_link_up"])[0] == 1, 20, "live robot data")
+        plc.close()
+        yield sim, gw
+    finally:
+        try:
+            if gw:
+                gw.final_output = gw.stop()
+        finally:
+            sim.stop()
+
+
+def wait_http(port, gw):
+    """The HTTP port listening; if not, the gateway's log says why."""
+    try:
+        wait_until(lambda: port_open(port), 10, "the HTTP port %d" % port)
+    except TestFailure:
+        raise TestFailure("no HTTP on port %d; jakagw's log:\n%s" % (port, gw.output()[-3000:]))
+
+
+def gateway_with_http(sim_args=(), extra_config=""):
+    port = free_port()
+    return port, running(list(sim_args), http_config(port, extra_config))
+
+
+def audit_lines(gw):
+    """The audit records on stderr, as dicts of their key=value fields."""
+    out = []
+    text = gw.final_output if hasattr(gw, "final_output") else gw.output()
+    for line in [l for l in text.splitlines() if "audit: command=" in l]:
+        rest = line.split("audit: ", 1)[1]
+        fields = dict(re.findall(r'(\w+)=("(?:[^"]*)"|\S*)', rest.split(" error_msg=")[0]))
+        fields = {k: v.strip('"') for k, v in fields.items()}
+        fields["error_msg"] = rest.split(" error_msg=", 1)[1] if " error_msg=" in rest else ""
+        out.append(fields)
+    return out
+
+
+# ---- metrics ----
+
+def test_metrics_pass_promtool_and_carry_the_fixed_names():
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        web = Http(port)
+        plc = ModbusPlc(gw.modbus_port)
+        plc.ir(0, 10)
+        text = web.metrics()
+        r = promtool("check", "metrics", stdin=text)
+        check(r.returncode == 0 and not r.stdout.strip() and not r.stderr.strip(),
+              "promtool check metrics: rc %d\n%s%s" % (r.returncode, r.stdout, r.stderr))
+        samples = parse_metrics(text)
+        for name in FIXED_NAMES:
+            check(any(n == name for n, _ in samples) or "# TYPE %s " % name in text,
+                  "no metric %s" % name)
+        check(metric(samples, "jakagw_link_up", link="status") == 1 and
+              metric(samples, "jakagw_link_up", link="command") == 1, "links up")
+        check(0 <= metric(samples, "jakagw_status_age_seconds") < 2, "status age")
+        check(metric(samples, "jakagw_policy_fault") == 0, "no fault")
+        check(metric(samples, "jakagw_commands_total", command="set_network_exception_handle",
+                     result="done") == 1, "the handler command counted")
+        status, headers, body = web.get("/metrics", method="HEAD")
+        check(status == 200 and body == b"", "HEAD /metrics: %d, %d bytes" % (status, len(body)))
+        plc.close()
+        print("  %d samples, %d bytes, promtool clean" % (len(samples), len(text)))
+
+
+def test_values_follow_modbus_and_equal_the_diagnostics_registers():
+    """Every value is the one the diagnostics registers show: read the
+    registers, scrape, compare; then Modbus traffic moves both."""
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        web = Http(port)
+        plc = ModbusPlc(gw.modbus_port)
+        fc4 = parse_metrics(web.metrics()).get(
+            ("jakagw_modbus_requests_total",
+             frozenset({"transport": "modbus", "function": "4"}.items())), 0)
+        for k in range(5):
+            # One read: the registers as they stood before it was counted.
+            regs = plc.ir(0, 60)
+            samples = parse_metrics(web.metrics())
+            requests = u32(regs[IR["modbus_requests"]:])
+            check(metric_sum(samples, "jakagw_modbus_requests_total") == requests + 1,
+                  "requests: metrics %s, register %d (+1 for the read itself)"
+                  % (metric_sum(samples, "jakagw_modbus_requests_total"), requests))
+            # Two reads of function 4 per turn: this one, and the refused one below.
+            check(metric(samples, "jakagw_modbus_requests_total", transport="modbus",
+                         function="4") == fc4 + 2 * k + 1, "function 4 counted")
+            check(metric_sum(samples, "jakagw_modbus_exceptions_total") ==
+                  u32(regs[IR["modbus_exceptions"]:]), "exceptions")
+            check(metric_sum(samples, "jakagw_modbus_clients") == regs[IR["modbus_clients"]] == 1,
+                  "clients")
+            docs = u32(regs[IR["documents_parsed"]:])
+            check(docs <= metric(samples, "jakagw_documents_parsed_total") <= docs + 20,
+                  "documents parsed: register %d, metric %s" % (
+                      docs, metric(samples, "jakagw_documents_parsed_total")))
+            check(metric(samples, "jakagw_modbus_request_duration_seconds_count") == requests + 1,
+                  "the histogram counts every request")
+            # Exceptions move both: a read past the table.
+            rr = plc.client.read_input_registers(65000, 1, slave=1)
+            check(rr.isError(), "the read past the table is refused")
+        after = parse_metrics(web.metrics())
+        regs = plc.ir(0, 60)
+        check(metric_sum(after, "jakagw_modbus_exceptions_total") ==
+              u32(regs[IR["modbus_exceptions"]:]) == 5, "5 exceptions in both")
+        check(metric(after, "jakagw_modbus_exceptions_total", transport="modbus", code="02") == 5,
+              "exception 02 by code")
+        # The heartbeat's age: the register and the gauge agree.
+        check(plc.reg(0, 1) == 0, "heartbeat write")
+        age_reg = u32(plc.ir(IR["plc_heartbeat_age_ms"], 2))
+        age = metric(parse_metrics(web.metrics()), "jakagw_plc_heartbeat_age_seconds")
+        check(age_reg / 1000 <= age < age_reg / 1000 + 1, "heartbeat age %s vs %d ms"
+              % (age, age_reg))
+        plc.close()
+
+
+def test_status_json_clients_policy_and_counters():
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        web = Http(port)
+        plc = ModbusPlc(gw.modbus_port)
+        check(plc.reg(0, 7) == 0, "heartbeat write")
+        regs = plc.ir(0, 60)
+        doc = web.status()
+        check(doc["links"]["status"]["up"] and doc["links"]["command"]["up"], "links up")
+        check(doc["status_fresh"] and doc["status_age_ms"] < 2000, "fresh status")
+        check(doc["robot"]["controller_version"], "controller version shown")
+        check(len(doc["clients"]) == 1, "one client: %r" % doc["clients"])
+        c = doc["clients"][0]
+        check(c["address"] == "127.0.0.1" and c["transport"] == "modbus" and c["owner"] and
+              c["requests"] == 2 and c["exceptions"] == 0 and c["last_request_age_ms"] < 5000,
+              "client %r" % c)
+        check(doc["policy"]["write_owner"] == "127.0.0.1" and doc["policy"]["fault"] == 0 and
+              doc["policy"]["handler"] == "accepted", "policy %r" % doc["policy"])
+        check(doc["counters"]["modbus_requests"] == u32(regs[IR["modbus_requests"]:]) + 1,
+              "counters as the registers")
+        full = web.status(registers=True)
+        by_name = {(e[0], e[2]): e for e in full["registers"]}
+        check(by_name[(2, "map_magic")][3] == 0x4A4B and by_name[(2, "map_magic")][1] == 0,
+              "the register map with values: %r" % (by_name.get((2, "map_magic")),))
+        check(by_name[(3, "plc_heartbeat")][3] == 7, "the heartbeat register's value")
+        plc.close()
+
+
+def test_markup_from_the_robot_stays_text_in_json_and_audit():
+    message = '<img src=x onerror="alert(1)"><script>alert(2)</script>&amp;'
+    port, ctx = gateway_with_http(["--fail-command", "power_on", "--fail-message", message])
+    with ctx as (sim, gw):
+        web = Http(port)
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
+        check(plc.pulse(COIL["cmd_power_on"]) == 0, "power_on write")
+        wait_until(lambda: any(c["command"] == "power_on" for c in web.status()["commands"]), 10,
+                   "power_on in the last commands")
+        status, headers, body = web.get("/status.json")
+        check(b"<" not in body and b">" not in body and b"&" not in body,
+              "raw markup in /status.json")
+        rec = [c for c in json.loads(body)["commands"] if c["command"] == "power_on"][0]
+        check(rec["error_msg"] == message and rec["result"] == "robot error" and
+              rec["error_code"] == 2 and rec["client"] == "127.0.0.1" and
+              rec["transport"] == "modbus", "record %r" % rec)
+        samples = parse_metrics(web.metrics())
+        check(metric(samples, "jakagw_commands_total", command="power_on",
+                     result="robot_error") == 1, "the failure counted")
+        plc.close()
+
+
+# ---- audit trail ----
+
+def test_audit_records_commands_refusals_and_aggregates_outputs():
+    port, ctx = gateway_with_http(["--log-commands"])
+    with ctx as (sim, gw):
+        web = Http(port)
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
+        check(plc.pulse(COIL["cmd_power_on"]) == 0, "power_on")
+        wait_until(lambda: [a for a in audit_lines(gw) if a["command"] == "power_on"], 10,
+                   "power_on's audit line")
+        # Motion is off: a refused write, recorded with who and why.
+        check(plc.coil(COIL["cmd_shutdown"], 1) == 1, "shutdown refused with 01")
+        # 40 output writes: one line at once, the rest counted.
+        for i in range(40):
+            check(plc.coil(COIL["cabinet_do_1"], i % 2) == 0, "output write %d" % i)
+        wait_until(lambda: len(sim_sent(sim, "set_digital_output")) >= 40, 10, "40 outputs sent")
+        wait_until(lambda: sum(1 for c in web.status()["commands"]
+                               if c["command"] == "set_digital_output") >= 1, 10,
+                   "the first output record")
+        lines = audit_lines(gw)
+        outputs = [a for a in lines if a["command"] == "set_digital_output"]
+        check(len(outputs) == 1 and outputs[0]["count"] == "1",
+              "outputs not aggregated: %d lines %r" % (len(outputs), outputs[:3]))
+        plc.close()
+    out = audit_lines(gw)
+    power = [a for a in out if a["command"] == "power_on"]
+    check(len(power) == 1 and power[0]["result"] == "done" and power[0]["transport"] == "modbus"
+          and power[0]["client"] == "127.0.0.1", "power_on recorded once: %r" % power)
+    refused = [a for a in out if a["command"] == "write"]
+    check(len(refused) == 1 and refused[0]["result"] == "refused" and
+          refused[0]["what"] == "coil %d" % COIL["cmd_shutdown"] and
+          refused[0]["error_code"] == "1", "refusal recorded: %r" % refused)
+    outputs = [a for a in out if a["command"] == "set_digital_output"]
+    total = sum(int(a["count"]) for a in outputs)
+    check(total == 40 and len(outputs) == 2, "outputs: %d records for %d commands: %r"
+          % (len(outputs), total, outputs))
+    handler = [a for a in out if a["command"] == "set_network_exception_handle"]
+    check(handler and handler[0]["transport"] == "gateway", "the gateway's own command")
+    print("  power_on: %s; refusal: %s; 40 outputs in %d records"
+          % (power[0]["result"], refused[0]["what"], len(outputs)))
+
+
+def test_mbaps_clients_are_audited_with_certificate_and_role():
+    """On Modbus/TCP Security, who is the certificate: its subject and role
+    are in the audit records, /status.json and the transport's metrics."""
+    import test_tls as tls  # makes the test PKI (tests/tls/make-pki.sh)
+    port = free_port()
+    with tls.Mbaps("[http]\nenabled = true\nport = %d\n" % port) as m:
+        web = Http(port)
+        wait_http(port, m.gw)
+        wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
+        op = tls.TlsPlc(m.tls_port, "operator")
+        check(op.coil(COIL["cabinet_do_1"], 1) == 0, "operator sets an output")
+        mon = tls.TlsPlc(m.tls_port, "monitor")
+        check(mon.coil(COIL["cabinet_do_1"], 0) == 1, "monitor may not write: 01")
+        wait_until(lambda: len(web.status()["commands"]) >= 3, 10, "the records")
+        doc = web.status()
+        clients = {c["role"]: c for c in doc["clients"]}
+        check(set(clients) == {"operator", "monitor"} and
+              all(c["transport"] == "mbaps" and "CN=" in c["subject"] for c in clients.values()),
+              "clients %r" % doc["clients"])
+        out = {c["command"]: c for c in doc["commands"]}
+        check(out["set_digital_output"]["role"] == "operator" and
+              out["set_digital_output"]["transport"] == "mbaps" and
+              "CN=" in out["set_digital_output"]["subject"] and
+              out["set_digital_output"]["result"] == "done", "output record %r" % out)
+        check(out["write"]["role"] == "monitor" and out["write"]["result"] == "refused" and
+              out["write"]["what"] == "coil %d" % COIL["cabinet_do_1"], "refusal %r" % out)
+        samples = parse_metrics(web.metrics())
+        check(metric(samples, "jakagw_modbus_clients", transport="mbaps") == 2 and
+              metric(samples, "jakagw_modbus_requests_total", transport="mbaps",
+                     function="5") == 2 and
+              metric(samples, "jakagw_modbus_exceptions_total", transport="mbaps",
+                     code="01") == 1, "mbaps metrics")
+        op.close()
+        mon.close()
+        lines = [l for l in m.gw.output().splitlines() if "audit: command=write" in l]
+        check(len(lines) == 1 and 'role="monitor"' in lines[0] and "transport=mbaps" in lines[0],
+              "the refusal's line: %r" % lines)
+        print("  %s" % lines[0])
+
+
+def journal_fields(datagram):
+    """The fields of one message of journald's native protocol."""
+    fields, i = {}, 0
+    while i < len(datagram):
+        nl = datagram.index(b"\n", i)
+        line = datagram[i:nl]
+        if b"=" in line:
+            key, value = line.split(b"=", 1)
+            i = nl + 1
+        else:  # KEY\n, a 64-bit little-endian length, the value, \n
+            key = line
+            size = struct.unpack("<Q", datagram[nl + 1:nl + 9])[0]
+            value = datagram[nl + 9:nl + 9 + size]
+            i = nl + 9 + size + 1
+        fields[key.decode()] = value.decode("utf-8", "replace")
+    return fields
+
+
+def test_audit_goes_to_the_journal_as_fields():
+    """Under journald (stderr is the journal's stream), a record is a
+    journal entry with JAKAGW_* fields, not a stderr line. journald is
+    stood in for by a datagram socket at /run/systemd/journal/socket in a
+    mount namespace of the gateway's own (unshare -m, as root)."""
+    if os.geteuid() != 0 or subprocess.run(["unshare", "-m", "true"]).returncode != 0:
+        print("  SKIP: needs root and unshare -m for a private /run/systemd/journal")
+        return
+    message = "arm <b>blocked</b>\nline two"
+    journal_dir = tempfile.mkdtemp(prefix="jakagw-journal-")
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(os.path.join(journal_dir, "socket"))
+    listener.settimeout(0.2)
+    log = tempfile.NamedTemporaryFile(prefix="jakagw-", suffix=".log", delete=False)
+    conf = tempfile.NamedTemporaryFile("w", suffix=".conf", delete=False)
+    conf.close()
+    st = os.fstat(log.fileno())
+    sim = Sim("--fail-command", "power_on", "--fail-message", message)
+    modbus_port = free_port()
+    script = ('mount -t tmpfs tmpfs /run && mkdir -p /run/systemd/journal && '
+              'mount --bind "$JOURNAL_DIR" /run/systemd/journal && exec "$0" "$@"')
+    argv = ["unshare", "-m", "sh", "-c", script, JAKAGW, "-c", conf.name,
+            "--robot-host", "127.0.0.1", "--status-port", str(sim.status_port),
+            "--command-port", str(sim.command_port), "--modbus-bind", "127.0.0.1",
+            "--modbus-port", str(modbus_port)]
+    env = dict(os.environ, JOURNAL_DIR=journal_dir,
+               JOURNAL_STREAM="%d:%d" % (st.st_dev, st.st_ino))
+    proc = subprocess.Popen(argv, stdout=log, stderr=log, env=env)
+    entries = []
+    try:
+        wait_until(lambda: port_open(modbus_port), 30, "jakagw to listen")
+        plc = ModbusPlc(modbus_port)
+        wait_until(lambda: plc.ir(IR["robot_handle"])[0] == 2, 20, "the robot's handler")
+        check(plc.pulse(COIL["cmd_power_on"]) == 0, "power_on write")
+        plc.close()
+
+        def power_on_entry():
+            try:
+                entries.append(journal_fields(listener.recv(65536)))
+            except socket.timeout:
+                pass
+            return [e for e in entries if e.get("JAKAGW_COMMAND") == "power_on"]
+        found = wait_until(power_on_entry, 10, "power_on's journal entry")[0]
+    finally:
+        proc.send_signal(15)
+        proc.wait(10)
+        sim.stop()
+        listener.close()
+        shutil.rmtree(journal_dir, ignore_errors=True)
+        os.unlink(conf.name)
+        with open(log.name, errors="replace") as f:
+            out = f.read()
+        os.unlink(log.name)
+    check(proc.returncode == 0, "jakagw exited %d:\n%s" % (proc.returncode, out[-2000:]))
+    for mark in ("ERROR: AddressSanitizer", "ERROR: LeakSanitizer", "runtime error:"):
+        check(mark not in out, "sanitizer report:\n" + out[-3000:])
+    check(found.get("JAKAGW_CLIENT") == "127.0.0.1" and
+          found.get("JAKAGW_TRANSPORT") == "modbus" and
+          found.get("JAKAGW_RESULT") == "robot error" and
+          found.get("JAKAGW_ERROR_CODE") == "2" and found.get("JAKAGW_ROLE") == "" and
+          found.get("PRIORITY") == "5" and found.get("SYSLOG_IDENTIFIER") == "jakagw",
+          "journal entry %r" % found)
+    check(found.get("JAKAGW_ERROR_MSG") == "arm <b>blocked</b>\\x0aline two",
+          "errorMsg as one escaped line: %r" % found.get("JAKAGW_ERROR_MSG"))
+    handler = [e for e in entries if e.get("JAKAGW_COMMAND") == "set_network_exception_handle"]
+    check(handler and handler[0]["JAKAGW_TRANSPORT"] == "gateway", "the handler's entry")
+    check("audit:" not in out, "audit lines on stderr under journald")
+    print("  journal entry: %s" % " ".join("%s=%s" % kv for kv in sorted(found.items())
+                                          if kv[0].startswith("JAKAGW_")))
+
+
+def sim_sent(sim, name):
+    return [l for l in sim.output().splitlines()
+            if "jakasim: command {" in l and '"cmdName":"%s"' % name in l.replace(" ", "")]
+
+
+# ---- bounds and abuse ----
+
+class Poller(threading.Thread):
+    """A PLC reading every 20 ms; records the worst wait and failures."""
+
+    def __init__(self, port):
+        super().__init__(daemon=True)
+        self.plc = ModbusPlc(port, timeout=5)
+        self.stop = threading.Event()
+        self.worst = 0.0
+        self.failures = 0
+        self.reads = 0
+
+    def run(self):
+        while not self.stop.is_set():
+            start = time.monotonic()
+            try:
+                self.plc.ir(0, 20)
+                self.reads += 1
+            except Exception:
+                self.failures += 1
+            self.worst = max(self.worst, time.monotonic() - start)
+            time.sleep(0.02)
+
+    def finish(self):
+        self.stop.set()
+        self.join(10)
+        self.plc.close()
+
+
+def raw_exchange(port, data, timeout=10):
+    s = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    try:
+        s.sendall(data)
+    except OSError:
+        pass
+    out = b""
+    try:
+        while True:
+            d = s.recv(65536)
+            if not d:
+                break
+            out += d
+    except OSError:
+        pass
+    s.close()
+    return out
+
+
+def closed_within(sock, seconds):
+    """Seconds until the server closed 'sock', or None."""
+    start = time.monotonic()
+    sock.settimeout(seconds)
+    try:
+        while True:
+            d = sock.recv(4096)
+            if not d:
+                return time.monotonic() - start
+    except socket.timeout:
+        return None
+    except OSError:
+        return time.monotonic() - start
+
+
+def test_abuse_leaves_modbus_answering():
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        poller = Poller(gw.modbus_port)
+        poller.start()
+        try:
+            report = abuse(port, gw)
+        finally:
+            poller.finish()
+        check(poller.failures == 0 and poller.reads > 50,
+              "poller: %d failures, %d reads" % (poller.failures, poller.reads))
+        check(poller.worst < 1.0, "a Modbus read waited %.3f s" % poller.worst)
+        print("  %s; Modbus meanwhile: %d reads, none failed, worst %.1f ms"
+              % (report, poller.reads, poller.worst * 1000))
+
+
+def abuse(port, gw):
+    web = Http(port)
+    # Methods other than GET and HEAD.
+    for method in ("POST", "PUT", "DELETE", "PATCH", "OPTIONS", "TRACE", "CONNECT"):
+        status, headers, _ = web.get("/metrics", method=method)
+        check(status == 405 and headers.get("Allow") == "GET, HEAD",
+              "%s: %d %s" % (method, status, headers.get("Allow")))
+    # A 64 KiB header, and a 9000-byte one (past 8 KiB, within the pool).
+    for size in (65536, 9000):
+        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: x\r\nX-Big: " +
+                           b"a" * size + b"\r\n\r\n")
+        check(out.startswith(b"HTTP/1.1 431 "), "%d-byte header: %r" % (size, out[:60]))
+    # 100 requests pipelined in one write: 100 answers in order.
+    out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n" * 99 +
+                       b"GET /status.json HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+    check(out.count(b"HTTP/1.1 200 OK") == 100 and b'"links"' in out[-20000:],
+          "pipelined: %d answers" % out.count(b"HTTP/1.1 200 OK"))
+    # 500 idle connections: the limit's worth held, the rest closed at once.
+    idle = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(500)]
+    held = wait_until(lambda: (lambda n: n if n <= 40 else None)(
+        sum(1 for s in idle if closed_within(s, 0.001) is None)), 20,
+        "the connections over the limit to be closed")
+    fds = len(os.listdir("/proc/%d/fd" % gw.proc.pid))
+    check(fds < 100, "jakagw holds %d descriptors with 500 idle connections" % fds)
+    for s in idle:
+        s.close()
+    wait_until(lambda: web.get("/metrics")[0] == 200, 20, "/metrics served again")
+    # Slowloris: a header byte every second; the head deadline closes it.
+    slow = socket.create_connection(("127.0.0.1", port), timeout=5)
+    start = time.monotonic()
+    head = b"GET /metrics HTTP/1.1\r\nX-Slow: " + b"a" * 100
+    closed = None
+    for i in range(40):
+        try:
+            slow.sendall(head[i:i + 1])
+        except OSError:
+            closed = time.monotonic() - start
+            break
+        if closed_within(slow, 1.0) is not None:
+            closed = time.monotonic() - start
+            break
+    slow.close()
+    check(closed is not None and 9 <= closed < 25, "slowloris closed after %s s" % closed)
+    samples = parse_metrics(web.metrics())
+    check(metric(samples, "jakagw_http_connections_refused_total") >= 400 and
+          metric(samples, "jakagw_http_slow_closed_total") >= 1, "the abuse counted")
+    return ("405 for 7 methods, 431 for 64 KiB, 100 pipelined answers, 500 idle connections: "
+            "%d held, %d descriptors; slowloris closed after %.1f s" % (held, fds, closed))
+
+
+def test_non_loopback_bind_logs_one_warning():
+    port = free_port()
+    with running([], http_config(port, "bind = 0.0.0.0\n")) as (sim, gw):
+        wait_until(lambda: Http(port).get("/")[0] == 200, 10, "the page")
+        lines = log_lines(gw, "http: listening on 0.0.0.0")
+        check(len(lines) == 1 and lines[0].startswith("<4>"), "warning lines: %r" % lines)
+    with running([], http_config(port)) as (sim, gw):
+        wait_until(lambda: Http(port).get("/")[0] == 200, 10, "the page")
+        check(not log_lines(gw, "not only loopback"), "a warning for loopback")
+
+
+def test_disabled_by_default():
+    port = free_port()
+    with running([], "[http]\nport = %d\n" % port) as (sim, gw):
+        check(ModbusPlc(gw.modbus_port).ir(0, 1) == [0x4A4B], "Modbus up")
+        try:
+            Http(port).get("/", timeout=2)
+            raise TestFailure("HTTP served while [http] enabled = false")
+        except OSError:
+            pass
+
+
+# ---- the page, in a real browser ----
+
+def browser(width=412, height=915):
+    """Headless Chromium (Debian's), a fresh profile, a phone-sized window."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+    profile = tempfile.mkdtemp(prefix="jakagw-chromium-")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = "/usr/bin/chromium"
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync",
+                 "--disable-dev-shm-usage", "--user-data-dir=" + profile,
+                 "--window-size=%d,%d" % (width, height)):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=opts)
+    driver.jakagw_profile = profile
+    # A phone's viewport (Chromium's windows are at least 500 px wide).
+    driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride",
+                           {"width": width, "height": height, "deviceScaleFactor": 2,
+                            "mobile": True})
+    return driver
+
+
+def close_browser(driver):
+    try:
+        driver.quit()
+    finally:
+        shutil.rmtree(driver.jakagw_profile, ignore_errors=True)
+
+
+def text_of(driver, element_id):
+    return driver.find_element("id", element_id).text
+
+
+def test_page_shows_links_commands_and_robot_markup_as_text():
+    message = '<img src=x onerror="document.title=\'pwned\'"><b>bold</b><script>alert(1)</script>'
+    port, ctx = gateway_with_http(["--fail-command", "power_on", "--fail-message", message])
+    with ctx as (sim, gw):
+        web = Http(port)
+        status, headers, body = web.get("/")
+        check(status == 200 and headers["Content-Type"].startswith("text/html") and
+              "default-src 'none'" in headers.get("Content-Security-Policy", ""),
+              "page headers %r" % headers)
+        check(not re.search(rb'(src|href)\s*=\s*"(https?:)?//', body), "an external asset")
+        driver = browser()
+        try:
+            driver.get("http://127.0.0.1:%d/" % port)
+            wait_until(lambda: text_of(driver, "status-link") == "connected" and
+                       text_of(driver, "command-link") == "connected", 15, "the links on the page")
+            age = text_of(driver, "status-age")
+            check(re.match(r"^\d+ ms$", age), "status age shown as %r" % age)
+            check("tile ok" in driver.find_element("id", "tile-status").get_attribute("class"),
+                  "the status link in green")
+            plc = ModbusPlc(gw.modbus_port)
+            wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
+            check(plc.pulse(COIL["cmd_power_on"]) == 0, "power_on write")
+            wait_until(lambda: "power_on" in text_of(driver, "commands"), 10,
+                       "power_on's result on the page")
+            shown = [e.text for e in driver.find_elements("css selector", "#commands .msg")]
+            check(any(message in t for t in shown), "errmsg not shown as text: %r" % shown)
+            check(not driver.find_elements("css selector", "#commands img, #commands b, "
+                                                           "#commands script"),
+                  "the robot's markup became elements")
+            check(driver.title == "jakagw", "title changed to %r" % driver.title)
+            check("robot error" in text_of(driver, "commands") and
+                  "modbus 127.0.0.1" in text_of(driver, "commands"), "who and the result")
+            check("127.0.0.1" in text_of(driver, "clients"), "the client listed")
+            # The register map, searched by address and by name.
+            driver.find_element("css selector", "#map summary").click()
+            box = driver.find_element("id", "search")
+            box.send_keys("0")
+            wait_until(lambda: "map_magic" in text_of(driver, "registers"), 10, "address 0")
+            box.clear()
+            box.send_keys("plc_heartbeat")
+            check(plc.reg(0, 4321) == 0, "heartbeat write")
+            wait_until(lambda: "4321" in text_of(driver, "registers"), 10,
+                       "the heartbeat's live value")
+            plc.close()
+            width = driver.execute_script("return [document.documentElement.scrollWidth, "
+                                          "window.innerWidth]")
+            check(width[0] <= width[1] == 412, "the page scrolls sideways on a phone: %r" % width)
+        finally:
+            close_browser(driver)
+
+
+def test_page_says_when_the_gateway_stops_answering():
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        driver = browser()
+        try:
+            driver.get("http://127.0.0.1:%d/" % port)
+            wait_until(lambda: text_of(driver, "status-link") == "connected", 15, "the page")
+            check(not driver.find_element("id", "banner").is_displayed(), "banner while fine")
+            gw.proc.send_signal(19)  # SIGSTOP: the gateway hangs
+            try:
+                wait_until(lambda: "stopped answering" in text_of(driver, "banner"), 15,
+                           "the banner")
+            finally:
+                gw.proc.send_signal(18)  # SIGCONT
+            wait_until(lambda: not driver.find_element("id", "banner").is_displayed(), 15,
+                       "the banner to go once it answers again")
+        finally:
+            close_browser(driver)
+
+
+# ---- alert rules ----
+
+def test_alert_rules_check_and_unit_tests():
+    r = promtool("check", "rules", ALERTS)
+    check(r.returncode == 0, "promtool check rules:\n%s%s" % (r.stdout, r.stderr))
+    r = promtool("test", "rules", ALERTS_TEST)
+    check(r.returncode == 0 and "SUCCESS" in r.stdout + r.stderr,
+          "promtool test rules:\n%s%s" % (r.stdout, r.stderr))
+
+
+TESTS = [
+    test_metrics_pass_promtool_and_carry_the_fixed_names,
+    test_values_follow_modbus_and_equal_the_diagnostics_registers,
+    test_status_json_clients_policy_and_counters,
+    test_markup_from_the_robot_stays_text_in_json_and_audit,
+    test_audit_records_commands_refusals_and_aggregates_outputs,
+    test_audit_goes_to_the_journal_as_fields,
+    test_mbaps_clients_are_audited_with_certificate_and_role,
+    test_abuse_leaves_modbus_answering,
+    test_non_loopback_bind_logs_one_warning,
+    test_disabled_by_default,
+    test_alert_rules_check_and_unit_tests,
+    test_page_shows_links_commands_and_robot_markup_as_text,
+    test_page_says_when_the_gateway_stops_answering,
+]
+
+if __name__ == "__main__":
+    picked = [t for t in TESTS if not sys.argv[1:] or any(a in t.__name__ for a in sys.argv[1:])]
+    run(picked)

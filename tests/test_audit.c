@@ -1,0 +1,304 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * test_audit.c - the audit trail (audit.h) with a fake clock and a sink
+ * that records what would go to the journal: who is recorded for each
+ * command, results matched to their command in order, a command recorded
+ * once, frequent records aggregated per client and period, the ring of the
+ * last records, the command counters, and journald detection.
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "audit.h"
+
+#define T0 500000
+
+static uint64_t now;
+static struct audit_record emitted[256];
+static unsigned emitted_count;
+static struct audit a;
+
+static uint64_t fake_now(void *user)
+{
+    (void)user;
+    return now;
+}
+
+static uint64_t fake_wall(void *user)
+{
+    (void)user;
+    return 1700000000000ull + now;
+}
+
+static void capture(void *user, const struct audit_record *r)
+{
+    (void)user;
+    assert_true(emitted_count < 256);
+    emitted[emitted_count++] = *r;
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    struct audit_clock clock = {.now_ms = fake_now, .wall_ms = fake_wall};
+    struct audit_sink sink = {.emit = capture};
+    now = T0;
+    emitted_count = 0;
+    audit_init(&a, &clock, &sink);
+    return 0;
+}
+
+static struct cmd_result result(enum cmd_outcome outcome, long code, const char *msg)
+{
+    struct cmd_result r = {.outcome = outcome, .error_code = code};
+    snprintf(r.error_msg, sizeof(r.error_msg), "%s", msg);
+    return r;
+}
+
+static const int slot_power, slot_output, slot_play;
+
+static void command_is_recorded_once_with_who_and_result(void **state)
+{
+    (void)state;
+    audit_set_writer(&a, "mbaps", "192.0.2.7", "CN=plc-7", "operator");
+    audit_command_sent(&a, &slot_power, "power_on", false, false);
+    audit_clear_writer(&a);
+    assert_int_equal(emitted_count, 0); /* recorded with its result */
+    struct cmd_result r = result(CMD_ROBOT_ERROR, 2, "<b>collision</b>");
+    audit_command_done(&a, &slot_power, &r);
+    assert_int_equal(emitted_count, 1);
+    const struct audit_record *e = &emitted[0];
+    assert_string_equal(e->who.transport, "mbaps");
+    assert_string_equal(e->who.client, "192.0.2.7");
+    assert_string_equal(e->who.subject, "CN=plc-7");
+    assert_string_equal(e->who.role, "operator");
+    assert_string_equal(e->command, "power_on");
+    assert_string_equal(e->result, "robot error");
+    assert_int_equal(e->error_code, 2);
+    assert_string_equal(e->error_msg, "<b>collision</b>");
+    assert_int_equal(e->count, 1);
+    assert_int_equal(e->wall_ms, 1700000000000ull + T0);
+    /* A second result for the same key matches nothing: recorded once. */
+    audit_command_done(&a, &slot_power, &r);
+    assert_int_equal(emitted_count, 1);
+}
+
+static void gateway_commands_and_no_writer_are_the_gateways(void **state)
+{
+    (void)state;
+    audit_set_writer(&a, "modbus", "192.0.2.8", "", "");
+    audit_command_sent(&a, &slot_play, "pause_program", true, false); /* the policy's */
+    audit_clear_writer(&a);
+    audit_command_sent(&a, &slot_power, "set_network_exception_handle", false, false);
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    audit_command_done(&a, &slot_play, &done);
+    audit_command_done(&a, &slot_power, &done);
+    assert_int_equal(emitted_count, 2);
+    assert_string_equal(emitted[0].who.transport, "gateway");
+    assert_string_equal(emitted[0].who.client, "");
+    assert_string_equal(emitted[1].who.transport, "gateway");
+}
+
+static void results_match_their_commands_in_order(void **state)
+{
+    (void)state;
+    audit_set_writer(&a, "modbus", "192.0.2.1", "", "");
+    audit_command_sent(&a, &slot_play, "play_program", false, false);
+    audit_set_writer(&a, "modbus", "192.0.2.2", "", "");
+    audit_command_sent(&a, &slot_play, "play_program", false, false);
+    audit_clear_writer(&a);
+    struct cmd_result first = result(CMD_DONE, 0, "");
+    struct cmd_result second = result(CMD_TIMEOUT, 0, "no reply");
+    audit_command_done(&a, &slot_play, &first);
+    audit_command_done(&a, &slot_play, &second);
+    assert_int_equal(emitted_count, 2);
+    assert_string_equal(emitted[0].who.client, "192.0.2.1");
+    assert_string_equal(emitted[0].result, "done");
+    assert_string_equal(emitted[1].who.client, "192.0.2.2");
+    assert_string_equal(emitted[1].result, "timeout");
+}
+
+static void frequent_commands_are_aggregated_per_client_and_period(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    for (unsigned i = 0; i < 50; i++) {
+        audit_set_writer(&a, "modbus", i % 2 ? "192.0.2.1" : "192.0.2.2", "", "");
+        audit_command_sent(&a, &slot_output, "set_digital_output", false, true);
+        audit_clear_writer(&a);
+        audit_command_done(&a, &slot_output, &done);
+        now += 10;
+    }
+    /* The first of each client at once, the rest held. */
+    assert_int_equal(emitted_count, 2);
+    assert_int_equal(emitted[0].count + emitted[1].count, 2);
+    audit_flush(&a);
+    assert_int_equal(emitted_count, 2); /* the period is not over */
+    now = T0 + 10 + AUDIT_PERIOD_MS; /* both periods over */
+    audit_flush(&a);
+    assert_int_equal(emitted_count, 4);
+    assert_int_equal(emitted[2].count + emitted[3].count, 48);
+    assert_string_not_equal(emitted[2].who.client, emitted[3].who.client);
+    /* A new period starts with a record at once again. */
+    audit_set_writer(&a, "modbus", "192.0.2.1", "", "");
+    audit_command_sent(&a, &slot_output, "set_digital_output", false, true);
+    audit_clear_writer(&a);
+    audit_command_done(&a, &slot_output, &done);
+    assert_int_equal(emitted_count, 5);
+    assert_int_equal(emitted[4].count, 1);
+}
+
+static void a_failure_among_frequent_ones_is_its_own_record(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    struct cmd_result down = result(CMD_LINK_DOWN, 0, "link lost");
+    audit_set_writer(&a, "modbus", "192.0.2.1", "", "");
+    audit_command_sent(&a, &slot_output, "set_digital_output", false, true);
+    audit_command_sent(&a, &slot_output, "set_digital_output", false, true);
+    audit_command_sent(&a, &slot_output, "set_digital_output", false, true);
+    audit_clear_writer(&a);
+    audit_command_done(&a, &slot_output, &done);
+    audit_command_done(&a, &slot_output, &down);
+    audit_command_done(&a, &slot_output, &done);
+    assert_int_equal(emitted_count, 2);
+    assert_string_equal(emitted[1].result, "link down");
+    audit_finish(&a);
+    assert_int_equal(emitted_count, 3);
+    assert_string_equal(emitted[2].result, "done");
+    assert_int_equal(emitted[2].count, 1);
+}
+
+static void refused_writes_are_aggregated_and_counted(void **state)
+{
+    (void)state;
+    for (unsigned i = 0; i < 30; i++)
+        audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "coil 105", 1);
+    audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "holding register 0", 2);
+    assert_int_equal(emitted_count, 2);
+    assert_string_equal(emitted[0].command, "write");
+    assert_string_equal(emitted[0].what, "coil 105");
+    assert_string_equal(emitted[0].result, "refused");
+    assert_int_equal(emitted[0].error_code, 1);
+    assert_string_equal(emitted[1].what, "holding register 0");
+    assert_int_equal(emitted[1].error_code, 2);
+    /* A client writing all over the map: still one record per period. */
+    char what[32];
+    for (unsigned i = 0; i < 1000; i++) {
+        snprintf(what, sizeof(what), "holding register %u", 1000 + i);
+        audit_write_refused(&a, "modbus", "192.0.2.9", "", "", what, 1);
+    }
+    assert_int_equal(emitted_count, 2);
+    audit_finish(&a);
+    assert_int_equal(emitted_count, 3);
+    assert_int_equal(emitted[2].count, 1029);
+    assert_string_equal(emitted[2].what, "(several)");
+    assert_int_equal(a.refused_writes[1], 1030);
+    assert_int_equal(a.refused_writes[2], 1);
+}
+
+static void counters_count_every_command_even_aggregated(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    struct cmd_result err = result(CMD_ROBOT_ERROR, -1, "");
+    for (unsigned i = 0; i < 20; i++) {
+        audit_command_sent(&a, &slot_output, "set_digital_output", false, true);
+        audit_command_done(&a, &slot_output, i == 7 ? &err : &done);
+    }
+    assert_int_equal(a.counter_count, 2);
+    assert_string_equal(a.counters[0].command, "set_digital_output");
+    assert_string_equal(a.counters[0].result, "done");
+    assert_int_equal(a.counters[0].n, 19);
+    assert_string_equal(a.counters[1].result, "robot error");
+    assert_int_equal(a.counters[1].n, 1);
+}
+
+static void the_last_records_are_kept_oldest_first(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    char name[32];
+    for (unsigned i = 0; i < AUDIT_LAST + 5; i++) {
+        snprintf(name, sizeof(name), "command_%u", i);
+        audit_command_sent(&a, &slot_play, name, false, false);
+        audit_command_done(&a, &slot_play, &done);
+    }
+    assert_int_equal(audit_count(&a), AUDIT_LAST);
+    assert_string_equal(audit_get(&a, 0)->command, "command_5");
+    assert_string_equal(audit_get(&a, AUDIT_LAST - 1)->command, "command_36");
+    assert_null(audit_get(&a, AUDIT_LAST));
+    assert_int_equal(audit_get(&a, 0)->seq + AUDIT_LAST - 1, audit_get(&a, AUDIT_LAST - 1)->seq);
+}
+
+static void more_pending_than_room_records_the_oldest_as_unknown(void **state)
+{
+    (void)state;
+    static const int keys[AUDIT_PENDING + 1];
+    for (unsigned i = 0; i <= AUDIT_PENDING; i++)
+        audit_command_sent(&a, &keys[i], "get_data", false, false);
+    assert_int_equal(emitted_count, 1);
+    assert_string_equal(emitted[0].result, "pending");
+    assert_string_equal(emitted[0].error_msg, "no longer followed");
+}
+
+static void null_audit_is_harmless(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    audit_set_writer(NULL, "modbus", "x", NULL, NULL);
+    audit_command_sent(NULL, &slot_play, "play_program", false, false);
+    audit_command_done(NULL, &slot_play, &done);
+    audit_write_refused(NULL, "modbus", "x", NULL, NULL, "coil 1", 1);
+    audit_flush(NULL);
+    audit_finish(NULL);
+}
+
+static void journal_is_detected_from_journal_stream(void **state)
+{
+    (void)state;
+    struct stat st;
+    char value[64];
+    assert_int_equal(fstat(STDERR_FILENO, &st), 0);
+    unsetenv("JOURNAL_STREAM");
+    assert_false(audit_stderr_is_journal());
+    snprintf(value, sizeof(value), "%llu:%llu", (unsigned long long)st.st_dev,
+             (unsigned long long)st.st_ino);
+    setenv("JOURNAL_STREAM", value, 1);
+    assert_true(audit_stderr_is_journal());
+    /* Inherited by a process whose stderr went elsewhere: not the journal. */
+    snprintf(value, sizeof(value), "%llu:%llu", (unsigned long long)st.st_dev,
+             (unsigned long long)st.st_ino + 1);
+    setenv("JOURNAL_STREAM", value, 1);
+    assert_false(audit_stderr_is_journal());
+    setenv("JOURNAL_STREAM", "garbage", 1);
+    assert_false(audit_stderr_is_journal());
+    unsetenv("JOURNAL_STREAM");
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test_setup(command_is_recorded_once_with_who_and_result, setup),
+        cmocka_unit_test_setup(gateway_commands_and_no_writer_are_the_gateways, setup),
+        cmocka_unit_test_setup(results_match_their_commands_in_order, setup),
+        cmocka_unit_test_setup(frequent_commands_are_aggregated_per_client_and_period, setup),
+        cmocka_unit_test_setup(a_failure_among_frequent_ones_is_its_own_record, setup),
+        cmocka_unit_test_setup(refused_writes_are_aggregated_and_counted, setup),
+        cmocka_unit_test_setup(counters_count_every_command_even_aggregated, setup),
+        cmocka_unit_test_setup(the_last_records_are_kept_oldest_first, setup),
+        cmocka_unit_test_setup(more_pending_than_room_records_the_oldest_as_unknown, setup),
+        cmocka_unit_test_setup(null_audit_is_harmless, setup),
+        cmocka_unit_test(journal_is_detected_from_journal_stream),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}

@@ -1,0 +1,75 @@
+/* SPDX-License-Identifier: MIT */
+/*
+ * test_http_text.c - the text the HTTP endpoints write: the growing buffer
+ * (strbuf.h), Prometheus label values escaped (metrics.h), and outside
+ * text in /status.json kept inert (<, > and & as \u escapes).
+ */
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include <stdlib.h>
+#include <string.h>
+
+#include "metrics.h"
+#include "strbuf.h"
+
+/* harden() is static: the module is included whole. */
+#include "status_json.c"
+
+static void strbuf_grows_past_its_first_size(void **state)
+{
+    (void)state;
+    struct strbuf b;
+    size_t len;
+    strbuf_init(&b, 8);
+    for (unsigned i = 0; i < 1000; i++)
+        strbuf_printf(&b, "%04u,", i);
+    strbuf_append(&b, "end", 3);
+    char *text = strbuf_take(&b, &len);
+    assert_non_null(text);
+    assert_int_equal(len, 5000 + 3);
+    assert_int_equal(strlen(text), len);
+    assert_memory_equal(text, "0000,0001,", 10);
+    assert_string_equal(text + 4995, "0999,end");
+    free(text);
+    assert_null(strbuf_take(&b, &len)); /* taken: nothing left */
+    assert_int_equal(len, 0);
+}
+
+static void label_values_are_escaped(void **state)
+{
+    (void)state;
+    struct strbuf b;
+    strbuf_init(&b, 4);
+    metrics_label_value(&b, "a\"b\\c\nd");
+    metrics_label_value(&b, "");
+    metrics_label_value(&b, "plain");
+    char *text = strbuf_take(&b, NULL);
+    assert_string_equal(text, "a\\\"b\\\\c\\ndplain");
+    free(text);
+}
+
+static void markup_in_json_strings_becomes_escapes(void **state)
+{
+    (void)state;
+    size_t size;
+    char *out = harden("{\"m\":\"<img src=x onerror=alert(1)>&amp;\"}", &size);
+    assert_non_null(out);
+    assert_string_equal(out, "{\"m\":\"\\u003cimg src=x onerror=alert(1)\\u003e\\u0026amp;\"}\n");
+    assert_int_equal(size, strlen(out));
+    assert_null(strpbrk(out, "<>&"));
+    free(out);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(strbuf_grows_past_its_first_size),
+        cmocka_unit_test(label_values_are_escaped),
+        cmocka_unit_test(markup_in_json_strings_becomes_escapes),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
