@@ -27,9 +27,12 @@
  * command was carried out. An RS-485 adapter that hears its own
  * transmitter gives each reply back: the frame equal to the last reply,
  * arriving within its wire time and 100 ms, is skipped, not taken for a
- * request (which would be answered, and heard again). For [network_exception] watch = connection, the
- * line counts as a connected client while a valid request addressed to
- * this unit arrived within 'active_ms'.
+ * request (which would be answered, and heard again); but where the line
+ * has shown that it does not echo, the same write (05, 06) repeated by a
+ * master within that time, equal to its reply, is served. For
+ * [network_exception] watch = connection, the line counts as a connected
+ * client while a valid request addressed to this unit arrived within
+ * 'active_ms'.
  *
  * A device that is absent at start or goes away (a USB adapter unplugged,
  * a read or write that fails) is a link fault: one log line, the state in
@@ -118,6 +121,18 @@ struct mb_rtu {
     uint8_t echo[RTU_MAX_ADU];
     size_t echo_size;
     uint64_t echo_until_ns;
+    /* Does the adapter give replies back? An echo is the next frame after
+     * a reply, before any master's; a reply unlike its request (a read, an
+     * exception) heard back says yes, three replies in a row followed by
+     * another frame say no. A write's reply (05, 06) equals its request,
+     * so a master repeating that write is told from the echo only on a
+     * line known not to echo. */
+    enum { MB_RTU_ECHO_UNKNOWN, MB_RTU_ECHO_YES, MB_RTU_ECHO_NO } line_echo;
+    unsigned no_echo_proofs;   /* replies not given back, in a row */
+    bool echo_probe;           /* the next frame tells whether the line echoes */
+    bool echo_is_request;      /* the last reply equals its request */
+    const uint8_t *request;    /* the frame being answered (in rx) */
+    size_t request_size;
     uint32_t char_ns;        /* one character on the wire */
     uint8_t tx[MB_RTU_TX_SIZE]; /* what the port did not take at once */
     size_t tx_used;

@@ -151,6 +151,11 @@ static int open_line(struct mb_rtu *rtu, char *why, size_t why_size)
     rtu->rx_overrun = false;
     rtu->tx_used = 0;
     rtu->tx_waiting = false;
+    /* Perhaps another adapter: whether it echoes is learnt again. */
+    rtu->echo_size = 0;
+    rtu->echo_probe = false;
+    rtu->line_echo = MB_RTU_ECHO_UNKNOWN;
+    rtu->no_echo_proofs = 0;
     uv_poll_start(&rtu->serial, UV_READABLE, on_serial);
     return 0;
 }
@@ -286,6 +291,9 @@ static void rtu_output(void *state, struct mb_client *c, const uint8_t *data, si
     uint64_t t = now_ns();
     memcpy(rtu->echo, frame, n);
     rtu->echo_size = n;
+    rtu->echo_is_request = rtu->request && n == rtu->request_size &&
+                           memcmp(frame, rtu->request, n) == 0;
+    rtu->echo_probe = true; /* an echo would be the next frame */
     rtu->echo_until_ns = t + n * (uint64_t)rtu->char_ns + ECHO_SLACK_NS;
     uint64_t us = t > rtu->request_end_ns ? (t - rtu->request_end_ns) / 1000 : 0;
     rtu->stats.turnaround_us = us > UINT32_MAX ? UINT32_MAX : (uint32_t)us;
@@ -319,6 +327,26 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
     uint8_t *into;
 
     rtu->stats.frames++;
+    bool probe = rtu->echo_probe;
+    rtu->echo_probe = false;
+    if (size == rtu->echo_size && memcmp(frame, rtu->echo, size) == 0 &&
+        now_ns() <= rtu->echo_until_ns) {
+        /* A reply unlike its request comes back only as an echo; a write's
+         * reply (equal to the request) also as a master repeating it, which
+         * is served where the line is known not to echo. */
+        if (!rtu->echo_is_request)
+            rtu->line_echo = MB_RTU_ECHO_YES;
+        if (rtu->line_echo != MB_RTU_ECHO_NO) {
+            rtu->echo_size = 0; /* our reply, heard back */
+            rtu->stats.echoes++;
+            return;
+        }
+    } else if (probe && rtu->line_echo == MB_RTU_ECHO_UNKNOWN &&
+               ++rtu->no_echo_proofs >= 3) {
+        /* Three replies in a row whose echo would have come first, and
+         * did not. */
+        rtu->line_echo = MB_RTU_ECHO_NO;
+    }
     if (unit == RTU_BROADCAST) {
         /* Never acted on: the master cannot learn the outcome. */
         rtu->stats.broadcasts++;
@@ -326,12 +354,6 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
     }
     if (unit != rtu->cfg.unit_id) {
         rtu->stats.foreign_frames++;
-        return;
-    }
-    if (size == rtu->echo_size && memcmp(frame, rtu->echo, size) == 0 &&
-        now_ns() <= rtu->echo_until_ns) {
-        rtu->echo_size = 0; /* our reply, heard back */
-        rtu->stats.echoes++;
         return;
     }
     if (rtu->fd < 0)
@@ -359,13 +381,20 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
      * already judged its own. */
     into[6] = rtu->srv->cfg.unit_id >= 0 ? (uint8_t)rtu->srv->cfg.unit_id : (uint8_t)unit;
     memcpy(into + MBAP_SIZE, frame + 1, pdu_size);
+    rtu->request = frame;
+    rtu->request_size = size;
     mb_client_received(rtu->client, MBAP_SIZE + pdu_size);
+    rtu->request = NULL;
 }
 
 static void on_dropped(void *user, enum rtu_drop why, size_t size)
 {
     struct mb_rtu *rtu = user;
     (void)size;
+    /* Perhaps our reply's echo, damaged: no proof either way. */
+    if (rtu->echo_probe && rtu->line_echo == MB_RTU_ECHO_UNKNOWN)
+        rtu->no_echo_proofs = 0;
+    rtu->echo_probe = false;
     if (why == RTU_DROP_GAP)
         rtu->stats.gap_discards++;
     else

@@ -25,6 +25,7 @@ UNIT = 17
 IR_MAGIC = 0
 MAGIC = 0x4A4B
 COIL_POWER_ON = 100
+COIL_MOTION_ENABLE = 131
 IR_TASK_STATE = 100
 IR_LINE_STATE = 5540
 IR_FRAMES = 5542
@@ -469,7 +470,7 @@ def test_own_reply_heard_back_is_not_a_request():
     """An adapter that hears its own transmitter gives every reply back to
     the gateway: that frame is not taken for a request (answering it would
     be heard again); a real request after it is answered."""
-    with rig() as r:
+    with rig(rights="faults") as r:
         m = r.master()
         try:
             req = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
@@ -480,6 +481,32 @@ def test_own_reply_heard_back_is_not_a_request():
                 m.send(rsp)  # the echo
                 m.no_reply()
             check(r.plc.ir(IR_MODBUS_EXCEPTIONS_LOW)[0] == 0, "no exception answered")
+            # On a line that echoes, a write's echo (equal to the request) is
+            # not the write again.
+            write = frame(UNIT, write_coil_pdu(COIL_MOTION_ENABLE, 1))
+            m.send(write)
+            check(m.reply() == write, "the write answered")
+            m.send(write)  # its echo
+            m.no_reply()
+        finally:
+            m.close()
+
+
+def test_repeated_write_answered_where_the_line_does_not_echo():
+    """A master that writes the same value again at once (05 or 06: the
+    reply equals the request, as an echo would): on a line that has shown
+    it gives no reply back, every such write is answered (the previous
+    code skipped every second one as an echo)."""
+    with rig(rights="faults") as r:
+        m = r.master()
+        try:
+            for _ in range(3):
+                check(m.read_ir(IR_MAGIC) == [MAGIC], "a read")
+            write = frame(UNIT, write_coil_pdu(COIL_MOTION_ENABLE, 1))
+            for i in range(6):
+                m.send(write)
+                check(m.reply(timeout=1.0) == write, "write %d answered" % i)
+                time.sleep(0.02)
         finally:
             m.close()
 
@@ -491,4 +518,5 @@ if __name__ == "__main__":
          test_absent_device_at_start_is_a_link_fault,
          test_rs485_refused_exits_2_naming_the_device, test_rtu_and_tcp_at_once,
          test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence,
-         test_own_reply_heard_back_is_not_a_request])
+         test_own_reply_heard_back_is_not_a_request,
+         test_repeated_write_answered_where_the_line_does_not_echo])
