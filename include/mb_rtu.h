@@ -107,6 +107,7 @@ struct mb_rtu {
     int timer_fd;            /* the silence timer (timerfd) */
     uv_poll_t silence;
     uv_timer_t retry;        /* reopens a failed device every second */
+    int retry_error;         /* what the last reopen returned */
     struct mb_client *client; /* the server's client for this line, or NULL */
     /* The chunk being received: bytes since the last silence of t3.5. */
     uint8_t rx[MB_RTU_RX_SIZE];

@@ -214,7 +214,13 @@ static void on_retry(uv_timer_t *t)
 
     if (rtu->closing || rtu->fd >= 0 || rtu->serial_closing)
         return; /* the previous handle is still closing: next second */
-    if (open_line(rtu, why, sizeof(why)) != 0)
+    int rc = open_line(rtu, why, sizeof(why));
+    if (rc == -ENOTTY && rtu->retry_error != rc)
+        /* The device is back but refuses the settings (another adapter,
+         * one without RS-485 mode): not the absence said when it failed. */
+        log_err("rtu: device %s: %s; trying again every second", rtu->device, why);
+    rtu->retry_error = rc;
+    if (rc != 0)
         return; /* said once when it failed */
     uv_timer_stop(&rtu->retry);
     log_notice("rtu: %s: line up again (%u baud, unit %u)", rtu->device, rtu->cfg.baud,

@@ -379,6 +379,32 @@ def test_rs485_refused_exits_2_naming_the_device():
         line.close()
 
 
+def test_device_back_but_refusing_rs485_is_logged():
+    """rs485 = true and the device absent at start (a link fault); it comes
+    back on a driver that refuses TIOCSRS485 (a pty): one error line naming
+    the device and TIOCSRS485, not a silent line down (the previous code
+    said nothing), TCP served."""
+    line = SerialPair()
+    line.stop()
+    sim = Sim()
+    gw = Gateway(sim, rtu_config(line.device, rs485="true"))
+    try:
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: plc.ir(IR_LINE_STATE)[0] == LINE_FAULT, 10, "the line fault")
+        line.start()
+        wait_until(lambda: log_lines(gw, "TIOCSRS485"), 10, "the refusal logged")
+        time.sleep(2.5)  # retries, not logged again
+        lines = log_lines(gw, "TIOCSRS485")
+        check(len(lines) == 1 and line.device in lines[0], gw.output())
+        check(plc.ir(IR_LINE_STATE)[0] == LINE_FAULT, "still a fault")
+        check(plc.ir(IR_MAGIC) == [MAGIC], "TCP served")
+        plc.close()
+    finally:
+        gw.stop()
+        sim.stop()
+        line.close()
+
+
 def test_rtu_and_tcp_at_once():
     """An RTU master and a TCP client polling together: every request of
     both answered."""
@@ -516,7 +542,8 @@ if __name__ == "__main__":
          test_bad_crc_and_mid_frame_gap_are_not_answered, test_multidrop_keeps_sync,
          test_broadcast_is_counted_never_acted_on, test_device_removed_and_restored,
          test_absent_device_at_start_is_a_link_fault,
-         test_rs485_refused_exits_2_naming_the_device, test_rtu_and_tcp_at_once,
+         test_rs485_refused_exits_2_naming_the_device,
+         test_device_back_but_refusing_rs485_is_logged, test_rtu_and_tcp_at_once,
          test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence,
          test_own_reply_heard_back_is_not_a_request,
          test_repeated_write_answered_where_the_line_does_not_echo])
