@@ -215,6 +215,50 @@ static void write_multiple_and_unknown_functions(void **state)
     assert_int_equal(s.size[1], 7);
 }
 
+/*
+ * Every function the server answers, in its request and its response form,
+ * and exception responses: a foreign unit's frame glued to ours (a late
+ * reader) is cut by its length, and ours after it is found.
+ */
+static void every_served_function_is_cut_by_its_length(void **state)
+{
+    static const struct {
+        size_t size;
+        uint8_t bytes[40];
+    } foreign[] = {
+        {6, {18, 1, 0, 0, 0, 10}},          {5, {18, 1, 2, 0xFF, 0x03}},
+        {6, {18, 2, 0, 0, 0, 10}},          {5, {18, 2, 2, 0x0F, 0x01}},
+        {6, {18, 3, 0, 0, 0, 2}},           {7, {18, 3, 4, 1, 2, 3, 4}},
+        {6, {18, 4, 0, 9, 0, 1}},           {5, {18, 4, 2, 0x4A, 0x4B}},
+        {6, {18, 5, 0, 100, 0xFF, 0}},      {6, {18, 6, 0, 100, 0, 5}},
+        {9, {18, 15, 0, 0, 0, 10, 2, 0xFF, 0x03}},
+        {6, {18, 15, 0, 0, 0, 10}},
+        {11, {18, 16, 0, 0, 0, 2, 4, 1, 2, 3, 4}},
+        {6, {18, 16, 0, 0, 0, 2}},
+        {8, {18, 22, 0, 4, 0, 0xF2, 0, 0x25}},
+        {17, {18, 23, 0, 3, 0, 6, 0, 14, 0, 3, 6, 0, 0xFF, 0, 0xFF, 0, 0xFF}},
+        {15, {18, 23, 12, 0, 1, 0, 2, 0, 3, 0, 4, 0, 5, 0, 6}},
+        {2, {18, 17}},
+        {8, {18, 17, 5, 1, 0xFF, 'a', 'b', 'c'}},
+        {5, {18, 43, 14, 1, 0}},
+        {24, {18, 43, 14, 1, 0x83, 0, 0, 3, 0, 5, 'J', 'A', 'K', 'A', 'x', 1, 3, 'a', 'b',
+              'c', 2, 2, '1', '2'}},
+        {3, {18, 0x83, 2}},                 {3, {18, 0x97, 1}},
+        {3, {18, 0xAB, 1}},
+    };
+    uint8_t chunk[64];
+    (void)state;
+    for (size_t i = 0; i < sizeof(foreign) / sizeof(foreign[0]); i++) {
+        memcpy(chunk, foreign[i].bytes, foreign[i].size);
+        size_t n = rtu_append_crc(chunk, foreign[i].size);
+        n += read_request(chunk + n, 17, 0, 1);
+        struct seen s = split(chunk, n, NULL, 0);
+        if (s.frames != 2 || s.size[0] != foreign[i].size + 2 || s.unit[1] != 17)
+            fail_msg("function %u, %zu bytes: %zu frames, %zu dropped", foreign[i].bytes[1],
+                     foreign[i].size + 2, s.frames, s.dropped_bytes);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -226,6 +270,7 @@ int main(void)
         cmocka_unit_test(after_noise_the_next_frame_after_a_silence_is_found),
         cmocka_unit_test(a_bad_crc_is_dropped),
         cmocka_unit_test(write_multiple_and_unknown_functions),
+        cmocka_unit_test(every_served_function_is_cut_by_its_length),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

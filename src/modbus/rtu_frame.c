@@ -133,6 +133,16 @@ static unsigned candidate_lengths(const uint8_t *d, size_t size, size_t out[2])
         break;
     case 43:
         out[n++] = 7; /* read device identification, the request */
+        if (size > 7 && d[2] == 14) {
+            /* The response: MEI type, code, conformity, more follows,
+             * next object, the number of objects, then each object's id,
+             * length and value. */
+            size_t end = 8;
+            for (unsigned i = 0; i < d[7] && end + 2 <= size; i++)
+                end += 2 + (size_t)d[end + 1];
+            if (end + 2 <= size && end + 2 <= RTU_MAX_ADU)
+                out[n++] = end + 2;
+        }
         break;
     default:
         break;
@@ -152,8 +162,8 @@ size_t rtu_frame_length(const uint8_t *data, size_t size)
         if (lengths[i] <= size && lengths[i] <= RTU_MAX_ADU &&
             rtu_crc_ok(data, lengths[i]))
             return lengths[i];
-    /* A function whose length we do not know, or a response of variable
-     * length (43/14): the whole chunk is the frame if its CRC says so. */
+    /* A function whose length we do not know: the whole chunk is the
+     * frame if its CRC says so. */
     if (size <= RTU_MAX_ADU && rtu_crc_ok(data, size))
         return size;
     return 0;
