@@ -41,7 +41,10 @@
  * a configuration error at start (mb_rtu_start returns -ENOTTY).
  *
  * Life cycle as libuv handles: mb_rtu_start(), mb_rtu_close(cb); the
- * struct is the caller's until cb runs.
+ * struct is the caller's until cb runs. A frame still waiting for its
+ * t3.5 silence at the close is dropped: neither acted on nor answered
+ * (its reply could not go out before the silence), so a master sees a
+ * timeout, never a write carried out without a reply.
  */
 #ifndef JAKAGW_MB_RTU_H
 #define JAKAGW_MB_RTU_H

@@ -405,6 +405,32 @@ def test_device_back_but_refusing_rs485_is_logged():
         line.close()
 
 
+def test_write_pending_at_stop_is_never_acted_on_unanswered():
+    """SIGTERM while a write's frame waits for its t3.5 silence (1200 baud,
+    no parity: 29 ms): the frame is dropped, neither acted on nor answered;
+    if the silence came first, the write is acted on and answered. Never
+    acted on without a reply."""
+    dropped = 0
+    for _ in range(3):
+        with rig(rights="power", baud="1200", parity="none") as r:
+            m = r.master()
+            try:
+                wait_until(lambda: r.plc.ir(IR_TASK_STATE)[0] in (1, 2, 3, 4), 10,
+                           "robot status")
+                req = write_coil_pdu(COIL_POWER_ON, 1)
+                m.send(frame(UNIT, req))
+                r.gw.proc.send_signal(signal.SIGTERM)
+                rsp = m.reply(timeout=1.0)
+                r.gw.proc.wait(timeout=10)
+                sent = len(sim_commands(r.sim, "power_on"))
+                check((rsp is None and sent == 0) or (rsp == frame(UNIT, req) and sent == 1),
+                      "reply %r, power_on sent %d times" % (rsp, sent))
+                dropped += rsp is None
+            finally:
+                m.close()
+    check(dropped >= 1, "the stop never came within the silence")
+
+
 def test_rtu_and_tcp_at_once():
     """An RTU master and a TCP client polling together: every request of
     both answered."""
@@ -543,7 +569,8 @@ if __name__ == "__main__":
          test_broadcast_is_counted_never_acted_on, test_device_removed_and_restored,
          test_absent_device_at_start_is_a_link_fault,
          test_rs485_refused_exits_2_naming_the_device,
-         test_device_back_but_refusing_rs485_is_logged, test_rtu_and_tcp_at_once,
+         test_device_back_but_refusing_rs485_is_logged,
+         test_write_pending_at_stop_is_never_acted_on_unanswered, test_rtu_and_tcp_at_once,
          test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence,
          test_own_reply_heard_back_is_not_a_request,
          test_repeated_write_answered_where_the_line_does_not_echo])
