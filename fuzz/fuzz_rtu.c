@@ -89,5 +89,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     rtu_split(chunk, chunk_size, gaps, unique, &hooks);
     if (w.at != chunk_size)
         abort();
+    /* What a tail lacks is at most a whole frame: the wait it sets is
+     * bounded. */
+    if (rtu_missing_bytes(chunk, chunk_size, gaps, unique) >= RTU_MAX_ADU)
+        abort();
     return 0;
 }

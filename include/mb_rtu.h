@@ -15,11 +15,17 @@
  * CLOCK_MONOTONIC. The end of a frame (3.5 character times of silence,
  * 1.75 ms above 19200 baud) is finer than libuv's millisecond timers, so a
  * timerfd under a second uv_poll fires at the last byte's time plus t3.5;
- * the loop never blocks. A byte read more than t1.5 after the previous one
- * marks a gap: a frame with a gap inside it is discarded. The times are
- * those of the reads, not of the bytes on the wire: a host late to read
- * sees longer gaps than the line had, so frames are also cut by their
- * length and CRC (rtu_split), and a late reader keeps its sync.
+ * the loop never blocks. The times are those of the reads, not of the
+ * bytes on the wire: a UART hands over its FIFO every 8 characters (the
+ * rest 4 characters after the last), a USB adapter its packets, and a
+ * host may be late to read. So a read marks a gap (a frame with a gap
+ * inside it is discarded) only when it comes more than t1.5 after the
+ * previous one once its own bytes' wire time and the port's delivery (4
+ * characters and 1 ms) are taken off; a silence of t3.5 after a frame
+ * begun but not whole by its length (rtu_missing_bytes) waits as long
+ * again as its missing bytes and the delivery take; and frames are also
+ * cut by their length and CRC (rtu_split), so a late reader keeps its
+ * sync.
  *
  * What is answered: a frame with a good CRC addressed to unit_id. A frame
  * for another unit is counted and skipped; a broadcast (unit 0) is counted
@@ -91,6 +97,10 @@ struct mb_rtu_stats {
     uint32_t turnaround_max_us;
 };
 
+/* How late a port may hand over bytes it received, beyond a FIFO's 4
+ * character receive timeout: the interrupt, the driver, a USB frame. */
+#define MB_RTU_DELIVERY_NS 1000000ull
+
 /* Bytes kept between two silences: several frames glued together. */
 #define MB_RTU_RX_SIZE 1024
 #define MB_RTU_MAX_GAPS 64
@@ -138,6 +148,7 @@ struct mb_rtu {
     const uint8_t *request;    /* the frame being answered (in rx) */
     size_t request_size;
     uint32_t char_ns;        /* one character on the wire */
+    uint64_t delivery_ns;    /* how late the port may hand bytes over */
     uint8_t tx[MB_RTU_TX_SIZE]; /* what the port did not take at once */
     size_t tx_used;
     bool tx_waiting;         /* polling for writable: tx_used was > 0 */

@@ -72,4 +72,16 @@ struct rtu_split_hooks {
 void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t gap_count,
                const struct rtu_split_hooks *hooks);
 
+/*
+ * How many more bytes the chunk needs to end in a whole frame: 0 when its
+ * last frame is whole, or when its tail is no frame any function code
+ * explains; else, for a tail that begins a frame (cut as rtu_split cuts),
+ * the bytes up to that frame's next possible end. A UART that hands over
+ * its FIFO every 8 characters, or a USB adapter's packets, deliver one
+ * frame in pieces further apart than t3.5: the caller waits this many
+ * more character times before it takes the silence for the frame's end.
+ */
+size_t rtu_missing_bytes(const uint8_t *chunk, size_t size, const uint16_t *gaps,
+                         size_t gap_count);
+
 #endif

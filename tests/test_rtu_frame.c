@@ -259,6 +259,34 @@ static void every_served_function_is_cut_by_its_length(void **state)
     }
 }
 
+/* A frame handed over in pieces: what its tail lacks, piece by piece. */
+static void missing_bytes_of_a_frame_begun(void **state)
+{
+    uint8_t chunk[64];
+    (void)state;
+    /* 16: unit, fc, address, count 1, byte count 2, value, CRC: 11 bytes. */
+    const uint8_t write16[] = {17, 16, 0, 0, 0, 1, 2, 0, 5};
+    memcpy(chunk, write16, sizeof(write16));
+    size_t n = rtu_append_crc(chunk, sizeof(write16));
+    assert_int_equal(n, 11);
+    assert_int_equal(rtu_missing_bytes(chunk, 1, NULL, 0), 3);
+    assert_int_equal(rtu_missing_bytes(chunk, 3, NULL, 0), 5); /* 8 at least */
+    assert_int_equal(rtu_missing_bytes(chunk, 7, NULL, 0), 1); /* 8: the response form */
+    assert_int_equal(rtu_missing_bytes(chunk, 8, NULL, 0), 3); /* 11 by its byte count */
+    assert_int_equal(rtu_missing_bytes(chunk, 11, NULL, 0), 0);
+    /* Whole frames, then one begun: what that one lacks. */
+    size_t m = read_request(chunk + n, 18, 0, 1);
+    assert_int_equal(rtu_missing_bytes(chunk, n + m, NULL, 0), 0);
+    assert_int_equal(rtu_missing_bytes(chunk, n + 5, NULL, 0), 3);
+    /* Bytes no frame length explains: nothing to wait for. */
+    chunk[n + m - 1] ^= 0xFF;
+    assert_int_equal(rtu_missing_bytes(chunk, n + m, NULL, 0), 0);
+    /* After noise, the frame begun after the silence. */
+    const uint16_t gaps[] = {3};
+    memmove(chunk + 3, chunk, n);
+    assert_int_equal(rtu_missing_bytes(chunk, 3 + 8, gaps, 1), 3);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -271,6 +299,7 @@ int main(void)
         cmocka_unit_test(a_bad_crc_is_dropped),
         cmocka_unit_test(write_multiple_and_unknown_functions),
         cmocka_unit_test(every_served_function_is_cut_by_its_length),
+        cmocka_unit_test(missing_bytes_of_a_frame_begun),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -437,7 +437,13 @@ static ssize_t read_line(struct mb_rtu *rtu)
             return -1;
         }
         uint64_t t = now_ns();
-        if (rtu->rx_used && t - rtu->last_rx_ns > rtu->t15_ns &&
+        /* A silence is what is left of the time between two reads once the
+         * new bytes' own wire time and the port's delivery are taken off:
+         * a UART hands over its FIFO every 8 characters (and its last
+         * bytes 4 characters after them), a USB adapter its packets, so
+         * reads of one unbroken frame can lie further apart than t1.5. */
+        if (rtu->rx_used &&
+            t - rtu->last_rx_ns > rtu->t15_ns + (uint64_t)n * rtu->char_ns + rtu->delivery_ns &&
             rtu->gap_count < MB_RTU_MAX_GAPS)
             rtu->gaps[rtu->gap_count++] = (uint16_t)rtu->rx_used;
         if (rtu->rx_overrun || rtu->rx_used + (size_t)n > sizeof(rtu->rx)) {
@@ -495,8 +501,20 @@ static void on_silence(uv_poll_t *p, int status, int events)
         return; /* more came (the timer is set again) or the line failed */
     if (rtu->rx_used == 0 && !rtu->rx_overrun)
         return;
-    if (now_ns() - rtu->last_rx_ns < rtu->t35_ns) {
+    uint64_t now = now_ns();
+    if (now - rtu->last_rx_ns < rtu->t35_ns) {
         set_silence_timer(rtu, rtu->last_rx_ns + rtu->t35_ns);
+        return;
+    }
+    /* A frame begun but not whole: its bytes may still be in the port's
+     * FIFO or the adapter's next packet. The silence ends it only once
+     * they would have come. */
+    size_t missing =
+        rtu->rx_overrun ? 0 : rtu_missing_bytes(rtu->rx, rtu->rx_used, rtu->gaps, rtu->gap_count);
+    uint64_t until = rtu->last_rx_ns + rtu->t35_ns + missing * (uint64_t)rtu->char_ns +
+                     rtu->delivery_ns;
+    if (missing && now < until) {
+        set_silence_timer(rtu, until);
         return;
     }
     end_of_chunk(rtu);
@@ -525,6 +543,7 @@ int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
                    &rtu->t35_ns);
     rtu->char_ns = (uint32_t)((1 + 8 + (cfg->parity != MB_RTU_PARITY_NONE) + cfg->stop_bits) *
                               1000000000ull / (cfg->baud ? cfg->baud : 19200));
+    rtu->delivery_ns = 4ull * rtu->char_ns + MB_RTU_DELIVERY_NS;
 
     uv_timer_init(loop, &rtu->retry);
     rtu->retry.data = rtu;

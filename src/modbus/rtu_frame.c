@@ -194,3 +194,42 @@ void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t g
         off = next;
     }
 }
+
+/* The bytes a tail of 'have' bytes lacks to reach its next possible end. */
+static size_t missing_at(const uint8_t *d, size_t have)
+{
+    size_t lengths[2], best = 0;
+    unsigned n;
+
+    if (have < 2)
+        return RTU_MIN_ADU - have;
+    n = candidate_lengths(d, have, lengths);
+    for (unsigned i = 0; i < n; i++)
+        if (lengths[i] > have && lengths[i] <= RTU_MAX_ADU && (!best || lengths[i] < best))
+            best = lengths[i];
+    if (!best && have < RTU_MIN_ADU && n == 0)
+        best = RTU_MIN_ADU; /* an unknown function: at least a whole frame */
+    return best ? best - have : 0;
+}
+
+size_t rtu_missing_bytes(const uint8_t *chunk, size_t size, const uint16_t *gaps,
+                         size_t gap_count)
+{
+    size_t off = 0, g = 0;
+
+    while (off < size) {
+        size_t len = rtu_frame_length(chunk + off, size - off);
+        while (g < gap_count && gaps[g] <= off)
+            g++;
+        if (len) {
+            off += len;
+            continue;
+        }
+        if (g < gap_count) {
+            off = gaps[g]; /* no frame here: rtu_split drops up to the gap */
+            continue;
+        }
+        return missing_at(chunk + off, size - off);
+    }
+    return 0;
+}

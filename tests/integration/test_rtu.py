@@ -269,6 +269,38 @@ def test_bad_crc_and_mid_frame_gap_are_not_answered():
             m.close()
 
 
+def test_frame_handed_over_in_pieces_is_answered():
+    """A UART hands a frame over in pieces (its FIFO every 8 characters),
+    as does a USB adapter (its packets), further apart than t3.5 though the
+    wire had no pause: the frame is answered once whole, and a real pause
+    in a frame still discards it. 4800 baud, no parity: a character is
+    2.08 ms, t3.5 7.3 ms; 8 bytes, then the last 3 six characters later
+    (12.5 ms; the previous code took the first 8 for a frame that failed
+    its CRC, and answered nothing)."""
+    with rig(rights="heartbeat", baud="4800", parity="none") as r:
+        m = r.master()
+        try:
+            for value in range(1, 6):
+                pdu = struct.pack(">BHHBH", 16, 0, 1, 2, value)
+                whole = frame(UNIT, pdu)
+                m.send(whole[:8])
+                time.sleep(6 * 10 / 4800)
+                m.send(whole[8:])
+                rsp = m.reply(timeout=1.0)
+                check(rsp == frame(UNIT, pdu[:5]), "write %d: %r" % (value, rsp))
+            check(r.plc.hr(0)[0] == 5, "the last value written")
+            check(r.plc.u32(IR_CRC_ERRORS) == 0 and r.plc.u32(IR_GAP_DISCARDS) == 0,
+                  "nothing dropped")
+            whole = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
+            m.send(whole[:4])
+            time.sleep(0.3)
+            m.send(whole[4:])
+            m.no_reply()
+            check(m.read_ir(IR_MAGIC) == [MAGIC], "the next frame answered")
+        finally:
+            m.close()
+
+
 def test_multidrop_keeps_sync():
     """Requests for other units, and their replies, interleaved with ours at
     the line's pace (t3.5 apart) and glued to ours in one write: every one of
@@ -565,7 +597,8 @@ def test_repeated_write_answered_where_the_line_does_not_echo():
 
 if __name__ == "__main__":
     run([test_mbpoll_and_pymodbus_read_the_map, test_command_once_with_rights_and_01_outside,
-         test_bad_crc_and_mid_frame_gap_are_not_answered, test_multidrop_keeps_sync,
+         test_bad_crc_and_mid_frame_gap_are_not_answered,
+         test_frame_handed_over_in_pieces_is_answered, test_multidrop_keeps_sync,
          test_broadcast_is_counted_never_acted_on, test_device_removed_and_restored,
          test_absent_device_at_start_is_a_link_fault,
          test_rs485_refused_exits_2_naming_the_device,
