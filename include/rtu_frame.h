@@ -67,8 +67,14 @@ struct rtu_split_hooks {
 /*
  * Cuts a chunk of 'size' bytes into frames, calling the hooks in order.
  * 'gaps' lists, in increasing order, the offsets in the chunk of the bytes
- * that came after a silence longer than 1.5 character times.
+ * that came after a silence longer than 1.5 character times: a frame with
+ * one inside is discarded, and after bytes that are no frame the next
+ * frame is sought at the next gap. An offset with RTU_GAP_WAITED set is a
+ * silence of t3.5 the caller waited past for a frame not yet whole
+ * (rtu_missing_bytes): the next frame is sought there too, but a frame
+ * across it is whole, not discarded (its bytes were late, not paused).
  */
+#define RTU_GAP_WAITED 0x8000
 void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t gap_count,
                const struct rtu_split_hooks *hooks);
 

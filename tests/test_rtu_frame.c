@@ -287,6 +287,28 @@ static void missing_bytes_of_a_frame_begun(void **state)
     assert_int_equal(rtu_missing_bytes(chunk, 3 + 8, gaps, 1), 3);
 }
 
+/* A silence waited past (a frame not yet whole): a frame across it is
+ * whole; bytes before it that were no frame end there, and the frame after
+ * it is found. */
+static void a_waited_silence_is_a_place_to_resynchronise_only(void **state)
+{
+    uint8_t chunk[64];
+    (void)state;
+    size_t n = read_request(chunk, 17, 0, 1);
+    const uint16_t across[] = {5 | RTU_GAP_WAITED};
+    struct seen s = split(chunk, n, across, 1);
+    assert_int_equal(s.frames, 1);
+    assert_int_equal(s.dropped_gap, 0);
+    /* One byte of noise (it began a frame), the silence, a frame. */
+    chunk[0] = 17;
+    n = 1 + read_request(chunk + 1, 17, 0, 1);
+    const uint16_t after_noise[] = {1 | RTU_GAP_WAITED};
+    s = split(chunk, n, after_noise, 1);
+    assert_int_equal(s.frames, 1);
+    assert_int_equal(s.dropped_bytes, 1);
+    assert_int_equal(rtu_missing_bytes(chunk, n, after_noise, 1), 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -300,6 +322,7 @@ int main(void)
         cmocka_unit_test(write_multiple_and_unknown_functions),
         cmocka_unit_test(every_served_function_is_cut_by_its_length),
         cmocka_unit_test(missing_bytes_of_a_frame_begun),
+        cmocka_unit_test(a_waited_silence_is_a_place_to_resynchronise_only),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

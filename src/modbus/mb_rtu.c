@@ -514,6 +514,11 @@ static void on_silence(uv_poll_t *p, int status, int events)
     uint64_t until = rtu->last_rx_ns + rtu->t35_ns + missing * (uint64_t)rtu->char_ns +
                      rtu->delivery_ns;
     if (missing && now < until) {
+        /* If the frame was noise after all, the next starts here. */
+        if (rtu->gap_count < MB_RTU_MAX_GAPS &&
+            (rtu->gap_count == 0 ||
+             (rtu->gaps[rtu->gap_count - 1] & ~RTU_GAP_WAITED) != rtu->rx_used))
+            rtu->gaps[rtu->gap_count++] = (uint16_t)(rtu->rx_used | RTU_GAP_WAITED);
         set_silence_timer(rtu, until);
         return;
     }

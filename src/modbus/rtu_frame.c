@@ -169,6 +169,17 @@ size_t rtu_frame_length(const uint8_t *data, size_t size)
     return 0;
 }
 
+#define GAP_AT(g) ((size_t)((g) & ~RTU_GAP_WAITED))
+
+/* Is there a pause (not a waited silence) inside [from, to)? */
+static bool pause_inside(const uint16_t *gaps, size_t g, size_t gap_count, size_t to)
+{
+    for (; g < gap_count && GAP_AT(gaps[g]) < to; g++)
+        if (!(gaps[g] & RTU_GAP_WAITED))
+            return true;
+    return false;
+}
+
 void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t gap_count,
                const struct rtu_split_hooks *hooks)
 {
@@ -176,11 +187,11 @@ void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t g
 
     while (off < size) {
         size_t len = rtu_frame_length(chunk + off, size - off);
-        while (g < gap_count && gaps[g] <= off)
+        while (g < gap_count && GAP_AT(gaps[g]) <= off)
             g++;
         if (len) {
             /* A silence inside the frame: the specification discards it. */
-            if (g < gap_count && gaps[g] < off + len)
+            if (pause_inside(gaps, g, gap_count, off + len))
                 hooks->dropped(hooks->user, RTU_DROP_GAP, len);
             else
                 hooks->frame(hooks->user, chunk + off, len);
@@ -189,7 +200,7 @@ void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t g
         }
         /* No frame starts here: a frame can start again only after a
          * silence, at the next gap, or nowhere in this chunk. */
-        size_t next = g < gap_count ? gaps[g] : size;
+        size_t next = g < gap_count ? GAP_AT(gaps[g]) : size;
         hooks->dropped(hooks->user, RTU_DROP_CRC, next - off);
         off = next;
     }
@@ -219,14 +230,14 @@ size_t rtu_missing_bytes(const uint8_t *chunk, size_t size, const uint16_t *gaps
 
     while (off < size) {
         size_t len = rtu_frame_length(chunk + off, size - off);
-        while (g < gap_count && gaps[g] <= off)
+        while (g < gap_count && GAP_AT(gaps[g]) <= off)
             g++;
         if (len) {
             off += len;
             continue;
         }
         if (g < gap_count) {
-            off = gaps[g]; /* no frame here: rtu_split drops up to the gap */
+            off = GAP_AT(gaps[g]); /* no frame here: rtu_split drops up to the gap */
             continue;
         }
         return missing_at(chunk + off, size - off);

@@ -291,6 +291,11 @@ def test_frame_handed_over_in_pieces_is_answered():
             check(r.plc.hr(0)[0] == 5, "the last value written")
             check(r.plc.u32(IR_CRC_ERRORS) == 0 and r.plc.u32(IR_GAP_DISCARDS) == 0,
                   "nothing dropped")
+            # A byte of noise (it begins a frame for this unit), t3.5 and
+            # more of silence, a frame: the noise ends at the silence.
+            m.send(bytes([UNIT]))
+            time.sleep(0.012)
+            check(m.read_ir(IR_MAGIC) == [MAGIC], "the frame after the noise answered")
             whole = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
             m.send(whole[:4])
             time.sleep(0.3)
