@@ -157,21 +157,30 @@ class Rig:
 
     def __init__(self, sim_args=("--log-commands",), **keys):
         self.line = SerialPair()
-        self.sim = Sim(*sim_args)
-        self.gw = Gateway(self.sim, rtu_config(self.line.device, **keys))
-        self.plc = ModbusPlc(self.gw.modbus_port)
-        wait_until(lambda: self.plc.ir(IR_LINE_STATE)[0] == LINE_IDLE, 10, "the line open")
+        self.sim = self.gw = self.plc = None
+        try:
+            self.sim = Sim(*sim_args)
+            self.gw = Gateway(self.sim, rtu_config(self.line.device, **keys))
+            self.plc = ModbusPlc(self.gw.modbus_port)
+            wait_until(lambda: self.plc.ir(IR_LINE_STATE)[0] == LINE_IDLE, 10, "the line open")
+        except BaseException:
+            # A rig that fails to start stops what it started (no __exit__).
+            self.close()
+            raise
 
     def master(self):
         return RawMaster(self.line.master)
 
     def close(self):
         try:
-            self.plc.close()
-            self.gw.stop()
+            if self.plc:
+                self.plc.close()
+            if self.gw:
+                self.gw.stop()
         finally:
             try:
-                self.sim.stop()
+                if self.sim:
+                    self.sim.stop()
             finally:
                 self.line.close()
 
