@@ -2,22 +2,35 @@
 /* metrics.c - the Prometheus text format (metrics.h). */
 #include "metrics.h"
 
+#include "log.h"
+
 #include <string.h>
 
 #define MS 1000.0
 
 void metrics_label_value(struct strbuf *out, const char *text)
 {
-    const char *run = text;
-    for (const char *p = text;; p++) {
-        const char *esc = *p == '\\' ? "\\\\" : *p == '"' ? "\\\"" : *p == '\n' ? "\\n" : NULL;
-        if (!esc && *p)
+    const unsigned char *p = (const unsigned char *)text;
+    size_t len = strlen(text), run = 0;
+    for (size_t i = 0; i <= len;) {
+        const char *esc = p[i] == '\\' ? "\\\\" : p[i] == '"' ? "\\\"" : p[i] == '\n' ? "\\n" : NULL;
+        size_t n = 1;
+        /* Not UTF-8 (a PLC's JSON command name): U+FFFD for each byte, as
+         * Prometheus refuses the whole scrape otherwise. */
+        if (p[i] >= 0x80 && (n = utf8_sequence(p + i, len - i)) == 0) {
+            esc = "\xef\xbf\xbd";
+            n = 1;
+        }
+        if (!esc && p[i]) {
+            i += n;
             continue;
-        strbuf_append(out, run, (size_t)(p - run));
-        if (!*p)
+        }
+        strbuf_append(out, text + run, i - run);
+        if (!p[i])
             break;
-        strbuf_append(out, esc, 2);
-        run = p + 1;
+        strbuf_append(out, esc, strlen(esc));
+        i += n;
+        run = i;
     }
 }
 

@@ -256,8 +256,11 @@ def test_status_json_clients_policy_and_counters():
 
 
 def test_markup_from_the_robot_stays_text_in_json_and_audit():
-    message = '<img src=x onerror="alert(1)"><script>alert(2)</script>&amp;'
-    port, ctx = gateway_with_http(["--fail-command", "power_on", "--fail-message", message])
+    message = '<img src=x onerror="alert(1)"><script>alert(2)</script>&amp;\u2028'
+    # Bytes that are no UTF-8 after it: /status.json stays UTF-8 (U+FFFD).
+    raw = message.encode() + b"\xff\xc3"
+    port, ctx = gateway_with_http(["--fail-command", "power_on", "--fail-message",
+                                   raw.decode("utf-8", "surrogateescape")])
     with ctx as (sim, gw):
         web = Http(port)
         plc = ModbusPlc(gw.modbus_port)
@@ -266,10 +269,14 @@ def test_markup_from_the_robot_stays_text_in_json_and_audit():
         wait_until(lambda: any(c["command"] == "power_on" for c in web.status()["commands"]), 10,
                    "power_on in the last commands")
         status, headers, body = web.get("/status.json")
-        check(b"<" not in body and b">" not in body and b"&" not in body,
-              "raw markup in /status.json")
-        rec = [c for c in json.loads(body)["commands"] if c["command"] == "power_on"][0]
-        check(rec["error_msg"] == message and rec["result"] == "robot error" and
+        check(b"<" not in body and b">" not in body and b"&" not in body and
+              b"\xe2\x80\xa8" not in body, "raw markup or U+2028 in /status.json")
+        try:
+            doc = json.loads(body.decode("utf-8"))
+        except ValueError as e:
+            raise TestFailure("/status.json is not UTF-8 JSON: %s" % e)
+        rec = [c for c in doc["commands"] if c["command"] == "power_on"][0]
+        check(rec["error_msg"] == message + "\ufffd\ufffd" and rec["result"] == "robot error" and
               rec["error_code"] == 2 and rec["client"] == "127.0.0.1" and
               rec["transport"] == "modbus", "record %r" % rec)
         samples = parse_metrics(web.metrics())
