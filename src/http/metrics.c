@@ -101,11 +101,18 @@ static void modbus_metrics(const struct gateway *gw, struct strbuf *out)
     strbuf_printf(out, "jakagw_modbus_request_duration_seconds_sum %.9f\n", by->service_seconds);
     strbuf_printf(out, "jakagw_modbus_request_duration_seconds_count %llu\n",
                   (unsigned long long)cumulative);
-    head(out, "jakagw_modbus_clients", "gauge", "Modbus clients connected, by transport.");
-    strbuf_printf(out, "jakagw_modbus_clients{transport=\"modbus\"} %.15g\n",
-                  gw->gw_values[GW_modbus_clients] - gw->gw_values[GW_tls_clients]);
-    strbuf_printf(out, "jakagw_modbus_clients{transport=\"mbaps\"} %.15g\n",
+    /* Input register modbus_clients counts the RTU line while it is
+     * polled (rtu_line_state 2): the line is its own transport here, not
+     * a TCP client. */
+    double line = gw->gw_values[GW_rtu_line_state] == MB_RTU_POLLED ? 1 : 0;
+    head(out, "jakagw_modbus_clients", "gauge",
+         "Modbus clients connected, by transport (their sum is input register "
+         "modbus_clients).");
+    strbuf_printf(out, "jakagw_modbus_clients{transport=\"%s\"} %.15g\n", transports[0],
+                  gw->gw_values[GW_modbus_clients] - gw->gw_values[GW_tls_clients] - line);
+    strbuf_printf(out, "jakagw_modbus_clients{transport=\"%s\"} %.15g\n", transports[1],
                   gw->gw_values[GW_tls_clients]);
+    strbuf_printf(out, "jakagw_modbus_clients{transport=\"%s\"} %.15g\n", transports[2], line);
     plain(out, "jakagw_modbus_evictions_total", "counter",
           "Modbus connections closed to admit a new one at max_clients.",
           gw->gw_values[GW_modbus_evictions]);

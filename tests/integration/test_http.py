@@ -368,6 +368,64 @@ def test_mbaps_clients_are_audited_with_certificate_and_role():
         print("  %s" % lines[0])
 
 
+def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
+    """The RTU line is a client of its own transport: jakagw_modbus_clients
+    {transport="rtu"} (beside the TCP client, not counted as one), its
+    requests under transport="rtu", its entry in /status.json's clients and
+    its commands in the audit trail, named by its device (a path with
+    markup in it, kept as text)."""
+    import test_rtu as rtu
+    line = rtu.SerialPair()
+    # The device's path is outside text too: markup in a directory name.
+    hostile = os.path.join(line.dir, "<b>&x")
+    os.mkdir(hostile)
+    device = os.path.join(hostile, "tty")
+    os.symlink(line.device, device)
+    port = free_port()
+    try:
+        with running(["--log-commands"], http_config(port) + rtu.rtu_config(
+                device, rights="power")) as (sim, gw):
+            web = Http(port)
+            wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
+            plc = ModbusPlc(gw.modbus_port)
+            m = rtu.RawMaster(line.master)
+            try:
+                check(m.read_ir(rtu.IR_MAGIC) == [rtu.MAGIC], "the line answers")
+                req = rtu.write_coil_pdu(COIL["cmd_power_on"], 1)
+                check(m.request(rtu.UNIT, req) == rtu.frame(rtu.UNIT, req), "power_on over the line")
+                clients = plc.ir(IR["modbus_clients"])[0]
+                samples = parse_metrics(web.metrics())
+                by = {t: metric(samples, "jakagw_modbus_clients", transport=t)
+                      for t in ("modbus", "mbaps", "rtu")}
+                check(clients == 2 and by == {"modbus": 1, "mbaps": 0, "rtu": 1},
+                      "clients: register %d, metrics %r" % (clients, by))
+                check(metric(samples, "jakagw_modbus_requests_total", transport="rtu",
+                             function="4") == 1 and
+                      metric(samples, "jakagw_modbus_requests_total", transport="rtu",
+                             function="5") == 1, "the line's requests by transport")
+                wait_until(lambda: any(c["command"] == "power_on" for c in web.status()["commands"]),
+                           10, "power_on recorded")
+                status, headers, body = web.get("/status.json")
+                check(b"<b>" not in body and b"&x" not in body, "the device's markup raw in JSON")
+                doc = json.loads(body)
+                line_clients = [c for c in doc["clients"] if c["transport"] == "rtu"]
+                check(len(line_clients) == 1 and device in line_clients[0]["peer"] + line_clients[0]["address"],
+                      "the line in /status.json: %r" % doc["clients"])
+                rec = [c for c in doc["commands"] if c["command"] == "power_on"][0]
+                check(rec["transport"] == "rtu" and device in rec["client"], "record %r" % rec)
+            finally:
+                m.close()
+                plc.close()
+        audit = [a for a in audit_lines(gw) if a["command"] == "power_on"]
+        check(len(audit) == 1 and audit[0]["transport"] == "rtu" and device in audit[0]["client"],
+              "power_on's audit line: %r" % audit)
+        print("  clients by transport %r; audit: transport=rtu client=%s" % (by, audit[0]["client"]))
+    finally:
+        os.unlink(device)
+        os.rmdir(hostile)
+        line.close()
+
+
 def journal_fields(datagram):
     """The fields of one message of journald's native protocol."""
     fields, i = {}, 0
@@ -738,6 +796,7 @@ TESTS = [
     test_audit_records_commands_refusals_and_aggregates_outputs,
     test_audit_goes_to_the_journal_as_fields,
     test_mbaps_clients_are_audited_with_certificate_and_role,
+    test_rtu_line_is_transport_rtu_in_metrics_status_and_audit,
     test_abuse_leaves_modbus_answering,
     test_non_loopback_bind_logs_one_warning,
     test_disabled_by_default,
