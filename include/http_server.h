@@ -10,6 +10,8 @@
  *
  * What any client may do is bounded here, whatever the handler does:
  * - GET and HEAD only; any other method gets 405 with "Allow: GET, HEAD";
+ *   a request body (Content-Length other than 0, or Transfer-Encoding)
+ *   gets 413 and the connection closed, never read;
  * - the request line and headers at most HTTP_MAX_HEAD_BYTES (431 past it;
  *   libmicrohttpd answers 431 itself once its buffer is full, or 414 when
  *   the request line alone fills it);

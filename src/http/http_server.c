@@ -15,6 +15,10 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#ifndef MHD_HTTP_CONTENT_TOO_LARGE
+#define MHD_HTTP_CONTENT_TOO_LARGE 413
+#endif
+
 /* One connection, from libmicrohttpd's connect notice to its close notice. */
 struct http_conn {
     struct http_conn *prev, *next;
@@ -214,6 +218,14 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *connection,
         if (strcmp(method, "GET") != 0 && strcmp(method, "HEAD") != 0)
             return queue_text(connection, MHD_HTTP_METHOD_NOT_ALLOWED,
                               "read-only: GET and HEAD only\n", "GET, HEAD");
+        /* A body would be read, and dropped, for as long as it is sent:
+         * refused, the connection closed. */
+        const char *length =
+            MHD_lookup_connection_value(connection, MHD_HEADER_KIND, "Content-Length");
+        if ((length && strcmp(length, "0") != 0) ||
+            MHD_lookup_connection_value(connection, MHD_HEADER_KIND, "Transfer-Encoding"))
+            return queue_text(connection, MHD_HTTP_CONTENT_TOO_LARGE,
+                              "a request body is not accepted\n", NULL);
         *con_cls = &request_accepted;
         return MHD_YES;
     }
