@@ -33,6 +33,56 @@ static char request_accepted, request_refused;
 
 static void schedule(struct http_server *srv);
 
+/* Forgets the bodies kept for the turn that is over. */
+static void turn_clear(struct http_server *srv)
+{
+    for (unsigned i = 0; i < srv->turn_count; i++)
+        free(srv->turn[i].body);
+    srv->turn_count = 0;
+}
+
+/* One turn of libmicrohttpd: every connection ready, once. */
+static void run(struct http_server *srv)
+{
+    MHD_run(srv->daemon);
+    turn_clear(srv);
+}
+
+bool http_turn_cached(struct http_server *srv, const char *key, struct http_response *resp)
+{
+    for (unsigned i = 0; i < srv->turn_count; i++) {
+        const struct http_turn_entry *e = &srv->turn[i];
+        if (strcmp(e->key, key) != 0)
+            continue;
+        resp->status = e->status;
+        resp->content_type = e->content_type;
+        resp->security_policy = e->security_policy;
+        resp->size = e->size;
+        resp->body = malloc(e->size ? e->size : 1);
+        if (resp->body)
+            memcpy(resp->body, e->body, e->size);
+        return true;
+    }
+    return false;
+}
+
+void http_turn_keep(struct http_server *srv, const char *key, const struct http_response *resp)
+{
+    if (!resp->body || resp->status == 0 || srv->turn_count == HTTP_TURN_KEPT)
+        return;
+    struct http_turn_entry *e = &srv->turn[srv->turn_count];
+    e->body = malloc(resp->size ? resp->size : 1);
+    if (!e->body)
+        return;
+    memcpy(e->body, resp->body, resp->size);
+    e->key = key;
+    e->size = resp->size;
+    e->status = resp->status;
+    e->content_type = resp->content_type;
+    e->security_policy = resp->security_policy;
+    srv->turn_count++;
+}
+
 static void on_mhd_log(void *cls, const char *fmt, va_list ap)
 {
     struct http_server *srv = cls;
@@ -131,7 +181,7 @@ static void on_sweep(uv_timer_t *t)
             log_info("http: closed connections too slow to send a request or read a "
                      "response (%llu closed so, in all)",
                      (unsigned long long)srv->closed_slow);
-        MHD_run(srv->daemon);
+        run(srv);
         schedule(srv);
     }
     if (!srv->conns)
@@ -247,7 +297,7 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *connection,
 static void on_timer(uv_timer_t *t)
 {
     struct http_server *srv = t->data;
-    MHD_run(srv->daemon);
+    run(srv);
     schedule(srv);
 }
 
@@ -258,8 +308,14 @@ static void schedule(struct http_server *srv)
 
     if (!srv->running)
         return;
+    /* Never 0: libuv before 1.45 runs a timer started at 0 from its own
+     * callback again in the same pass over the timers, without polling in
+     * between, and libmicrohttpd says 0 for as long as a connection has
+     * work left (pipelined requests, a long answer): HTTP clients kept the
+     * loop in that pass, and Modbus unanswered, for as long as they sent.
+     * 1 ms lets every other handle have its turn first. */
     if (MHD_get_timeout(srv->daemon, &ms) == MHD_YES)
-        uv_timer_start(&srv->timer, on_timer, ms, 0);
+        uv_timer_start(&srv->timer, on_timer, ms ? ms : 1, 0);
     else
         uv_timer_stop(&srv->timer);
     if (srv->conns && !uv_is_active((uv_handle_t *)&srv->sweep))
@@ -270,7 +326,7 @@ static void on_poll(uv_poll_t *p, int status, int events)
 {
     struct http_server *srv = p->data;
     (void)status, (void)events;
-    MHD_run(srv->daemon);
+    run(srv);
     schedule(srv);
 }
 
@@ -300,7 +356,7 @@ static void on_listener(uv_poll_t *p, int status, int events)
         /* Closes the descriptor itself when it cannot take it. */
         MHD_add_connection(srv->daemon, fd, (struct sockaddr *)&peer, len);
     }
-    MHD_run(srv->daemon);
+    run(srv);
     schedule(srv);
 }
 
@@ -436,6 +492,7 @@ void http_server_close(struct http_server *srv, void (*cb)(struct http_server *s
         MHD_stop_daemon(srv->daemon); /* closes every connection now */
         srv->daemon = NULL;
     }
+    turn_clear(srv);
     uv_close((uv_handle_t *)&srv->timer, on_handle_closed);
     uv_close((uv_handle_t *)&srv->sweep, on_handle_closed);
     if (srv->listen_fd >= 0) {
