@@ -223,6 +223,38 @@ static void counters_count_every_command_even_aggregated(void **state)
     assert_int_equal(a.counters[1].n, 1);
 }
 
+/*
+ * More (command, result) pairs than counters (a PLC's JSON mailbox sends
+ * any cmdName): each named counter counts only its own, the rest one
+ * "(other)" counter, never a named one.
+ */
+static void counters_past_their_room_count_as_other(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    char name[32];
+    for (unsigned i = 0; i < AUDIT_COUNTERS + 50; i++) {
+        snprintf(name, sizeof(name), "cmd_%u", i);
+        audit_command_sent(&a, &slot_play, name, false, false);
+        audit_command_done(&a, &slot_play, &done);
+    }
+    audit_command_sent(&a, &slot_play, "cmd_0", false, false);
+    audit_command_done(&a, &slot_play, &done);
+    assert_int_equal(a.counter_count, AUDIT_COUNTERS);
+    uint64_t total = 0;
+    for (unsigned i = 0; i < AUDIT_COUNTERS - 1; i++) {
+        snprintf(name, sizeof(name), "cmd_%u", i);
+        assert_string_equal(a.counters[i].command, name);
+        assert_int_equal(a.counters[i].n, i == 0 ? 2 : 1);
+        total += a.counters[i].n;
+    }
+    const struct audit_counter *other = &a.counters[AUDIT_COUNTERS - 1];
+    assert_string_equal(other->command, "(other)");
+    assert_string_equal(other->result, "(other)");
+    assert_int_equal(other->n, 51);
+    assert_int_equal(total + other->n, AUDIT_COUNTERS + 51);
+}
+
 static void the_last_records_are_kept_oldest_first(void **state)
 {
     (void)state;
@@ -348,6 +380,7 @@ int main(void)
         cmocka_unit_test_setup(a_failure_among_frequent_ones_is_its_own_record, setup),
         cmocka_unit_test_setup(refused_writes_are_aggregated_and_counted, setup),
         cmocka_unit_test_setup(counters_count_every_command_even_aggregated, setup),
+        cmocka_unit_test_setup(counters_past_their_room_count_as_other, setup),
         cmocka_unit_test_setup(the_last_records_are_kept_oldest_first, setup),
         cmocka_unit_test_setup(more_pending_than_room_records_the_oldest_as_unknown, setup),
         cmocka_unit_test_setup(null_audit_is_harmless, setup),

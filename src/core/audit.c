@@ -206,11 +206,14 @@ static void count_command(struct audit *a, const char *command, const char *resu
             return;
         }
     }
-    /* Bounded by the command table times the outcomes; past that, the
-     * last slot counts the rest. */
+    /* Bounded by the command table times the outcomes, but a JSON
+     * mailbox's cmdName is any text: the last slot counts whatever finds
+     * no room, as "(other)", so that no named counter counts another's. */
     struct audit_counter *c = &a->counters[a->counter_count < AUDIT_COUNTERS
                                                ? a->counter_count++
                                                : AUDIT_COUNTERS - 1];
+    if (a->counter_count == AUDIT_COUNTERS)
+        command = result = "(other)";
     if (c->n == 0) {
         copy(c->command, sizeof(c->command), command);
         copy(c->result, sizeof(c->result), result);
