@@ -142,7 +142,7 @@ static void command_metrics(const struct gateway *gw, struct strbuf *out)
         strbuf_printf(out, "\"} %llu\n", (unsigned long long)a->counters[i].n);
     }
     head(out, "jakagw_writes_refused_total", "counter",
-         "Modbus writes the gateway refused after judging them, by exception code.");
+         "Modbus writes the gateway refused (judged, or outside the map), by exception code.");
     for (unsigned code = 0; code < 16; code++)
         if (a->refused_writes[code] || code == 1)
             strbuf_printf(out, "jakagw_writes_refused_total{code=\"%s\"} %llu\n",

@@ -329,6 +329,30 @@ def test_audit_records_commands_refusals_and_aggregates_outputs():
           % (power[0]["result"], refused[0]["what"], len(outputs)))
 
 
+def test_writes_refused_by_the_map_are_audited():
+    """A write the map refuses before it is judged (an address outside the
+    map: 02) is a refused write like any other: recorded once, with who."""
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        web = Http(port)
+        plc = ModbusPlc(gw.modbus_port)
+        rr = plc.client.write_coil(65000, True, slave=1)
+        check(rr.isError() and rr.exception_code == 2, "coil 65000: %s" % rr)
+        check(plc.ir(0)[0] == 0x4A4B, "still answering")
+        wait_until(lambda: any(c["command"] == "write" for c in web.status()["commands"]), 10,
+                   "the refusal in the last commands")
+        rec = [c for c in web.status()["commands"] if c["command"] == "write"]
+        check(len(rec) == 1 and rec[0]["what"] == "coil 65000" and rec[0]["error_code"] == 2 and
+              rec[0]["client"] == "127.0.0.1" and rec[0]["transport"] == "modbus",
+              "record %r" % rec)
+        samples = parse_metrics(web.metrics())
+        check(metric(samples, "jakagw_writes_refused_total", code="02") == 1, "counted as 02")
+        plc.close()
+    lines = [a for a in audit_lines(gw) if a["command"] == "write"]
+    check(len(lines) == 1 and lines[0]["what"] == "coil 65000" and lines[0]["error_code"] == "2",
+          "audit lines %r" % lines)
+
+
 def test_mbaps_clients_are_audited_with_certificate_and_role():
     """On Modbus/TCP Security, who is the certificate: its subject and role
     are in the audit records, /status.json and the transport's metrics."""
@@ -886,6 +910,7 @@ TESTS = [
     test_markup_from_the_robot_stays_text_in_json_and_audit,
     test_audit_records_commands_refusals_and_aggregates_outputs,
     test_audit_goes_to_the_journal_as_fields,
+    test_writes_refused_by_the_map_are_audited,
     test_mbaps_clients_are_audited_with_certificate_and_role,
     test_rtu_line_is_transport_rtu_in_metrics_status_and_audit,
     test_abuse_leaves_modbus_answering,
