@@ -27,7 +27,9 @@
  * any other, so its reply is matched by order and never taken for a PLC
  * command's; it is accepted only into an empty queue (never while a
  * command is in flight), and a command submitted while it is in flight is
- * written at once behind it (pipelined), so a check never delays one.
+ * written at once behind it (pipelined), so a check never delays one; the
+ * check's short bound then grows to that command's reply timeout, from
+ * the command's send, so a check never cuts one short either.
  *
  * Time and I/O reach the queue through 'struct cmd_ops', so its rules are
  * unit-tested with a fake clock and a fake link.
@@ -185,7 +187,8 @@ int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
  * empty; its reply must come within 'timeout_ms' (0: the queue's), or it
  * fails as CMD_TIMEOUT and the link is restarted like after any reply
  * timeout. Commands submitted while it is in flight are written at once
- * behind it. Returns 0, -ENOTCONN, -EBUSY when anything is queued or in
+ * behind it, and its deadline becomes the latest of theirs (each command's
+ * send plus the queue's timeout) if that is later. Returns 0, -ENOTCONN, -EBUSY when anything is queued or in
  * flight (the link is in use: no check needed), -ENOMEM, or the send's
  * error (then nothing changed).
  */

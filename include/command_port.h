@@ -14,8 +14,9 @@
  * as an entry of the gateway's own, so its reply is matched by order and
  * never taken for a PLC command's; a PLC command submitted while it is in
  * flight is written at once behind it. Its reply must come within
- * min(reply_timeout_ms, link_check_ms), or the link is restarted
- * (abortively) and reads down. With the defaults (1000, 2000) a silently
+ * min(reply_timeout_ms, link_check_ms) (with a command written behind it,
+ * within that command's reply timeout from its send), or the link is
+ * restarted (abortively) and reads down. With the defaults (1000, 2000) a silently
  * dead idle link reads down within link_check_ms + 1000 ms = 2 s.
  *
  * The link reads "answering" (command_port_answering) once a reply has
@@ -74,6 +75,12 @@ int command_port_init(uv_loop_t *loop, struct command_port *cp,
                       const struct robot_link_config *link_cfg,
                       uint32_t reply_timeout_ms, uint32_t link_check_ms,
                       const struct command_port_hooks *hooks);
+
+/*
+ * A new link_check_ms (on reload; 0: no check): an idle period under way
+ * starts again at the new value, from now.
+ */
+void command_port_set_link_check(struct command_port *cp, uint32_t link_check_ms);
 
 /* Connected, and the controller has answered on this connection. */
 bool command_port_answering(const struct command_port *cp);

@@ -62,6 +62,12 @@ struct plc_commands_config {
      */
     void (*start_sent)(void *user);
     void (*start_answered)(void *user);
+    /*
+     * A command sent by plc_commands_send_now ended with its outcome
+     * unknown (CMD_TIMEOUT, CMD_LINK_DOWN: written, no reply; the robot
+     * may never have had it). Called with 'gate_user'; may be NULL.
+     */
+    void (*own_unknown)(void *user, const struct cmd_def *def);
     /* The audit trail: every command sent and its result (NULL: none). */
     struct audit *audit;
 };
@@ -163,8 +169,9 @@ void plc_commands_link_down(struct plc_commands *pc);
 
 /*
  * Sends 'name' (pause_program or stop_program) for the gateway itself,
- * past every gate; its result shows as the command's. Returns 0 or a
- * negative errno (-ENOTCONN: the command link is down).
+ * past every gate; its result shows as the command's, and an outcome
+ * unknown is also told to cfg.own_unknown. Returns 0 or a negative errno
+ * (-ENOTCONN: the command link is down).
  */
 int plc_commands_send_now(struct plc_commands *pc, const char *name);
 

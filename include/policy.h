@@ -33,7 +33,8 @@
  * motion enable ends the same way in either order.
  * While a fault is latched, commands are refused, except stop and the
  * reset; the action is never repeated, except motion enable's pause, sent
- * once for each drop. Only an explicit reset by the PLC clears it. A loss
+ * once for each drop, and an action whose outcome is unknown (its
+ * connection lost before its reply: policy_action_unknown). Only an explicit reset by the PLC clears it. A loss
  * while the robot is idle sends nothing and latches nothing.
  *
  * Write ownership, when configured: the client that feeds the heartbeat
@@ -170,6 +171,16 @@ void policy_start_answered(struct policy *p, uint64_t now_ms);
 void policy_status_document(struct policy *p, uint64_t now_ms);
 /* Is a start sent that the status cannot show yet? */
 bool policy_start_unshown(const struct policy *p, uint64_t now_ms);
+
+/*
+ * The action sent for the latched fault ended with its outcome unknown (no
+ * reply in time, or the command link lost before it): reset with its
+ * connection, the robot may never have had it. It is owed again, and goes
+ * out at the next check while the robot runs or may run (a pause sent twice
+ * is harmless; a robot left running with its PLC gone is not). Nothing
+ * without a latched fault.
+ */
+void policy_action_unknown(struct policy *p, enum policy_action action);
 
 /* The PLC's reset: clears the latched fault. */
 void policy_reset(struct policy *p);

@@ -875,8 +875,10 @@ static void commands_during_a_check_are_not_delayed(void **state)
 }
 
 /*
- * An unanswered check restarts the link at its own bound; a command
- * written behind it reads outcome unknown, one still queued not sent.
+ * An unanswered check restarts the link at its own bound when nothing
+ * waits behind it; with a command written behind it, at that command's
+ * own reply timeout (counted from its send). The command then reads
+ * outcome unknown, one still queued not sent.
  */
 static void unanswered_check_restarts_the_link(void **state)
 {
@@ -888,9 +890,6 @@ static void unanswered_check_restarts_the_link(void **state)
     link.restart_disconnects = true;
     link.now = 1000;
     assert_int_equal(submit_check(&chk, 200), 0);
-    link.now = 1050;
-    test_submit(&a);
-    test_submit(&b);
     link.now = 1199;
     cmd_queue_check_timeout(&queue);
     assert_int_equal(link.restarts, 0);
@@ -900,15 +899,92 @@ static void unanswered_check_restarts_the_link(void **state)
     assert_non_null(strstr(link.restart_why, "link check unanswered within 200 ms"));
     assert_int_equal(chk.result.outcome, CMD_TIMEOUT);
     assert_int_equal(queue.stats.checks_failed, 1);
+
+    /* Again, with commands behind the check. */
+    cmd_queue_set_connected(&queue, true);
+    chk = (struct job){.json = CHECK_JSON};
+    link.now = 2000;
+    assert_int_equal(submit_check(&chk, 200), 0);
+    link.now = 2050;
+    test_submit(&a);
+    test_submit(&b);
+    link.now = 2200; /* a went out at 2050: it has its 500 ms */
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 1);
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), 350);
+    link.now = 2549;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 1);
+    link.now = 2550;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 2);
+    assert_non_null(strstr(link.restart_why, "link check unanswered within 550 ms"));
+    assert_int_equal(chk.result.outcome, CMD_TIMEOUT);
+    assert_int_equal(queue.stats.checks_failed, 2);
     assert_int_equal(a.result.outcome, CMD_LINK_DOWN);
     assert_true(strncmp(a.result.error_msg, "outcome unknown", 15) == 0);
     assert_int_equal(b.result.outcome, CMD_NOT_SENT);
     assert_true(strncmp(b.result.error_msg, "not sent", 8) == 0);
-    assert_int_equal(link.sent_count, 2); /* the check and a; b never */
+    assert_int_equal(link.sent_count, 3); /* two checks and a; b never */
     /* The check's late reply answers nothing after the reconnect. */
     cmd_queue_set_connected(&queue, true);
     reply("{\"errorCode\":\"0\"}");
     assert_int_equal(queue.stats.unsolicited, 1);
+}
+
+/*
+ * A safety action written just before the bound of a check in flight:
+ * the check's reply comes late (past its own bound) but within the
+ * action's reply timeout. The link is not cut under the action: the
+ * check and the action are both answered, in order, and nothing is lost.
+ * (It used to be cut at the check's bound, 10 ms after the pause went
+ * out: the pause read "outcome unknown" and, reset with the link, may
+ * never have reached the robot.)
+ */
+static void action_behind_a_check_gets_its_own_timeout(void **state)
+{
+    (void)state;
+    struct job chk = {.json = CHECK_JSON};
+    struct job u = {.json = "{\"cmdName\":\"pause_program\"}"};
+
+    link.restart_disconnects = true;
+    link.now = 1000;
+    assert_int_equal(submit_check(&chk, 200), 0);
+    link.now = 1190;
+    assert_int_equal(cmd_queue_submit_urgent(&queue, u.json, strlen(u.json), on_done, &u), 0);
+    assert_string_equal(last_sent(), u.json);
+    link.now = 1200;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 0);
+    link.now = 1350;
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(chk.calls, 1);
+    assert_int_equal(chk.result.outcome, CMD_DONE);
+    /* The pause's own deadline: 500 ms from 1190. */
+    assert_int_equal(cmd_queue_next_deadline_ms(&queue), 340);
+    link.now = 1400;
+    reply("{\"errorCode\":\"0\",\"cmdName\":\"pause_program\"}");
+    assert_int_equal(u.calls, 1);
+    assert_int_equal(u.result.outcome, CMD_DONE);
+    assert_int_equal(queue.stats.checks_failed, 0);
+    assert_int_equal(link.restarts, 0);
+    /* Unanswered, the pair is cut at the pause's deadline, the pause
+     * outcome unknown. */
+    chk = (struct job){.json = CHECK_JSON};
+    u = (struct job){.json = "{\"cmdName\":\"pause_program\"}"};
+    link.now = 2000;
+    assert_int_equal(submit_check(&chk, 200), 0);
+    link.now = 2100;
+    assert_int_equal(cmd_queue_submit_urgent(&queue, u.json, strlen(u.json), on_done, &u), 0);
+    link.now = 2599;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 0);
+    link.now = 2600;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(link.restarts, 1);
+    assert_int_equal(chk.result.outcome, CMD_TIMEOUT);
+    assert_int_equal(u.result.outcome, CMD_LINK_DOWN);
+    assert_true(strncmp(u.result.error_msg, "outcome unknown", 15) == 0);
 }
 
 /*
@@ -974,6 +1050,8 @@ int main(void)
         cmocka_unit_test_setup_teardown(commands_during_a_check_are_not_delayed, setup,
                                         teardown),
         cmocka_unit_test_setup_teardown(unanswered_check_restarts_the_link, setup, teardown),
+        cmocka_unit_test_setup_teardown(action_behind_a_check_gets_its_own_timeout, setup,
+                                        teardown),
         cmocka_unit_test_setup_teardown(not_sent_and_unknown_on_every_path, setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -1363,6 +1363,55 @@ static void send_now_passes_every_gate(void **state)
     assert_int_equal(plc_commands_send_now(&pc, "stop_program"), -ENOTCONN);
 }
 
+static unsigned own_unknown_calls;
+static const char *own_unknown_name;
+
+static void record_own_unknown(void *user, const struct cmd_def *def)
+{
+    (void)user;
+    own_unknown_calls++;
+    own_unknown_name = def->name;
+}
+
+/*
+ * The gateway's own pause whose connection is lost before its reply: its
+ * outcome is unknown, and the owner of the action (the policy) is told, so
+ * that it can send it again. Not for a reply (done or refused), not for
+ * the PLC's own pause_program, not for a command never written.
+ */
+static void own_command_with_outcome_unknown_is_told(void **state)
+{
+    (void)state;
+    struct plc_commands_config c = {.own_unknown = record_own_unknown};
+    start(&c);
+    own_unknown_calls = 0;
+    assert_int_equal(plc_commands_send_now(&pc, "pause_program"), 0);
+    reply("{\"errorCode\":\"1\",\"errorMsg\":\"no program running\"}");
+    assert_int_equal(result_state("pause_program"), CMD_ROBOT_ERROR);
+    assert_int_equal(own_unknown_calls, 0);
+    /* The PLC's own pause, lost with the link: its result shows it. */
+    assert_int_equal(trigger("pause_program"), 0);
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(result_state("pause_program"), CMD_LINK_DOWN);
+    assert_int_equal(own_unknown_calls, 0);
+    /* The gateway's: lost with the link after it was written. */
+    cmd_queue_set_connected(&queue, true);
+    assert_int_equal(plc_commands_send_now(&pc, "stop_program"), 0);
+    expect_last_sent("{\"cmdName\":\"stop_program\"}");
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(result_state("stop_program"), CMD_LINK_DOWN);
+    assert_int_equal(own_unknown_calls, 1);
+    assert_string_equal(own_unknown_name, "stop_program");
+    /* Unanswered in time: the same. */
+    cmd_queue_set_connected(&queue, true);
+    assert_int_equal(plc_commands_send_now(&pc, "pause_program"), 0);
+    robot.now += 1000;
+    cmd_queue_check_timeout(&queue);
+    assert_int_equal(result_state("pause_program"), CMD_TIMEOUT);
+    assert_int_equal(own_unknown_calls, 2);
+    assert_string_equal(own_unknown_name, "pause_program");
+}
+
 int main(void)
 {
 #define T(name) cmocka_unit_test_setup_teardown(name, setup, teardown)
@@ -1391,6 +1440,7 @@ int main(void)
         T(robot_handler_first_on_every_connect),
         T(gate_has_a_say_on_every_command),
         T(send_now_passes_every_gate),
+        T(own_command_with_outcome_unknown_is_told),
         T(json_mailbox_refuses_names_outside_the_table),
         T(parameter_rows_are_checked_against_the_command_table),
         T(allocation_failures_refuse_with_04_and_never_hang),

@@ -664,6 +664,35 @@ static void an_action_that_cannot_go_out_stays_owed(void **state)
     assert_int_equal(p.faults, 1);
 }
 
+/*
+ * The action went out, then its connection was lost before its reply: the
+ * robot may never have had it. Owed again, it goes out at the next check
+ * while the robot runs or may run, once; a loss with no fault latched (the
+ * PLC reset it) owes nothing.
+ */
+static void an_action_with_outcome_unknown_is_owed_again(void **state)
+{
+    (void)state;
+    start_heartbeat(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    policy_action_unknown(&p, POLICY_PAUSE);
+    assert_int_equal(p.owed, POLICY_PAUSE);
+    policy_check(&p, T0 + LIMIT + 10, IDLE);
+    assert_int_equal(sent.calls, 1); /* shown paused: nothing to send */
+    policy_check(&p, T0 + LIMIT + 20, MOVING);
+    assert_int_equal(sent.calls, 2);
+    assert_int_equal(sent.action[1], POLICY_PAUSE);
+    assert_int_equal(sent.reason[1], POLICY_FAULT_HEARTBEAT);
+    check_span(T0 + LIMIT + 30, T0 + LIMIT + 500, MOVING);
+    assert_int_equal(sent.calls, 2); /* once */
+    assert_int_equal(p.faults, 1);
+    policy_reset(&p);
+    policy_action_unknown(&p, POLICY_PAUSE);
+    assert_int_equal(p.owed, POLICY_KEEP);
+}
+
 /* ---- the write owner ---- */
 
 static void owner_is_the_heartbeat_writer(void **state)
@@ -845,6 +874,7 @@ int main(void)
         cmocka_unit_test(robot_may_move_assumes_the_worst_when_blind),
         cmocka_unit_test(gate_refuses_under_a_fault_and_without_motion_enable),
         cmocka_unit_test(heartbeat_armed_on_first_write),
+        cmocka_unit_test(an_action_with_outcome_unknown_is_owed_again),
         cmocka_unit_test(heartbeat_changes_keep_it_alive),
         cmocka_unit_test(same_value_is_not_a_change),
         cmocka_unit_test(loss_while_moving_pauses_once),

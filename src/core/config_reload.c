@@ -60,9 +60,9 @@ static void apply_status_timeout(struct gateway *gw, const struct gw_config *nex
 
 static void apply_link_check(struct gateway *gw, const struct gw_config *next)
 {
-    /* From the next idle period of the command link. */
+    /* An idle period under way starts again at the new value. */
     gw->cfg.link_check_ms = next->link_check_ms;
-    gw->command.link_check_ms = next->link_check_ms;
+    command_port_set_link_check(&gw->command, next->link_check_ms);
 }
 
 static void apply_max_clients(struct gateway *gw, const struct gw_config *next)

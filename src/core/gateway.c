@@ -299,6 +299,29 @@ static bool send_policy_action(void *user, enum policy_action action,
     return rc == 0;
 }
 
+/* The policy's action went out, and its outcome is unknown: owed again. */
+static void on_own_unknown(void *user, const struct cmd_def *def)
+{
+    struct gateway *gw = user;
+
+    /* Stopping: every command fails with the link; nothing is sent again. */
+    if (!(gw->parts & GATEWAY_PART_POLICY) || gw->close_cb)
+        return;
+    enum policy_action action = strcmp(def->name, "stop_program") == 0    ? POLICY_STOP
+                                : strcmp(def->name, "pause_program") == 0 ? POLICY_PAUSE
+                                                                          : POLICY_KEEP;
+    /* A controller that hangs would lose one on every reconnect. */
+    static struct log_ratelimit limit = {.interval_ms = 10000};
+    uint64_t suppressed;
+    if (action != POLICY_KEEP && gw->policy.fault != POLICY_FAULT_NONE &&
+        log_ratelimit_pass(&limit, uv_now(gw->loop), &suppressed))
+        log_warn("network exception: %s's outcome is unknown (its connection was lost "
+                 "before the reply); sent again once the command link is back, while "
+                 "the robot may move (%llu more such lines suppressed)", def->name,
+                 (unsigned long long)suppressed);
+    policy_action_unknown(&gw->policy, action);
+}
+
 /* The policy's say on every command the PLC side sends. */
 static int gate_command(void *user, const struct cmd_def *def, char *why, size_t size)
 {
@@ -494,6 +517,7 @@ static int start_commands(struct gateway *gw)
         .gate_user = gw,
         .start_sent = on_start_sent,
         .start_answered = on_start_answered,
+        .own_unknown = on_own_unknown,
         .audit = &gw->audit,
     };
     return plc_commands_init(&gw->commands, &gw->image, &gw->command.queue, &pcc,

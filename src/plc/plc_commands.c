@@ -952,6 +952,19 @@ static void on_done(void *user, const struct cmd_result *r)
         fetch_info(pc, slot->def->refresh);
 }
 
+/* A command the gateway sent for itself (plc_commands_send_now). */
+static void on_own_done(void *user, const struct cmd_result *r)
+{
+    struct plc_slot *slot = user;
+    struct plc_commands *pc = slot->pc;
+    const struct cmd_def *def = slot->def;
+    bool unknown = r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN;
+
+    on_done(slot, r);
+    if (unknown && pc->cfg.own_unknown)
+        pc->cfg.own_unknown(pc->cfg.gate_user, def);
+}
+
 static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state)
 {
     pc->handle_state = state;
@@ -998,7 +1011,7 @@ int plc_commands_send_now(struct plc_commands *pc, const char *name)
     char json[96];
     snprintf(json, sizeof(json), "{\"cmdName\":\"%s\"}", name);
     /* Written now, ahead of whatever the PLC queued. */
-    int rc = cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot);
+    int rc = cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_own_done, slot);
     if (rc == 0) {
         audit_sent(pc, slot, json, def, true);
         slot->pending++;

@@ -84,6 +84,14 @@ static void latch(struct policy *p, uint64_t now_ms, enum policy_fault reason,
     act(p, action, reason);
 }
 
+void policy_action_unknown(struct policy *p, enum policy_action action)
+{
+    if (p->fault == POLICY_FAULT_NONE || action == POLICY_KEEP)
+        return;
+    if (action > p->owed)
+        p->owed = action; /* stop outranks pause */
+}
+
 void policy_reset(struct policy *p)
 {
     p->fault = POLICY_FAULT_NONE;

@@ -277,6 +277,25 @@ static void send_next(struct cmd_queue *q)
     }
 }
 
+/*
+ * Entry 'e' (a command, not a check) was just written behind the link
+ * check in flight. The check's own bound is short (it is there to find a
+ * dead idle link), but the command's reply now comes only after the
+ * check's: the connection is given the command's whole reply timeout,
+ * counted from its own send, before it is cut. Else a command, a safety
+ * action above all, written just before the check's bound would be cut
+ * with the link after a few milliseconds and read "outcome unknown"
+ * (possibly never delivered) where it would have had reply_timeout_ms.
+ */
+static void extend_check_for(struct cmd_queue *q, const struct cmd_entry *e)
+{
+    if (!q->in_flight || !entry_at(q, 0)->check || e->check)
+        return;
+    uint64_t need = e->sent_at_ms - q->sent_at_ms + q->timeout_ms;
+    if (need > q->flight_timeout_ms)
+        q->flight_timeout_ms = need > UINT32_MAX ? UINT32_MAX : (uint32_t)need;
+}
+
 /* Is every entry before 'n' a link check written already? Then nothing
  * waits: the entry at 'n' may be written at once, behind them. */
 static bool only_checks_before(struct cmd_queue *q, unsigned n)
@@ -318,6 +337,8 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
         }
         if (empty)
             start_flight(q);
+        else
+            extend_check_for(q, e);
     }
     return 0;
 }
@@ -387,6 +408,8 @@ int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
                 *entry_at(q, i) = *entry_at(q, i + 1);
             q->count--;
             free(copy);
+        } else if (at > 0) {
+            extend_check_for(q, e);
         }
     }
     if (displaced.json) {

@@ -63,6 +63,17 @@ static void arm_check(struct command_port *cp)
         uv_timer_start(&cp->check_timer, on_check_timer, cp->link_check_ms, 0);
 }
 
+void command_port_set_link_check(struct command_port *cp, uint32_t link_check_ms)
+{
+    cp->link_check_ms = link_check_ms;
+    /* Waiting out an idle period at the old value: it starts again at the
+     * new one, so a shorter value bounds detection from now, not after an
+     * old period of up to a minute. A check in flight or a command keeps
+     * its own deadline; the new value applies from the next idle period. */
+    if (uv_is_active((uv_handle_t *)&cp->check_timer) || link_check_ms == 0)
+        arm_check(cp);
+}
+
 static void on_check_done(void *user, const struct cmd_result *r)
 {
     struct command_port *cp = user;

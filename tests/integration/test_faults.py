@@ -532,6 +532,53 @@ def test_plc_connection_silent_pull():
         stopped(sim, gw)
 
 
+def test_policy_pause_lost_with_the_command_link_is_sent_again():
+    """The PLC's heartbeat stops while a program runs, and the command port
+    is pulled just before it expires: the policy's pause_program is written
+    into the dead link, unanswered (outcome unknown), and reset with the
+    connection, so the robot never receives it. Once the cable is back the
+    pause goes out again and the robot pauses; before, the policy counted
+    its action as sent and the program ran on with the PLC gone. (The
+    robot's own handler is off here: robot_time_limit_ms 0.)"""
+    config = FAST + ("[network_exception]\ntime_limit_ms = 1000\nrobot_time_limit_ms = 0\n"
+                     "require_robot_handle = false\n")
+    sim, gw = started(config, ["--auto-run", "--period-ms", "20"])
+    result = ir("result_pause_program_state")
+    unknown = {STATES["reply timeout"], STATES["link lost after it was written"]}
+    try:
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: plc.di(0, 3) == [1, 1, 1], 15, "both links up, status fresh")
+        wait_until(lambda: plc.ir(INTERP_STATE)[0] == RUNNING, 5, "the program running")
+        for value in range(1, 11):
+            check(plc.reg(HEARTBEAT, value) == 0, "heartbeat refused")
+            time.sleep(0.1)
+        last_beat = time.monotonic()
+        time.sleep(0.5)  # the heartbeat expires 0.5 s into the pull
+        fault = netfault.pull(sim.command_port)
+        try:
+            wait_until(lambda: plc.ir(FAULT)[0] == FAULT_HEARTBEAT, 5, "fault 1 latched")
+            wait_until(lambda: plc.ir(result)[0] in unknown, 10,
+                       "the pause's outcome unknown")
+            print("  pause_program into the dead link: %s after %.0f ms from the last beat"
+                  % (STATE_NAMES[plc.ir(result)[0]], 1000 * (time.monotonic() - last_beat)),
+                  flush=True)
+            check(plc.ir(INTERP_STATE)[0] == RUNNING, "paused with the cable out")
+            time.sleep(1.0)
+        finally:
+            restored = fault.restore()
+        wait_until(lambda: plc.di(COMMAND_LINK_UP)[0] == 1, 15, "the command link back")
+        took = timed(lambda: plc.ir(INTERP_STATE)[0] == PAUSED, 5,
+                     "the program paused once the cable is back", restored)
+        pauses = sim_commands(sim, "pause_program")
+        print("  cable back -> program paused after %.0f ms; pause_program received %d "
+              "time(s)" % (1000 * took, len(pauses)), flush=True)
+        check(len(pauses) == 1, "pause_program received %d times" % len(pauses))
+        check(plc.ir(FAULT)[0] == FAULT_HEARTBEAT, "the fault no longer latched")
+        plc.close()
+    finally:
+        stopped(sim, gw)
+
+
 # ---- resets ----
 
 def test_reset_mid_stream():
@@ -765,6 +812,7 @@ def measure_false_trips():
 TESTS = [test_status_port_silent_pull, test_idle_command_port_silent_pull,
          test_command_into_dead_link_never_delivered,
          test_robot_pauses_itself_when_both_links_are_pulled, test_plc_connection_silent_pull,
+         test_policy_pause_lost_with_the_command_link_is_sent_again,
          test_reset_mid_stream, test_random_loss_robot_ports]
 
 if __name__ == "__main__":

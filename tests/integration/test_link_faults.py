@@ -862,6 +862,36 @@ def test_command_during_a_check_goes_out_at_once():
             peer.close()
 
 
+def test_reload_shortens_link_check_at_once():
+    """A reload from link_check_ms 60000 to 1000 on an idle command link:
+    the idle period under way starts again at 1000 ms, so the link is
+    checked (and a dead one found) within the new bound, not after the rest
+    of the old minute."""
+    sim = Sim("--period-ms", "20")
+    gw = None
+    try:
+        gw = Gateway(sim, "[robot]\nlink_check_ms = 60000\n")
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: ready(plc), 10, "ready")
+        checks0 = plc.u32(LINK_CHECKS)
+        tmp = gw.conf.name + ".new"
+        with open(tmp, "w") as f:
+            f.write("[robot]\nlink_check_ms = 1000\n")
+        os.rename(tmp, gw.conf.name)
+        gw.proc.send_signal(signal.SIGHUP)
+        wait_until(lambda: "reload: [robot] link_check_ms: 60000 -> 1000" in gw.output(), 10,
+                   "the reload")
+        reloaded = time.monotonic()
+        wait_until(lambda: plc.u32(LINK_CHECKS) > checks0, 5, "a link check after the reload")
+        took = time.monotonic() - reloaded
+        print("  link_check_ms 60000 -> 1000 by reload: first check %.0f ms later" % (1000 * took))
+        check(took <= 2.0, "the first check came %.0f ms after the reload" % (1000 * took))
+        check(plc.u32(LINK_CHECKS_FAILED) == 0, "a check failed")
+        plc.close()
+    finally:
+        stop_gateway_and_sim(gw, sim)
+
+
 # ---- the soak ----
 
 def test_soak_reconnects():
@@ -927,7 +957,13 @@ ALL = [test_controller_restart, test_status_stream_goes_silent, test_status_stre
        test_command_port_never_answers, test_late_reply_never_matched,
        test_command_port_never_reads, test_one_port_up_other_down,
        test_hung_command_server_reads_down, test_outcome_unknown_and_not_sent,
-       test_command_during_a_check_goes_out_at_once, test_soak_reconnects]
+       test_command_during_a_check_goes_out_at_once, test_reload_shortens_link_check_at_once,
+       test_soak_reconnects]
 
 if __name__ == "__main__":
-    run([test_soak_reconnects] if sys.argv[1:] == ["soak"] else ALL)
+    if sys.argv[1:] == ["soak"]:
+        run([test_soak_reconnects])
+    elif sys.argv[1:]:
+        run([t for t in ALL if t.__name__ in sys.argv[1:]])
+    else:
+        run(ALL)
