@@ -20,7 +20,10 @@
  *   that has not sent a whole request head within HTTP_HEAD_DEADLINE_MS of
  *   connecting or of its last response (slowloris), or that has not read
  *   its response within HTTP_RESPONSE_DEADLINE_MS (a slow reader);
- * - a bind address that is not loopback logs one warning at start.
+ * - a bind address that is not loopback logs one warning at start; on
+ *   loopback, a Host header that is neither an address nor localhost gets
+ *   403 (a page that rebound its name to 127.0.0.1, in a browser on the
+ *   gateway's host, reads nothing).
  *
  * Life cycle as libuv handles: http_server_start(), http_server_close(cb);
  * the struct is the caller's until cb runs.
@@ -108,6 +111,7 @@ struct http_server {
     struct log_ratelimit log_limit;
     int open_handles;
     bool running;
+    bool loopback; /* bound to loopback: Host names checked (DNS rebinding) */
     void (*close_cb)(struct http_server *srv);
 };
 

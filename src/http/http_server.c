@@ -12,6 +12,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -192,6 +193,55 @@ struct head_size {
     size_t bytes;
 };
 
+/*
+ * Is 'host' (a Host header) an address, or localhost, with or without a
+ * port? Only such names reach a server bound to loopback honestly (a
+ * browser on the same host, an SSH tunnel, a reverse proxy passing the
+ * upstream's address); any other is a page that rebound its own name to
+ * 127.0.0.1 to read the answers from a browser on the gateway's host.
+ */
+static bool host_is_local(const char *host)
+{
+    char name[64];
+    const char *port = NULL;
+    size_t n;
+    struct in6_addr a6;
+    struct in_addr a4;
+
+    if (host[0] == '[') {
+        const char *end = strchr(host, ']');
+        if (!end || (size_t)(end - host - 1) >= sizeof(name))
+            return false;
+        n = (size_t)(end - host - 1);
+        memcpy(name, host + 1, n);
+        name[n] = '\0';
+        if (end[1] == ':')
+            port = end + 2;
+        else if (end[1] != '\0')
+            return false;
+        if (inet_pton(AF_INET6, name, &a6) != 1)
+            return false;
+    } else {
+        const char *colon = strchr(host, ':');
+        n = colon ? (size_t)(colon - host) : strlen(host);
+        if (n == 0 || n >= sizeof(name))
+            return false;
+        memcpy(name, host, n);
+        name[n] = '\0';
+        port = colon ? colon + 1 : NULL;
+        if (inet_pton(AF_INET, name, &a4) != 1 && strcasecmp(name, "localhost") != 0)
+            return false;
+    }
+    if (port) {
+        if (!*port || strlen(port) > 5)
+            return false;
+        for (const char *p = port; *p; p++)
+            if (*p < '0' || *p > '9')
+                return false;
+    }
+    return true;
+}
+
 static enum MHD_Result add_header(void *cls, enum MHD_ValueKind kind, const char *key,
                                   const char *value)
 {
@@ -268,6 +318,11 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *connection,
         if (strcmp(method, "GET") != 0 && strcmp(method, "HEAD") != 0)
             return queue_text(connection, MHD_HTTP_METHOD_NOT_ALLOWED,
                               "read-only: GET and HEAD only\n", "GET, HEAD");
+        const char *host = MHD_lookup_connection_value(connection, MHD_HEADER_KIND, "Host");
+        if (srv->loopback && host && !host_is_local(host))
+            return queue_text(connection, MHD_HTTP_FORBIDDEN,
+                              "bound to loopback: Host must be an address or localhost\n",
+                              NULL);
         /* A body would be read, and dropped, for as long as it is sent:
          * refused, the connection closed. */
         const char *length =
@@ -452,7 +507,8 @@ int http_server_start(uv_loop_t *loop, struct http_server *srv, const char *bind
     srv->running = true;
     uv_poll_start(&srv->poll, UV_READABLE, on_poll);
     schedule(srv);
-    if (!is_loopback((struct sockaddr *)&addr))
+    srv->loopback = is_loopback((struct sockaddr *)&addr);
+    if (!srv->loopback)
         log_warn("http: listening on %s port %u, not only loopback: the status page and the "
                  "metrics are readable by anyone who can reach it (README, \"Metrics and "
                  "the status page\": an SSH tunnel or a reverse proxy with TLS)",

@@ -776,6 +776,31 @@ def test_non_loopback_bind_logs_one_warning():
         check(not log_lines(gw, "not only loopback"), "a warning for loopback")
 
 
+def test_loopback_server_answers_only_its_own_host_names():
+    """Bound to loopback, the server answers a Host that is an address or
+    localhost (a browser on the gateway's host, an SSH tunnel, the README's
+    reverse proxy) and refuses any other name with 403: a web page on that
+    browser cannot rebind its own name to 127.0.0.1 and read /status.json.
+    Bound elsewhere, names are the operator's choice and not checked."""
+    def status_for(port, host):
+        head = b"GET /status.json HTTP/1.1\r\n" + (b"Host: " + host + b"\r\n" if host else b"")
+        out = raw_exchange(port, head + b"Connection: close\r\n\r\n")
+        return int(out.split(b" ", 2)[1]) if out.startswith(b"HTTP/1.1 ") else out[:40]
+    port = free_port()
+    p = str(port).encode()
+    with running([], http_config(port)) as (sim, gw):
+        wait_http(port, gw)
+        for host in (b"127.0.0.1:" + p, b"localhost:" + p, b"LOCALHOST", b"[::1]:" + p,
+                     b"192.0.2.7", None):
+            check(status_for(port, host) == 200, "Host %r: %r" % (host, status_for(port, host)))
+        for host in (b"attacker.example:" + p, b"attacker.example", b"127.0.0.1.nip.io:" + p,
+                     b"localhost.attacker.example", b"[::1]x", b"127.0.0.1:80:80"):
+            check(status_for(port, host) == 403, "Host %r: %r" % (host, status_for(port, host)))
+    with running([], http_config(port, "bind = 0.0.0.0\n")) as (sim, gw):
+        wait_http(port, gw)
+        check(status_for(port, b"gateway.plant.example:" + p) == 200, "a name, bound elsewhere")
+
+
 def test_disabled_by_default():
     port = free_port()
     with running([], "[http]\nport = %d\n" % port) as (sim, gw):
@@ -918,6 +943,7 @@ TESTS = [
     test_busy_http_clients_leave_modbus_answering,
     test_non_loopback_bind_logs_one_warning,
     test_disabled_by_default,
+    test_loopback_server_answers_only_its_own_host_names,
     test_alert_rules_check_and_unit_tests,
     test_page_shows_links_commands_and_robot_markup_as_text,
     test_page_says_when_the_gateway_stops_answering,
