@@ -13,7 +13,10 @@ void metrics_label_value(struct strbuf *out, const char *text)
     const unsigned char *p = (const unsigned char *)text;
     size_t len = strlen(text), run = 0;
     for (size_t i = 0; i <= len;) {
-        const char *esc = p[i] == '\\' ? "\\\\" : p[i] == '"' ? "\\\"" : p[i] == '\n' ? "\\n" : NULL;
+        const char *esc = p[i] == '\\'  ? "\\\\"
+                          : p[i] == '"' ? "\\\""
+                          : p[i] == '\n' ? "\\n"
+                                         : NULL;
         size_t n = 1;
         /* Not UTF-8 (a PLC's JSON command name): U+FFFD for each byte, as
          * Prometheus refuses the whole scrape otherwise. */

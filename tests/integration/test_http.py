@@ -417,7 +417,8 @@ def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
             try:
                 check(m.read_ir(rtu.IR_MAGIC) == [rtu.MAGIC], "the line answers")
                 req = rtu.write_coil_pdu(COIL["cmd_power_on"], 1)
-                check(m.request(rtu.UNIT, req) == rtu.frame(rtu.UNIT, req), "power_on over the line")
+                check(m.request(rtu.UNIT, req) == rtu.frame(rtu.UNIT, req),
+                      "power_on over the line")
                 clients = plc.ir(IR["modbus_clients"])[0]
                 samples = parse_metrics(web.metrics())
                 by = {t: metric(samples, "jakagw_modbus_clients", transport=t)
@@ -428,13 +429,14 @@ def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
                              function="4") == 1 and
                       metric(samples, "jakagw_modbus_requests_total", transport="rtu",
                              function="5") == 1, "the line's requests by transport")
-                wait_until(lambda: any(c["command"] == "power_on" for c in web.status()["commands"]),
-                           10, "power_on recorded")
+                wait_until(lambda: any(c["command"] == "power_on"
+                                       for c in web.status()["commands"]), 10, "power_on recorded")
                 status, headers, body = web.get("/status.json")
                 check(b"<b>" not in body and b"&x" not in body, "the device's markup raw in JSON")
                 doc = json.loads(body)
                 line_clients = [c for c in doc["clients"] if c["transport"] == "rtu"]
-                check(len(line_clients) == 1 and device in line_clients[0]["peer"] + line_clients[0]["address"],
+                check(len(line_clients) == 1 and
+                      device in line_clients[0]["peer"] + line_clients[0]["address"],
                       "the line in /status.json: %r" % doc["clients"])
                 rec = [c for c in doc["commands"] if c["command"] == "power_on"][0]
                 check(rec["transport"] == "rtu" and device in rec["client"], "record %r" % rec)
@@ -444,7 +446,8 @@ def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
         audit = [a for a in audit_lines(gw) if a["command"] == "power_on"]
         check(len(audit) == 1 and audit[0]["transport"] == "rtu" and device in audit[0]["client"],
               "power_on's audit line: %r" % audit)
-        print("  clients by transport %r; audit: transport=rtu client=%s" % (by, audit[0]["client"]))
+        print("  clients by transport %r; audit: transport=rtu client=%s"
+              % (by, audit[0]["client"]))
     finally:
         os.unlink(device)
         os.rmdir(hostile)
@@ -634,12 +637,12 @@ def abuse(port, gw):
               "%s: %d %s" % (method, status, headers.get("Allow")))
     # A 64 KiB header, and a 9000-byte one (past 8 KiB, within the pool).
     for size in (65536, 9000):
-        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: x\r\nX-Big: " +
+        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " +
                            b"a" * size + b"\r\n\r\n")
         check(out.startswith(b"HTTP/1.1 431 "), "%d-byte header: %r" % (size, out[:60]))
     # 100 requests pipelined in one write: 100 answers in order.
-    out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n" * 99 +
-                       b"GET /status.json HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+    out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n" * 99 +
+                       b"GET /status.json HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
     check(out.count(b"HTTP/1.1 200 OK") == 100 and b'"links"' in out[-20000:],
           "pipelined: %d answers" % out.count(b"HTTP/1.1 200 OK"))
     # 500 idle connections: the limit's worth held, the rest closed at once.
@@ -686,7 +689,7 @@ def test_request_bodies_are_refused_not_read():
         for method, framing in ((b"GET", b"Content-Length: 100000000000"),
                                 (b"HEAD", b"Transfer-Encoding: chunked")):
             s = socket.create_connection(("127.0.0.1", port), timeout=5)
-            s.sendall(method + b" /metrics HTTP/1.1\r\nHost: x\r\n" + framing + b"\r\n\r\n")
+            s.sendall(method + b" /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n" + framing + b"\r\n\r\n")
             sent, start = 0, time.monotonic()
             try:
                 while time.monotonic() - start < 5:
@@ -698,10 +701,11 @@ def test_request_bodies_are_refused_not_read():
             check(sent < 64 << 20 and took < 5,
                   "%s with a body: %d MB taken in %.1f s" % (method.decode(), sent >> 20, took))
             report.append("%s: %.1f MB, closed after %.2f s" % (method.decode(), sent / 1e6, took))
-        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: x\r\nContent-Length: 5\r\n\r\nhello")
+        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                           b"Content-Length: 5\r\n\r\nhello")
         check(out.startswith(b"HTTP/1.1 413 "), "a GET with a body: %r" % out[:60])
-        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\n"
-                           b"Connection: close\r\n\r\n")
+        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                           b"Content-Length: 0\r\nConnection: close\r\n\r\n")
         check(out.startswith(b"HTTP/1.1 200 "), "Content-Length: 0 is no body: %r" % out[:60])
         check(Http(port).get("/metrics")[0] == 200, "served after")
         print("  " + "; ".join(report))
@@ -716,7 +720,7 @@ end, answers = time.monotonic() + seconds, [0]
 def hammer():
     s = socket.create_connection(("127.0.0.1", port), timeout=20)
     while time.monotonic() < end:
-        s.sendall((b"GET " + path + b" HTTP/1.1\r\nHost: x\r\n\r\n") * 8)
+        s.sendall((b"GET " + path + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n") * 8)
         n = 0
         while n < 8:
             d = s.recv(1 << 20)
