@@ -28,7 +28,7 @@ struct walk {
 static bool gap_inside(const struct walk *w, size_t from, size_t size)
 {
     for (size_t i = 0; i < w->gap_count; i++)
-        if (w->gaps[i] > from && w->gaps[i] < from + size)
+        if (!(w->gaps[i] & RTU_GAP_WAITED) && w->gaps[i] > from && w->gaps[i] < from + size)
             return true;
     return false;
 }
@@ -54,7 +54,8 @@ static void on_dropped(void *user, enum rtu_drop why, size_t size)
 
 static int cmp_u16(const void *a, const void *b)
 {
-    return (int)*(const uint16_t *)a - (int)*(const uint16_t *)b;
+    return (int)(*(const uint16_t *)a & ~RTU_GAP_WAITED) -
+           (int)(*(const uint16_t *)b & ~RTU_GAP_WAITED);
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
@@ -74,20 +75,25 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     if (chunk_size == 0 || chunk_size > 1024)
         return 0;
     for (size_t i = 0; i < count && n < 16; i++) {
-        uint16_t g = (uint16_t)(((unsigned)data[1 + 2 * i] << 8 | data[2 + 2 * i]) % chunk_size);
-        if (g > 0)
-            gaps[n++] = g;
+        unsigned raw = (unsigned)data[1 + 2 * i] << 8 | data[2 + 2 * i];
+        uint16_t g = (uint16_t)(raw % chunk_size);
+        if (g > 0) /* the top bit: a silence waited past, not a pause */
+            gaps[n++] = (uint16_t)(g | (raw & 0x8000 ? RTU_GAP_WAITED : 0));
     }
     qsort(gaps, n, sizeof(gaps[0]), cmp_u16);
     size_t unique = 0;
     for (size_t i = 0; i < n; i++)
-        if (unique == 0 || gaps[unique - 1] != gaps[i])
+        if (unique == 0 || (gaps[unique - 1] & ~RTU_GAP_WAITED) != (gaps[i] & ~RTU_GAP_WAITED))
             gaps[unique++] = gaps[i];
 
     struct walk w = {.chunk = chunk, .size = chunk_size, .gaps = gaps, .gap_count = unique};
     struct rtu_split_hooks hooks = {.frame = on_frame, .dropped = on_dropped, .user = &w};
     rtu_split(chunk, chunk_size, gaps, unique, &hooks);
     if (w.at != chunk_size)
+        abort();
+    /* What a tail lacks is at most a whole frame: the wait it sets is
+     * bounded. */
+    if (rtu_missing_bytes(chunk, chunk_size, gaps, unique) >= RTU_MAX_ADU)
         abort();
     return 0;
 }

@@ -15,11 +15,17 @@
  * CLOCK_MONOTONIC. The end of a frame (3.5 character times of silence,
  * 1.75 ms above 19200 baud) is finer than libuv's millisecond timers, so a
  * timerfd under a second uv_poll fires at the last byte's time plus t3.5;
- * the loop never blocks. A byte read more than t1.5 after the previous one
- * marks a gap: a frame with a gap inside it is discarded. The times are
- * those of the reads, not of the bytes on the wire: a host late to read
- * sees longer gaps than the line had, so frames are also cut by their
- * length and CRC (rtu_split), and a late reader keeps its sync.
+ * the loop never blocks. The times are those of the reads, not of the
+ * bytes on the wire: a UART hands over its FIFO every 8 characters (the
+ * rest 4 characters after the last), a USB adapter its packets, and a
+ * host may be late to read. So a read marks a gap (a frame with a gap
+ * inside it is discarded) only when it comes more than t1.5 after the
+ * previous one once its own bytes' wire time and the port's delivery (4
+ * characters and 1 ms) are taken off; a silence of t3.5 after a frame
+ * begun but not whole by its length (rtu_missing_bytes) waits as long
+ * again as its missing bytes and the delivery take; and frames are also
+ * cut by their length and CRC (rtu_split), so a late reader keeps its
+ * sync.
  *
  * What is answered: a frame with a good CRC addressed to unit_id. A frame
  * for another unit is counted and skipped; a broadcast (unit 0) is counted
@@ -27,9 +33,12 @@
  * command was carried out. An RS-485 adapter that hears its own
  * transmitter gives each reply back: the frame equal to the last reply,
  * arriving within its wire time and 100 ms, is skipped, not taken for a
- * request (which would be answered, and heard again). For [network_exception] watch = connection, the
- * line counts as a connected client while a valid request addressed to
- * this unit arrived within 'active_ms'.
+ * request (which would be answered, and heard again); but where the line
+ * has shown that it does not echo, the same write (05, 06) repeated by a
+ * master within that time, equal to its reply, is served. For
+ * [network_exception] watch = connection, the line counts as a connected
+ * client while a valid request addressed to this unit arrived within
+ * 'active_ms'.
  *
  * A device that is absent at start or goes away (a USB adapter unplugged,
  * a read or write that fails) is a link fault: one log line, the state in
@@ -38,7 +47,10 @@
  * a configuration error at start (mb_rtu_start returns -ENOTTY).
  *
  * Life cycle as libuv handles: mb_rtu_start(), mb_rtu_close(cb); the
- * struct is the caller's until cb runs.
+ * struct is the caller's until cb runs. A frame still waiting for its
+ * t3.5 silence at the close is dropped: neither acted on nor answered
+ * (its reply could not go out before the silence), so a master sees a
+ * timeout, never a write carried out without a reply.
  */
 #ifndef JAKAGW_MB_RTU_H
 #define JAKAGW_MB_RTU_H
@@ -85,6 +97,10 @@ struct mb_rtu_stats {
     uint32_t turnaround_max_us;
 };
 
+/* How late a port may hand over bytes it received, beyond a FIFO's 4
+ * character receive timeout: the interrupt, the driver, a USB frame. */
+#define MB_RTU_DELIVERY_NS 1000000ull
+
 /* Bytes kept between two silences: several frames glued together. */
 #define MB_RTU_RX_SIZE 1024
 #define MB_RTU_MAX_GAPS 64
@@ -104,6 +120,7 @@ struct mb_rtu {
     int timer_fd;            /* the silence timer (timerfd) */
     uv_poll_t silence;
     uv_timer_t retry;        /* reopens a failed device every second */
+    int retry_error;         /* what the last reopen returned */
     struct mb_client *client; /* the server's client for this line, or NULL */
     /* The chunk being received: bytes since the last silence of t3.5. */
     uint8_t rx[MB_RTU_RX_SIZE];
@@ -118,7 +135,20 @@ struct mb_rtu {
     uint8_t echo[RTU_MAX_ADU];
     size_t echo_size;
     uint64_t echo_until_ns;
+    /* Does the adapter give replies back? An echo is the next frame after
+     * a reply, before any master's; a reply unlike its request (a read, an
+     * exception) heard back says yes, three replies in a row followed by
+     * another frame say no. A write's reply (05, 06) equals its request,
+     * so a master repeating that write is told from the echo only on a
+     * line known not to echo. */
+    enum { MB_RTU_ECHO_UNKNOWN, MB_RTU_ECHO_YES, MB_RTU_ECHO_NO } line_echo;
+    unsigned no_echo_proofs;   /* replies not given back, in a row */
+    bool echo_probe;           /* the next frame tells whether the line echoes */
+    bool echo_is_request;      /* the last reply equals its request */
+    const uint8_t *request;    /* the frame being answered (in rx) */
+    size_t request_size;
     uint32_t char_ns;        /* one character on the wire */
+    uint64_t delivery_ns;    /* how late the port may hand bytes over */
     uint8_t tx[MB_RTU_TX_SIZE]; /* what the port did not take at once */
     size_t tx_used;
     bool tx_waiting;         /* polling for writable: tx_used was > 0 */

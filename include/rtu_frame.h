@@ -67,9 +67,27 @@ struct rtu_split_hooks {
 /*
  * Cuts a chunk of 'size' bytes into frames, calling the hooks in order.
  * 'gaps' lists, in increasing order, the offsets in the chunk of the bytes
- * that came after a silence longer than 1.5 character times.
+ * that came after a silence longer than 1.5 character times: a frame with
+ * one inside is discarded, and after bytes that are no frame the next
+ * frame is sought at the next gap. An offset with RTU_GAP_WAITED set is a
+ * silence of t3.5 the caller waited past for a frame not yet whole
+ * (rtu_missing_bytes): the next frame is sought there too, but a frame
+ * across it is whole, not discarded (its bytes were late, not paused).
  */
+#define RTU_GAP_WAITED 0x8000
 void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t gap_count,
                const struct rtu_split_hooks *hooks);
+
+/*
+ * How many more bytes the chunk needs to end in a whole frame: 0 when its
+ * last frame is whole, or when its tail is no frame any function code
+ * explains; else, for a tail that begins a frame (cut as rtu_split cuts),
+ * the bytes up to that frame's next possible end. A UART that hands over
+ * its FIFO every 8 characters, or a USB adapter's packets, deliver one
+ * frame in pieces further apart than t3.5: the caller waits this many
+ * more character times before it takes the silence for the frame's end.
+ */
+size_t rtu_missing_bytes(const uint8_t *chunk, size_t size, const uint16_t *gaps,
+                         size_t gap_count);
 
 #endif

@@ -77,7 +77,13 @@ static void push(uv_timer_t *t)
     fx->pushes++;
     uv_write_t *req = malloc(sizeof(*req));
     uv_buf_t buf = uv_buf_init((char *)DOC, (unsigned)strlen(DOC));
-    assert_int_equal(uv_write(req, (uv_stream_t *)&fx->peer, &buf, 1, on_written), 0);
+    /* On a loaded machine a push may come after the link reset the
+     * connection (EPIPE): the end itself is what on_peer_read records. */
+    int rc = uv_write(req, (uv_stream_t *)&fx->peer, &buf, 1, on_written);
+    if (rc != 0) {
+        assert_true(rc == UV_EPIPE || rc == UV_ECONNRESET);
+        free(req);
+    }
 }
 
 static void on_peer(uv_stream_t *server, int status)

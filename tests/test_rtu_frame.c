@@ -215,6 +215,100 @@ static void write_multiple_and_unknown_functions(void **state)
     assert_int_equal(s.size[1], 7);
 }
 
+/*
+ * Every function the server answers, in its request and its response form,
+ * and exception responses: a foreign unit's frame glued to ours (a late
+ * reader) is cut by its length, and ours after it is found.
+ */
+static void every_served_function_is_cut_by_its_length(void **state)
+{
+    static const struct {
+        size_t size;
+        uint8_t bytes[40];
+    } foreign[] = {
+        {6, {18, 1, 0, 0, 0, 10}},          {5, {18, 1, 2, 0xFF, 0x03}},
+        {6, {18, 2, 0, 0, 0, 10}},          {5, {18, 2, 2, 0x0F, 0x01}},
+        {6, {18, 3, 0, 0, 0, 2}},           {7, {18, 3, 4, 1, 2, 3, 4}},
+        {6, {18, 4, 0, 9, 0, 1}},           {5, {18, 4, 2, 0x4A, 0x4B}},
+        {6, {18, 5, 0, 100, 0xFF, 0}},      {6, {18, 6, 0, 100, 0, 5}},
+        {9, {18, 15, 0, 0, 0, 10, 2, 0xFF, 0x03}},
+        {6, {18, 15, 0, 0, 0, 10}},
+        {11, {18, 16, 0, 0, 0, 2, 4, 1, 2, 3, 4}},
+        {6, {18, 16, 0, 0, 0, 2}},
+        {8, {18, 22, 0, 4, 0, 0xF2, 0, 0x25}},
+        {17, {18, 23, 0, 3, 0, 6, 0, 14, 0, 3, 6, 0, 0xFF, 0, 0xFF, 0, 0xFF}},
+        {15, {18, 23, 12, 0, 1, 0, 2, 0, 3, 0, 4, 0, 5, 0, 6}},
+        {2, {18, 17}},
+        {8, {18, 17, 5, 1, 0xFF, 'a', 'b', 'c'}},
+        {5, {18, 43, 14, 1, 0}},
+        {24, {18, 43, 14, 1, 0x83, 0, 0, 3, 0, 5, 'J', 'A', 'K', 'A', 'x', 1, 3, 'a', 'b',
+              'c', 2, 2, '1', '2'}},
+        {3, {18, 0x83, 2}},                 {3, {18, 0x97, 1}},
+        {3, {18, 0xAB, 1}},
+    };
+    uint8_t chunk[64];
+    (void)state;
+    for (size_t i = 0; i < sizeof(foreign) / sizeof(foreign[0]); i++) {
+        memcpy(chunk, foreign[i].bytes, foreign[i].size);
+        size_t n = rtu_append_crc(chunk, foreign[i].size);
+        n += read_request(chunk + n, 17, 0, 1);
+        struct seen s = split(chunk, n, NULL, 0);
+        if (s.frames != 2 || s.size[0] != foreign[i].size + 2 || s.unit[1] != 17)
+            fail_msg("function %u, %zu bytes: %zu frames, %zu dropped", foreign[i].bytes[1],
+                     foreign[i].size + 2, s.frames, s.dropped_bytes);
+    }
+}
+
+/* A frame handed over in pieces: what its tail lacks, piece by piece. */
+static void missing_bytes_of_a_frame_begun(void **state)
+{
+    uint8_t chunk[64];
+    (void)state;
+    /* 16: unit, fc, address, count 1, byte count 2, value, CRC: 11 bytes. */
+    const uint8_t write16[] = {17, 16, 0, 0, 0, 1, 2, 0, 5};
+    memcpy(chunk, write16, sizeof(write16));
+    size_t n = rtu_append_crc(chunk, sizeof(write16));
+    assert_int_equal(n, 11);
+    assert_int_equal(rtu_missing_bytes(chunk, 1, NULL, 0), 3);
+    assert_int_equal(rtu_missing_bytes(chunk, 3, NULL, 0), 5); /* 8 at least */
+    assert_int_equal(rtu_missing_bytes(chunk, 7, NULL, 0), 1); /* 8: the response form */
+    assert_int_equal(rtu_missing_bytes(chunk, 8, NULL, 0), 3); /* 11 by its byte count */
+    assert_int_equal(rtu_missing_bytes(chunk, 11, NULL, 0), 0);
+    /* Whole frames, then one begun: what that one lacks. */
+    size_t m = read_request(chunk + n, 18, 0, 1);
+    assert_int_equal(rtu_missing_bytes(chunk, n + m, NULL, 0), 0);
+    assert_int_equal(rtu_missing_bytes(chunk, n + 5, NULL, 0), 3);
+    /* Bytes no frame length explains: nothing to wait for. */
+    chunk[n + m - 1] ^= 0xFF;
+    assert_int_equal(rtu_missing_bytes(chunk, n + m, NULL, 0), 0);
+    /* After noise, the frame begun after the silence. */
+    const uint16_t gaps[] = {3};
+    memmove(chunk + 3, chunk, n);
+    assert_int_equal(rtu_missing_bytes(chunk, 3 + 8, gaps, 1), 3);
+}
+
+/* A silence waited past (a frame not yet whole): a frame across it is
+ * whole; bytes before it that were no frame end there, and the frame after
+ * it is found. */
+static void a_waited_silence_is_a_place_to_resynchronise_only(void **state)
+{
+    uint8_t chunk[64];
+    (void)state;
+    size_t n = read_request(chunk, 17, 0, 1);
+    const uint16_t across[] = {5 | RTU_GAP_WAITED};
+    struct seen s = split(chunk, n, across, 1);
+    assert_int_equal(s.frames, 1);
+    assert_int_equal(s.dropped_gap, 0);
+    /* One byte of noise (it began a frame), the silence, a frame. */
+    chunk[0] = 17;
+    n = 1 + read_request(chunk + 1, 17, 0, 1);
+    const uint16_t after_noise[] = {1 | RTU_GAP_WAITED};
+    s = split(chunk, n, after_noise, 1);
+    assert_int_equal(s.frames, 1);
+    assert_int_equal(s.dropped_bytes, 1);
+    assert_int_equal(rtu_missing_bytes(chunk, n, after_noise, 1), 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -226,6 +320,9 @@ int main(void)
         cmocka_unit_test(after_noise_the_next_frame_after_a_silence_is_found),
         cmocka_unit_test(a_bad_crc_is_dropped),
         cmocka_unit_test(write_multiple_and_unknown_functions),
+        cmocka_unit_test(every_served_function_is_cut_by_its_length),
+        cmocka_unit_test(missing_bytes_of_a_frame_begun),
+        cmocka_unit_test(a_waited_silence_is_a_place_to_resynchronise_only),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -151,6 +151,11 @@ static int open_line(struct mb_rtu *rtu, char *why, size_t why_size)
     rtu->rx_overrun = false;
     rtu->tx_used = 0;
     rtu->tx_waiting = false;
+    /* Perhaps another adapter: whether it echoes is learnt again. */
+    rtu->echo_size = 0;
+    rtu->echo_probe = false;
+    rtu->line_echo = MB_RTU_ECHO_UNKNOWN;
+    rtu->no_echo_proofs = 0;
     uv_poll_start(&rtu->serial, UV_READABLE, on_serial);
     return 0;
 }
@@ -209,7 +214,13 @@ static void on_retry(uv_timer_t *t)
 
     if (rtu->closing || rtu->fd >= 0 || rtu->serial_closing)
         return; /* the previous handle is still closing: next second */
-    if (open_line(rtu, why, sizeof(why)) != 0)
+    int rc = open_line(rtu, why, sizeof(why));
+    if (rc == -ENOTTY && rtu->retry_error != rc)
+        /* The device is back but refuses the settings (another adapter,
+         * one without RS-485 mode): not the absence said when it failed. */
+        log_err("rtu: device %s: %s; trying again every second", rtu->device, why);
+    rtu->retry_error = rc;
+    if (rc != 0)
         return; /* said once when it failed */
     uv_timer_stop(&rtu->retry);
     log_notice("rtu: %s: line up again (%u baud, unit %u)", rtu->device, rtu->cfg.baud,
@@ -286,6 +297,9 @@ static void rtu_output(void *state, struct mb_client *c, const uint8_t *data, si
     uint64_t t = now_ns();
     memcpy(rtu->echo, frame, n);
     rtu->echo_size = n;
+    rtu->echo_is_request = rtu->request && n == rtu->request_size &&
+                           memcmp(frame, rtu->request, n) == 0;
+    rtu->echo_probe = true; /* an echo would be the next frame */
     rtu->echo_until_ns = t + n * (uint64_t)rtu->char_ns + ECHO_SLACK_NS;
     uint64_t us = t > rtu->request_end_ns ? (t - rtu->request_end_ns) / 1000 : 0;
     rtu->stats.turnaround_us = us > UINT32_MAX ? UINT32_MAX : (uint32_t)us;
@@ -319,6 +333,26 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
     uint8_t *into;
 
     rtu->stats.frames++;
+    bool probe = rtu->echo_probe;
+    rtu->echo_probe = false;
+    if (size == rtu->echo_size && memcmp(frame, rtu->echo, size) == 0 &&
+        now_ns() <= rtu->echo_until_ns) {
+        /* A reply unlike its request comes back only as an echo; a write's
+         * reply (equal to the request) also as a master repeating it, which
+         * is served where the line is known not to echo. */
+        if (!rtu->echo_is_request)
+            rtu->line_echo = MB_RTU_ECHO_YES;
+        if (rtu->line_echo != MB_RTU_ECHO_NO) {
+            rtu->echo_size = 0; /* our reply, heard back */
+            rtu->stats.echoes++;
+            return;
+        }
+    } else if (probe && rtu->line_echo == MB_RTU_ECHO_UNKNOWN &&
+               ++rtu->no_echo_proofs >= 3) {
+        /* Three replies in a row whose echo would have come first, and
+         * did not. */
+        rtu->line_echo = MB_RTU_ECHO_NO;
+    }
     if (unit == RTU_BROADCAST) {
         /* Never acted on: the master cannot learn the outcome. */
         rtu->stats.broadcasts++;
@@ -326,12 +360,6 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
     }
     if (unit != rtu->cfg.unit_id) {
         rtu->stats.foreign_frames++;
-        return;
-    }
-    if (size == rtu->echo_size && memcmp(frame, rtu->echo, size) == 0 &&
-        now_ns() <= rtu->echo_until_ns) {
-        rtu->echo_size = 0; /* our reply, heard back */
-        rtu->stats.echoes++;
         return;
     }
     if (rtu->fd < 0)
@@ -359,13 +387,20 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
      * already judged its own. */
     into[6] = rtu->srv->cfg.unit_id >= 0 ? (uint8_t)rtu->srv->cfg.unit_id : (uint8_t)unit;
     memcpy(into + MBAP_SIZE, frame + 1, pdu_size);
+    rtu->request = frame;
+    rtu->request_size = size;
     mb_client_received(rtu->client, MBAP_SIZE + pdu_size);
+    rtu->request = NULL;
 }
 
 static void on_dropped(void *user, enum rtu_drop why, size_t size)
 {
     struct mb_rtu *rtu = user;
     (void)size;
+    /* Perhaps our reply's echo, damaged: no proof either way. */
+    if (rtu->echo_probe && rtu->line_echo == MB_RTU_ECHO_UNKNOWN)
+        rtu->no_echo_proofs = 0;
+    rtu->echo_probe = false;
     if (why == RTU_DROP_GAP)
         rtu->stats.gap_discards++;
     else
@@ -402,7 +437,13 @@ static ssize_t read_line(struct mb_rtu *rtu)
             return -1;
         }
         uint64_t t = now_ns();
-        if (rtu->rx_used && t - rtu->last_rx_ns > rtu->t15_ns &&
+        /* A silence is what is left of the time between two reads once the
+         * new bytes' own wire time and the port's delivery are taken off:
+         * a UART hands over its FIFO every 8 characters (and its last
+         * bytes 4 characters after them), a USB adapter its packets, so
+         * reads of one unbroken frame can lie further apart than t1.5. */
+        if (rtu->rx_used &&
+            t - rtu->last_rx_ns > rtu->t15_ns + (uint64_t)n * rtu->char_ns + rtu->delivery_ns &&
             rtu->gap_count < MB_RTU_MAX_GAPS)
             rtu->gaps[rtu->gap_count++] = (uint16_t)rtu->rx_used;
         if (rtu->rx_overrun || rtu->rx_used + (size_t)n > sizeof(rtu->rx)) {
@@ -460,8 +501,25 @@ static void on_silence(uv_poll_t *p, int status, int events)
         return; /* more came (the timer is set again) or the line failed */
     if (rtu->rx_used == 0 && !rtu->rx_overrun)
         return;
-    if (now_ns() - rtu->last_rx_ns < rtu->t35_ns) {
+    uint64_t now = now_ns();
+    if (now - rtu->last_rx_ns < rtu->t35_ns) {
         set_silence_timer(rtu, rtu->last_rx_ns + rtu->t35_ns);
+        return;
+    }
+    /* A frame begun but not whole: its bytes may still be in the port's
+     * FIFO or the adapter's next packet. The silence ends it only once
+     * they would have come. */
+    size_t missing =
+        rtu->rx_overrun ? 0 : rtu_missing_bytes(rtu->rx, rtu->rx_used, rtu->gaps, rtu->gap_count);
+    uint64_t until = rtu->last_rx_ns + rtu->t35_ns + missing * (uint64_t)rtu->char_ns +
+                     rtu->delivery_ns;
+    if (missing && now < until) {
+        /* If the frame was noise after all, the next starts here. */
+        if (rtu->gap_count < MB_RTU_MAX_GAPS &&
+            (rtu->gap_count == 0 ||
+             (rtu->gaps[rtu->gap_count - 1] & ~RTU_GAP_WAITED) != rtu->rx_used))
+            rtu->gaps[rtu->gap_count++] = (uint16_t)(rtu->rx_used | RTU_GAP_WAITED);
+        set_silence_timer(rtu, until);
         return;
     }
     end_of_chunk(rtu);
@@ -490,6 +548,7 @@ int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
                    &rtu->t35_ns);
     rtu->char_ns = (uint32_t)((1 + 8 + (cfg->parity != MB_RTU_PARITY_NONE) + cfg->stop_bits) *
                               1000000000ull / (cfg->baud ? cfg->baud : 19200));
+    rtu->delivery_ns = 4ull * rtu->char_ns + MB_RTU_DELIVERY_NS;
 
     uv_timer_init(loop, &rtu->retry);
     rtu->retry.data = rtu;

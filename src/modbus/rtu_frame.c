@@ -133,6 +133,16 @@ static unsigned candidate_lengths(const uint8_t *d, size_t size, size_t out[2])
         break;
     case 43:
         out[n++] = 7; /* read device identification, the request */
+        if (size > 7 && d[2] == 14) {
+            /* The response: MEI type, code, conformity, more follows,
+             * next object, the number of objects, then each object's id,
+             * length and value. */
+            size_t end = 8;
+            for (unsigned i = 0; i < d[7] && end + 2 <= size; i++)
+                end += 2 + (size_t)d[end + 1];
+            if (end + 2 <= size && end + 2 <= RTU_MAX_ADU)
+                out[n++] = end + 2;
+        }
         break;
     default:
         break;
@@ -152,11 +162,22 @@ size_t rtu_frame_length(const uint8_t *data, size_t size)
         if (lengths[i] <= size && lengths[i] <= RTU_MAX_ADU &&
             rtu_crc_ok(data, lengths[i]))
             return lengths[i];
-    /* A function whose length we do not know, or a response of variable
-     * length (43/14): the whole chunk is the frame if its CRC says so. */
+    /* A function whose length we do not know: the whole chunk is the
+     * frame if its CRC says so. */
     if (size <= RTU_MAX_ADU && rtu_crc_ok(data, size))
         return size;
     return 0;
+}
+
+#define GAP_AT(g) ((size_t)((g) & ~RTU_GAP_WAITED))
+
+/* Is there a pause (not a waited silence) inside [from, to)? */
+static bool pause_inside(const uint16_t *gaps, size_t g, size_t gap_count, size_t to)
+{
+    for (; g < gap_count && GAP_AT(gaps[g]) < to; g++)
+        if (!(gaps[g] & RTU_GAP_WAITED))
+            return true;
+    return false;
 }
 
 void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t gap_count,
@@ -166,11 +187,11 @@ void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t g
 
     while (off < size) {
         size_t len = rtu_frame_length(chunk + off, size - off);
-        while (g < gap_count && gaps[g] <= off)
+        while (g < gap_count && GAP_AT(gaps[g]) <= off)
             g++;
         if (len) {
             /* A silence inside the frame: the specification discards it. */
-            if (g < gap_count && gaps[g] < off + len)
+            if (pause_inside(gaps, g, gap_count, off + len))
                 hooks->dropped(hooks->user, RTU_DROP_GAP, len);
             else
                 hooks->frame(hooks->user, chunk + off, len);
@@ -179,8 +200,47 @@ void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t g
         }
         /* No frame starts here: a frame can start again only after a
          * silence, at the next gap, or nowhere in this chunk. */
-        size_t next = g < gap_count ? gaps[g] : size;
+        size_t next = g < gap_count ? GAP_AT(gaps[g]) : size;
         hooks->dropped(hooks->user, RTU_DROP_CRC, next - off);
         off = next;
     }
+}
+
+/* The bytes a tail of 'have' bytes lacks to reach its next possible end. */
+static size_t missing_at(const uint8_t *d, size_t have)
+{
+    size_t lengths[2], best = 0;
+    unsigned n;
+
+    if (have < 2)
+        return RTU_MIN_ADU - have;
+    n = candidate_lengths(d, have, lengths);
+    for (unsigned i = 0; i < n; i++)
+        if (lengths[i] > have && lengths[i] <= RTU_MAX_ADU && (!best || lengths[i] < best))
+            best = lengths[i];
+    if (!best && have < RTU_MIN_ADU && n == 0)
+        best = RTU_MIN_ADU; /* an unknown function: at least a whole frame */
+    return best ? best - have : 0;
+}
+
+size_t rtu_missing_bytes(const uint8_t *chunk, size_t size, const uint16_t *gaps,
+                         size_t gap_count)
+{
+    size_t off = 0, g = 0;
+
+    while (off < size) {
+        size_t len = rtu_frame_length(chunk + off, size - off);
+        while (g < gap_count && GAP_AT(gaps[g]) <= off)
+            g++;
+        if (len) {
+            off += len;
+            continue;
+        }
+        if (g < gap_count) {
+            off = GAP_AT(gaps[g]); /* no frame here: rtu_split drops up to the gap */
+            continue;
+        }
+        return missing_at(chunk + off, size - off);
+    }
+    return 0;
 }

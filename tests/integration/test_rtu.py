@@ -25,6 +25,7 @@ UNIT = 17
 IR_MAGIC = 0
 MAGIC = 0x4A4B
 COIL_POWER_ON = 100
+COIL_MOTION_ENABLE = 131
 IR_TASK_STATE = 100
 IR_LINE_STATE = 5540
 IR_FRAMES = 5542
@@ -156,21 +157,30 @@ class Rig:
 
     def __init__(self, sim_args=("--log-commands",), **keys):
         self.line = SerialPair()
-        self.sim = Sim(*sim_args)
-        self.gw = Gateway(self.sim, rtu_config(self.line.device, **keys))
-        self.plc = ModbusPlc(self.gw.modbus_port)
-        wait_until(lambda: self.plc.ir(IR_LINE_STATE)[0] == LINE_IDLE, 10, "the line open")
+        self.sim = self.gw = self.plc = None
+        try:
+            self.sim = Sim(*sim_args)
+            self.gw = Gateway(self.sim, rtu_config(self.line.device, **keys))
+            self.plc = ModbusPlc(self.gw.modbus_port)
+            wait_until(lambda: self.plc.ir(IR_LINE_STATE)[0] == LINE_IDLE, 10, "the line open")
+        except BaseException:
+            # A rig that fails to start stops what it started (no __exit__).
+            self.close()
+            raise
 
     def master(self):
         return RawMaster(self.line.master)
 
     def close(self):
         try:
-            self.plc.close()
-            self.gw.stop()
+            if self.plc:
+                self.plc.close()
+            if self.gw:
+                self.gw.stop()
         finally:
             try:
-                self.sim.stop()
+                if self.sim:
+                    self.sim.stop()
             finally:
                 self.line.close()
 
@@ -264,6 +274,43 @@ def test_bad_crc_and_mid_frame_gap_are_not_answered():
             check(m.read_ir(IR_MAGIC) == [MAGIC], "the next frame answered")
             check(r.plc.u32(IR_CRC_ERRORS) + r.plc.u32(IR_GAP_DISCARDS) > crc_before,
                   "the broken frame counted")
+        finally:
+            m.close()
+
+
+def test_frame_handed_over_in_pieces_is_answered():
+    """A UART hands a frame over in pieces (its FIFO every 8 characters),
+    as does a USB adapter (its packets), further apart than t3.5 though the
+    wire had no pause: the frame is answered once whole, and a real pause
+    in a frame still discards it. 4800 baud, no parity: a character is
+    2.08 ms, t3.5 7.3 ms; 8 bytes, then the last 3 six characters later
+    (12.5 ms; the previous code took the first 8 for a frame that failed
+    its CRC, and answered nothing)."""
+    with rig(rights="heartbeat", baud="4800", parity="none") as r:
+        m = r.master()
+        try:
+            for value in range(1, 6):
+                pdu = struct.pack(">BHHBH", 16, 0, 1, 2, value)
+                whole = frame(UNIT, pdu)
+                m.send(whole[:8])
+                time.sleep(6 * 10 / 4800)
+                m.send(whole[8:])
+                rsp = m.reply(timeout=1.0)
+                check(rsp == frame(UNIT, pdu[:5]), "write %d: %r" % (value, rsp))
+            check(r.plc.hr(0)[0] == 5, "the last value written")
+            check(r.plc.u32(IR_CRC_ERRORS) == 0 and r.plc.u32(IR_GAP_DISCARDS) == 0,
+                  "nothing dropped")
+            # A byte of noise (it begins a frame for this unit), t3.5 and
+            # more of silence, a frame: the noise ends at the silence.
+            m.send(bytes([UNIT]))
+            time.sleep(0.012)
+            check(m.read_ir(IR_MAGIC) == [MAGIC], "the frame after the noise answered")
+            whole = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
+            m.send(whole[:4])
+            time.sleep(0.3)
+            m.send(whole[4:])
+            m.no_reply()
+            check(m.read_ir(IR_MAGIC) == [MAGIC], "the next frame answered")
         finally:
             m.close()
 
@@ -378,6 +425,61 @@ def test_rs485_refused_exits_2_naming_the_device():
         line.close()
 
 
+def test_device_back_but_refusing_rs485_is_logged():
+    """rs485 = true and the device absent at start (a link fault); it comes
+    back on a driver that refuses TIOCSRS485 (a pty): one error line naming
+    the device and TIOCSRS485, not a silent line down (the previous code
+    said nothing), TCP served."""
+    line = SerialPair()
+    line.stop()
+    sim = Sim()
+    gw = Gateway(sim, rtu_config(line.device, rs485="true"))
+    try:
+        plc = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: plc.ir(IR_LINE_STATE)[0] == LINE_FAULT, 10, "the line fault")
+        line.start()
+        wait_until(lambda: log_lines(gw, "TIOCSRS485"), 10, "the refusal logged")
+        time.sleep(2.5)  # retries, not logged again
+        lines = log_lines(gw, "TIOCSRS485")
+        check(len(lines) == 1 and line.device in lines[0], gw.output())
+        check(plc.ir(IR_LINE_STATE)[0] == LINE_FAULT, "still a fault")
+        check(plc.ir(IR_MAGIC) == [MAGIC], "TCP served")
+        plc.close()
+    finally:
+        gw.stop()
+        sim.stop()
+        line.close()
+
+
+def test_write_pending_at_stop_is_never_acted_on_unanswered():
+    """SIGTERM while a write's frame waits for its t3.5 silence (1200 baud,
+    no parity: 29 ms): the frame is dropped, neither acted on nor answered;
+    if the silence came first, the write is acted on and answered. Never
+    acted on without a reply (up to 6 stops, until one came within the
+    silence)."""
+    dropped = 0
+    for _ in range(6):  # until one stop has come within the silence
+        if dropped:
+            break
+        with rig(rights="power", baud="1200", parity="none") as r:
+            m = r.master()
+            try:
+                wait_until(lambda: r.plc.ir(IR_TASK_STATE)[0] in (1, 2, 3, 4), 10,
+                           "robot status")
+                req = write_coil_pdu(COIL_POWER_ON, 1)
+                m.send(frame(UNIT, req))
+                r.gw.proc.send_signal(signal.SIGTERM)
+                rsp = m.reply(timeout=1.0)
+                r.gw.proc.wait(timeout=10)
+                sent = len(sim_commands(r.sim, "power_on"))
+                check((rsp is None and sent == 0) or (rsp == frame(UNIT, req) and sent == 1),
+                      "reply %r, power_on sent %d times" % (rsp, sent))
+                dropped += rsp is None
+            finally:
+                m.close()
+    check(dropped >= 1, "the stop never came within the silence")
+
+
 def test_rtu_and_tcp_at_once():
     """An RTU master and a TCP client polling together: every request of
     both answered."""
@@ -469,7 +571,7 @@ def test_own_reply_heard_back_is_not_a_request():
     """An adapter that hears its own transmitter gives every reply back to
     the gateway: that frame is not taken for a request (answering it would
     be heard again); a real request after it is answered."""
-    with rig() as r:
+    with rig(rights="faults") as r:
         m = r.master()
         try:
             req = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
@@ -480,15 +582,45 @@ def test_own_reply_heard_back_is_not_a_request():
                 m.send(rsp)  # the echo
                 m.no_reply()
             check(r.plc.ir(IR_MODBUS_EXCEPTIONS_LOW)[0] == 0, "no exception answered")
+            # On a line that echoes, a write's echo (equal to the request) is
+            # not the write again.
+            write = frame(UNIT, write_coil_pdu(COIL_MOTION_ENABLE, 1))
+            m.send(write)
+            check(m.reply() == write, "the write answered")
+            m.send(write)  # its echo
+            m.no_reply()
+        finally:
+            m.close()
+
+
+def test_repeated_write_answered_where_the_line_does_not_echo():
+    """A master that writes the same value again at once (05 or 06: the
+    reply equals the request, as an echo would): on a line that has shown
+    it gives no reply back, every such write is answered (the previous
+    code skipped every second one as an echo)."""
+    with rig(rights="faults") as r:
+        m = r.master()
+        try:
+            for _ in range(3):
+                check(m.read_ir(IR_MAGIC) == [MAGIC], "a read")
+            write = frame(UNIT, write_coil_pdu(COIL_MOTION_ENABLE, 1))
+            for i in range(6):
+                m.send(write)
+                check(m.reply(timeout=1.0) == write, "write %d answered" % i)
+                time.sleep(0.02)
         finally:
             m.close()
 
 
 if __name__ == "__main__":
     run([test_mbpoll_and_pymodbus_read_the_map, test_command_once_with_rights_and_01_outside,
-         test_bad_crc_and_mid_frame_gap_are_not_answered, test_multidrop_keeps_sync,
+         test_bad_crc_and_mid_frame_gap_are_not_answered,
+         test_frame_handed_over_in_pieces_is_answered, test_multidrop_keeps_sync,
          test_broadcast_is_counted_never_acted_on, test_device_removed_and_restored,
          test_absent_device_at_start_is_a_link_fault,
-         test_rs485_refused_exits_2_naming_the_device, test_rtu_and_tcp_at_once,
+         test_rs485_refused_exits_2_naming_the_device,
+         test_device_back_but_refusing_rs485_is_logged,
+         test_write_pending_at_stop_is_never_acted_on_unanswered, test_rtu_and_tcp_at_once,
          test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence,
-         test_own_reply_heard_back_is_not_a_request])
+         test_own_reply_heard_back_is_not_a_request,
+         test_repeated_write_answered_where_the_line_does_not_echo])
