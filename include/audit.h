@@ -97,7 +97,8 @@ struct audit_aggregate {
 
 #define AUDIT_COUNTERS 128
 
-/* Commands by command and result, for jakagw_commands_total. */
+/* Commands by command and result, for jakagw_commands_total; past
+ * AUDIT_COUNTERS - 1 pairs, the rest counted as command and result "(other)". */
 struct audit_counter {
     char command[48];
     char result[24];

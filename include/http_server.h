@@ -10,6 +10,8 @@
  *
  * What any client may do is bounded here, whatever the handler does:
  * - GET and HEAD only; any other method gets 405 with "Allow: GET, HEAD";
+ *   a request body (Content-Length other than 0, or Transfer-Encoding)
+ *   gets 413 and the connection closed, never read;
  * - the request line and headers at most HTTP_MAX_HEAD_BYTES (431 past it;
  *   libmicrohttpd answers 431 itself once its buffer is full, or 414 when
  *   the request line alone fills it);
@@ -18,7 +20,10 @@
  *   that has not sent a whole request head within HTTP_HEAD_DEADLINE_MS of
  *   connecting or of its last response (slowloris), or that has not read
  *   its response within HTTP_RESPONSE_DEADLINE_MS (a slow reader);
- * - a bind address that is not loopback logs one warning at start.
+ * - a bind address that is not loopback logs one warning at start; on
+ *   loopback, a Host header that is neither an address nor localhost gets
+ *   403 (a page that rebound its name to 127.0.0.1, in a browser on the
+ *   gateway's host, reads nothing).
  *
  * Life cycle as libuv handles: http_server_start(), http_server_close(cb);
  * the struct is the caller's until cb runs.
@@ -66,6 +71,24 @@ typedef void (*http_handler)(void *user, const struct http_request *req,
 
 struct http_conn;
 
+/*
+ * Answers built in one turn of the server (one MHD_run: every connection
+ * that is ready, once; nothing else runs on the loop meanwhile), kept for
+ * the other requests of that turn: thirty clients pipelining
+ * /status.json?registers=1 cost one rendering a turn, not thirty, so a
+ * turn stays short whatever the clients do.
+ */
+#define HTTP_TURN_KEPT 4
+
+struct http_turn_entry {
+    const char *key; /* a static string */
+    char *body;
+    size_t size;
+    unsigned status;
+    const char *content_type;
+    const char *security_policy;
+};
+
 struct http_server {
     uv_loop_t *loop;
     struct MHD_Daemon *daemon;
@@ -83,9 +106,12 @@ struct http_server {
     uint64_t requests;       /* answered, any status */
     uint64_t closed_slow;    /* closed by a deadline */
     uint64_t refused;        /* closed at once: over the connection limit */
+    struct http_turn_entry turn[HTTP_TURN_KEPT];
+    unsigned turn_count;
     struct log_ratelimit log_limit;
     int open_handles;
     bool running;
+    bool loopback; /* bound to loopback: Host names checked (DNS rebinding) */
     void (*close_cb)(struct http_server *srv);
 };
 
@@ -95,6 +121,15 @@ struct http_server {
  */
 int http_server_start(uv_loop_t *loop, struct http_server *srv, const char *bind,
                       uint16_t port, http_handler handler, void *user);
+
+/*
+ * The answer kept as 'key' in this turn, copied into 'resp' (true), or
+ * false. A handler whose answer depends only on the gateway's state (not
+ * on the request beyond its path and 'key') looks here first and keeps
+ * what it built with http_turn_keep().
+ */
+bool http_turn_cached(struct http_server *srv, const char *key, struct http_response *resp);
+void http_turn_keep(struct http_server *srv, const char *key, const struct http_response *resp);
 
 /* Closes the listener and every connection; 'cb' runs when all are closed. */
 void http_server_close(struct http_server *srv, void (*cb)(struct http_server *srv));

@@ -68,6 +68,13 @@ void log_plain(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
  */
 size_t log_escape(char *out, size_t size_out, const char *in, size_t size);
 
+/*
+ * The length of the well-formed UTF-8 sequence of 2 to 4 bytes at 'p', of
+ * which 'left' bytes may be read (RFC 3629: no overlong forms, no
+ * surrogates, nothing above U+10FFFF), or 0.
+ */
+size_t utf8_sequence(const unsigned char *p, size_t left);
+
 #define log_err(...) log_print(LOG_LEVEL_ERR, __VA_ARGS__)
 #define log_warn(...) log_print(LOG_LEVEL_WARNING, __VA_ARGS__)
 #define log_notice(...) log_print(LOG_LEVEL_NOTICE, __VA_ARGS__)

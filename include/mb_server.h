@@ -119,6 +119,12 @@ struct mb_server_hooks {
      * of it is applied then).
      */
     int (*on_write)(void *user, const struct mb_write *w);
+    /*
+     * A write refused before on_write judged it (the map's check: an
+     * address or value outside it), with exception 'ex'; w->values is
+     * NULL, and w->count 0 when the request is too short to say where.
+     */
+    void (*on_write_refused)(void *user, const struct mb_write *w, int ex);
     /* After a write was applied to the image. */
     void (*after_write)(void *user, enum regmap_table table, unsigned address,
                         unsigned count);

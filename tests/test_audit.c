@@ -223,6 +223,38 @@ static void counters_count_every_command_even_aggregated(void **state)
     assert_int_equal(a.counters[1].n, 1);
 }
 
+/*
+ * More (command, result) pairs than counters (a PLC's JSON mailbox sends
+ * any cmdName): each named counter counts only its own, the rest one
+ * "(other)" counter, never a named one.
+ */
+static void counters_past_their_room_count_as_other(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    char name[32];
+    for (unsigned i = 0; i < AUDIT_COUNTERS + 50; i++) {
+        snprintf(name, sizeof(name), "cmd_%u", i);
+        audit_command_sent(&a, &slot_play, name, false, false);
+        audit_command_done(&a, &slot_play, &done);
+    }
+    audit_command_sent(&a, &slot_play, "cmd_0", false, false);
+    audit_command_done(&a, &slot_play, &done);
+    assert_int_equal(a.counter_count, AUDIT_COUNTERS);
+    uint64_t total = 0;
+    for (unsigned i = 0; i < AUDIT_COUNTERS - 1; i++) {
+        snprintf(name, sizeof(name), "cmd_%u", i);
+        assert_string_equal(a.counters[i].command, name);
+        assert_int_equal(a.counters[i].n, i == 0 ? 2 : 1);
+        total += a.counters[i].n;
+    }
+    const struct audit_counter *other = &a.counters[AUDIT_COUNTERS - 1];
+    assert_string_equal(other->command, "(other)");
+    assert_string_equal(other->result, "(other)");
+    assert_int_equal(other->n, 51);
+    assert_int_equal(total + other->n, AUDIT_COUNTERS + 51);
+}
+
 static void the_last_records_are_kept_oldest_first(void **state)
 {
     (void)state;
@@ -285,6 +317,59 @@ static void journal_is_detected_from_journal_stream(void **state)
     unsetenv("JOURNAL_STREAM");
 }
 
+/* The stderr line of a record, as audit_default_emit writes it. */
+static void stderr_line(const struct audit_record *r, char *line, size_t size)
+{
+    FILE *f = tmpfile();
+    assert_non_null(f);
+    int saved = dup(STDERR_FILENO);
+    unsetenv("JOURNAL_STREAM");
+    fflush(stderr);
+    dup2(fileno(f), STDERR_FILENO);
+    audit_default_emit(NULL, r);
+    fflush(stderr);
+    dup2(saved, STDERR_FILENO);
+    close(saved);
+    rewind(f);
+    assert_non_null(fgets(line, (int)size, f));
+    fclose(f);
+}
+
+/*
+ * Text from outside (a certificate's subject and role, a PLC's JSON
+ * cmdName) cannot make up fields of the stderr line: a quote in it is no
+ * field's end, a space in an unquoted value no field's start.
+ */
+static void outside_text_cannot_forge_fields_of_the_line(void **state)
+{
+    (void)state;
+    struct audit_record r = {.count = 1, .error_code = 1};
+    snprintf(r.who.transport, sizeof(r.who.transport), "mbaps");
+    snprintf(r.who.client, sizeof(r.who.client), "10.0.0.9");
+    snprintf(r.who.subject, sizeof(r.who.subject), "CN=plc\" role=\"admin");
+    snprintf(r.who.role, sizeof(r.who.role), "monitor");
+    snprintf(r.command, sizeof(r.command), "x transport=gateway");
+    snprintf(r.result, sizeof(r.result), "refused");
+    char line[2048];
+    stderr_line(&r, line, sizeof(line));
+    assert_non_null(strstr(line, "audit: command=\"x transport=gateway\" what="));
+    assert_null(strstr(line, " role=\"admin"));
+    assert_non_null(strstr(line, " transport=mbaps "));
+    assert_non_null(strstr(line, " role=\"monitor\" "));
+    /* The quotes of what, result, subject, role and the command's. */
+    unsigned quotes = 0;
+    for (const char *p = line; *p; p++)
+        quotes += *p == '"';
+    assert_int_equal(quotes, 10);
+    /* A plain command name stays as it was. */
+    snprintf(r.command, sizeof(r.command), "power_on");
+    snprintf(r.who.subject, sizeof(r.who.subject), "CN=plc-1");
+    stderr_line(&r, line, sizeof(line));
+    assert_non_null(strstr(line, "audit: command=power_on what=\"\" result=\"refused\" "
+                                 "transport=mbaps client=10.0.0.9 subject=\"CN=plc-1\" "
+                                 "role=\"monitor\" count=1 error_code=1 error_msg="));
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -295,10 +380,12 @@ int main(void)
         cmocka_unit_test_setup(a_failure_among_frequent_ones_is_its_own_record, setup),
         cmocka_unit_test_setup(refused_writes_are_aggregated_and_counted, setup),
         cmocka_unit_test_setup(counters_count_every_command_even_aggregated, setup),
+        cmocka_unit_test_setup(counters_past_their_room_count_as_other, setup),
         cmocka_unit_test_setup(the_last_records_are_kept_oldest_first, setup),
         cmocka_unit_test_setup(more_pending_than_room_records_the_oldest_as_unknown, setup),
         cmocka_unit_test_setup(null_audit_is_harmless, setup),
         cmocka_unit_test(journal_is_detected_from_journal_stream),
+        cmocka_unit_test(outside_text_cannot_forge_fields_of_the_line),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -64,12 +64,51 @@ static void markup_in_json_strings_becomes_escapes(void **state)
     free(out);
 }
 
+/*
+ * A robot's errorMsg (or a program name) is any bytes: /status.json must
+ * still be UTF-8 (RFC 8259), or a strict consumer (Python's json, the
+ * monitoring's collectors) rejects the whole document. Bytes that are no
+ * UTF-8 become U+FFFD; U+2028 and U+2029, legal in JSON but line ends to
+ * JavaScript before ES2019, become \u escapes.
+ */
+static void invalid_utf8_in_json_becomes_replacement_characters(void **state)
+{
+    (void)state;
+    size_t size;
+    /* A stray byte, a cut sequence, an overlong '/', a surrogate, U+2028,
+     * a good e-acute and a good 4-byte sequence. */
+    char *out = harden("{\"m\":\"a\xff b\xc3 c\xc0\xaf d\xed\xa0\x80 "
+                       "e\xe2\x80\xa8 \xc3\xa9\xf0\x9f\x98\x80\"}",
+                       &size);
+    assert_non_null(out);
+    assert_string_equal(out, "{\"m\":\"a\xef\xbf\xbd b\xef\xbf\xbd c\xef\xbf\xbd"
+                             "\xef\xbf\xbd d\xef\xbf\xbd\xef\xbf\xbd\xef\xbf\xbd "
+                             "e\\u2028 \xc3\xa9\xf0\x9f\x98\x80\"}\n");
+    assert_int_equal(size, strlen(out));
+    free(out);
+}
+
+/* Prometheus refuses a scrape with a label value that is not UTF-8 (a
+ * command name from the JSON mailbox is the PLC's text). */
+static void invalid_utf8_in_label_values_becomes_replacement_characters(void **state)
+{
+    (void)state;
+    struct strbuf b;
+    strbuf_init(&b, 4);
+    metrics_label_value(&b, "x\xff\"\xc3\xa9\xe2\x82");
+    char *text = strbuf_take(&b, NULL);
+    assert_string_equal(text, "x\xef\xbf\xbd\\\"\xc3\xa9\xef\xbf\xbd\xef\xbf\xbd");
+    free(text);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(strbuf_grows_past_its_first_size),
         cmocka_unit_test(label_values_are_escaped),
         cmocka_unit_test(markup_in_json_strings_becomes_escapes),
+        cmocka_unit_test(invalid_utf8_in_json_becomes_replacement_characters),
+        cmocka_unit_test(invalid_utf8_in_label_values_becomes_replacement_characters),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -206,11 +206,14 @@ static void count_command(struct audit *a, const char *command, const char *resu
             return;
         }
     }
-    /* Bounded by the command table times the outcomes; past that, the
-     * last slot counts the rest. */
+    /* Bounded by the command table times the outcomes, but a JSON
+     * mailbox's cmdName is any text: the last slot counts whatever finds
+     * no room, as "(other)", so that no named counter counts another's. */
     struct audit_counter *c = &a->counters[a->counter_count < AUDIT_COUNTERS
                                                ? a->counter_count++
                                                : AUDIT_COUNTERS - 1];
+    if (a->counter_count == AUDIT_COUNTERS)
+        command = result = "(other)";
     if (c->n == 0) {
         copy(c->command, sizeof(c->command), command);
         copy(c->result, sizeof(c->result), result);
@@ -284,6 +287,36 @@ bool audit_stderr_is_journal(void)
     return (unsigned long long)st.st_dev == dev && (unsigned long long)st.st_ino == ino;
 }
 
+/*
+ * 'in' as the value of a key=value field of the stderr line: as it is when
+ * it is one plain word (printable ASCII, no space, quote or backslash) and
+ * 'quote' is false, else in quotes with each quote in it as \x22. Outside
+ * text (a certificate's subject, a PLC's JSON cmdName) thus never ends a
+ * field or starts another; the logger escapes the rest.
+ */
+static const char *field(char *out, size_t size, const char *in, bool quote)
+{
+    size_t n = 0;
+    for (const char *p = in; *p && !quote; p++)
+        quote = *p <= ' ' || *p >= 0x7F || *p == '"' || *p == '\\';
+    if (!quote) {
+        snprintf(out, size, "%s", in);
+        return out;
+    }
+    out[n++] = '"';
+    for (const char *p = in; *p && n + 6 < size; p++) {
+        if (*p == '"') {
+            memcpy(out + n, "\\x22", 4);
+            n += 4;
+        } else {
+            out[n++] = *p;
+        }
+    }
+    out[n++] = '"';
+    out[n] = '\0';
+    return out;
+}
+
 void audit_default_emit(void *user, const struct audit_record *r)
 {
     /* Outside text (an errorMsg, a certificate's subject) as one line. */
@@ -312,9 +345,20 @@ void audit_default_emit(void *user, const struct audit_record *r)
         if (rc == 0)
             return;
     }
-    /* The logger escapes the line as a whole: the raw values here. */
-    log_notice("audit: command=%s what=\"%s\" result=\"%s\" transport=%s client=%s "
-               "subject=\"%s\" role=\"%s\" count=%u error_code=%ld error_msg=%s",
-               r->command, r->what, r->result, r->who.transport, r->who.client,
-               r->who.subject, r->who.role, r->count, r->error_code, r->error_msg);
+    /* The logger escapes the line as a whole: the raw values here, each
+     * kept to its field; the errorMsg last, to the end of the line. */
+    char f_command[4 * sizeof(r->command) + 3], f_what[4 * sizeof(r->what) + 3];
+    char f_result[4 * sizeof(r->result) + 3], f_transport[4 * sizeof(r->who.transport) + 3];
+    char f_client[4 * sizeof(r->who.client) + 3], f_subject[4 * sizeof(r->who.subject) + 3];
+    char f_role[4 * sizeof(r->who.role) + 3];
+    log_notice("audit: command=%s what=%s result=%s transport=%s client=%s subject=%s "
+               "role=%s count=%u error_code=%ld error_msg=%s",
+               field(f_command, sizeof(f_command), r->command, false),
+               field(f_what, sizeof(f_what), r->what, true),
+               field(f_result, sizeof(f_result), r->result, true),
+               field(f_transport, sizeof(f_transport), r->who.transport, false),
+               field(f_client, sizeof(f_client), r->who.client, false),
+               field(f_subject, sizeof(f_subject), r->who.subject, true),
+               field(f_role, sizeof(f_role), r->who.role, true), r->count, r->error_code,
+               r->error_msg);
 }

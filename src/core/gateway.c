@@ -342,24 +342,36 @@ static void on_start_answered(void *user)
     policy_start_answered(&gw->policy, uv_now(gw->loop));
 }
 
-/* Every write judged; the commands it sends, and a refusal, audited. */
-static int on_write(void *user, const struct mb_write *w)
+/* A refused write into the audit trail: who, where, the exception. */
+static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex)
 {
     static const char *const tables[] = {"coil", "discrete input", "input register",
                                          "holding register"};
+    char what[48] = "a write too short to say where";
+
+    if (w->count > 0)
+        snprintf(what, sizeof(what), "%s %u%s%.0u", tables[w->table % 4], w->address,
+                 w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
+    audit_write_refused(&gw->audit, w->transport, w->client, w->subject, w->role, what, ex);
+}
+
+/* Every write judged; the commands it sends, and a refusal, audited. */
+static int on_write(void *user, const struct mb_write *w)
+{
     struct gateway *gw = user;
 
     audit_set_writer(&gw->audit, w->transport, w->client, w->subject, w->role);
     int ex = plc_write_judge(&gw->writes, w);
     audit_clear_writer(&gw->audit);
-    if (ex) {
-        char what[48];
-        snprintf(what, sizeof(what), "%s %u%s%.0u", tables[w->table % 4], w->address,
-                 w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
-        audit_write_refused(&gw->audit, w->transport, w->client, w->subject, w->role, what,
-                            ex);
-    }
+    if (ex)
+        audit_refusal(gw, w, ex);
     return ex;
+}
+
+/* A write the map refused before it could be judged: audited the same. */
+static void on_write_refused(void *user, const struct mb_write *w, int ex)
+{
+    audit_refusal(user, w, ex);
 }
 
 static void on_client(void *user, uint64_t client, bool open, unsigned clients)
@@ -657,6 +669,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     struct mb_server_hooks hooks = {
         .before_request = before_request,
         .on_write = on_write,
+        .on_write_refused = on_write_refused,
         .on_client = on_client,
         .after_write = after_write,
         .is_running = is_running,

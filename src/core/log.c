@@ -16,7 +16,7 @@ bool log_enabled(enum log_level level) { return level <= max_level; }
  * The length of the valid UTF-8 sequence of 2 to 4 bytes at 'p' (RFC 3629:
  * no overlong forms, no surrogates, nothing above U+10FFFF), or 0.
  */
-static size_t utf8_sequence(const unsigned char *p, size_t left)
+size_t utf8_sequence(const unsigned char *p, size_t left)
 {
     unsigned char b = p[0];
     size_t n;

@@ -21,10 +21,31 @@
     "connect-src 'self'; img-src data:; base-uri 'none'; form-action 'none'; "   \
     "frame-ancestors 'none'"
 
+static void answer_new(struct gateway *gw, const struct http_request *req, bool with_registers,
+                       struct http_response *resp);
+
 static void answer(void *user, const struct http_request *req, struct http_response *resp)
 {
     struct gateway *gw = user;
+    const char *registers = http_request_arg(req, "registers");
+    bool with_registers = registers && strcmp(registers, "1") == 0;
+    /* The state cannot change within one turn of the server: what was
+     * built for one request of the turn is the answer to the others. */
+    const char *key = strcmp(req->path, "/metrics") == 0       ? "metrics"
+                      : strcmp(req->path, "/status.json") != 0 ? NULL
+                      : with_registers                         ? "status+registers"
+                                                               : "status";
 
+    if (key && http_turn_cached(&gw->http, key, resp))
+        return;
+    answer_new(gw, req, with_registers, resp);
+    if (key)
+        http_turn_keep(&gw->http, key, resp);
+}
+
+static void answer_new(struct gateway *gw, const struct http_request *req, bool with_registers,
+                       struct http_response *resp)
+{
     if (strcmp(req->path, "/metrics") == 0) {
         struct strbuf b;
         gateway_refresh_values(gw);
@@ -36,10 +57,8 @@ static void answer(void *user, const struct http_request *req, struct http_respo
         return;
     }
     if (strcmp(req->path, "/status.json") == 0) {
-        const char *registers = http_request_arg(req, "registers");
         gateway_refresh_values(gw);
-        resp->body = status_json_render(gw, registers && strcmp(registers, "1") == 0,
-                                        &resp->size);
+        resp->body = status_json_render(gw, with_registers, &resp->size);
         resp->status = resp->body ? 200 : 0;
         resp->content_type = "application/json";
         return;

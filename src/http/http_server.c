@@ -12,8 +12,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/socket.h>
 #include <unistd.h>
+
+#ifndef MHD_HTTP_CONTENT_TOO_LARGE
+#define MHD_HTTP_CONTENT_TOO_LARGE 413
+#endif
 
 /* One connection, from libmicrohttpd's connect notice to its close notice. */
 struct http_conn {
@@ -28,6 +33,56 @@ struct http_conn {
 static char request_accepted, request_refused;
 
 static void schedule(struct http_server *srv);
+
+/* Forgets the bodies kept for the turn that is over. */
+static void turn_clear(struct http_server *srv)
+{
+    for (unsigned i = 0; i < srv->turn_count; i++)
+        free(srv->turn[i].body);
+    srv->turn_count = 0;
+}
+
+/* One turn of libmicrohttpd: every connection ready, once. */
+static void run(struct http_server *srv)
+{
+    MHD_run(srv->daemon);
+    turn_clear(srv);
+}
+
+bool http_turn_cached(struct http_server *srv, const char *key, struct http_response *resp)
+{
+    for (unsigned i = 0; i < srv->turn_count; i++) {
+        const struct http_turn_entry *e = &srv->turn[i];
+        if (strcmp(e->key, key) != 0)
+            continue;
+        resp->status = e->status;
+        resp->content_type = e->content_type;
+        resp->security_policy = e->security_policy;
+        resp->size = e->size;
+        resp->body = malloc(e->size ? e->size : 1);
+        if (resp->body)
+            memcpy(resp->body, e->body, e->size);
+        return true;
+    }
+    return false;
+}
+
+void http_turn_keep(struct http_server *srv, const char *key, const struct http_response *resp)
+{
+    if (!resp->body || resp->status == 0 || srv->turn_count == HTTP_TURN_KEPT)
+        return;
+    struct http_turn_entry *e = &srv->turn[srv->turn_count];
+    e->body = malloc(resp->size ? resp->size : 1);
+    if (!e->body)
+        return;
+    memcpy(e->body, resp->body, resp->size);
+    e->key = key;
+    e->size = resp->size;
+    e->status = resp->status;
+    e->content_type = resp->content_type;
+    e->security_policy = resp->security_policy;
+    srv->turn_count++;
+}
 
 static void on_mhd_log(void *cls, const char *fmt, va_list ap)
 {
@@ -127,7 +182,7 @@ static void on_sweep(uv_timer_t *t)
             log_info("http: closed connections too slow to send a request or read a "
                      "response (%llu closed so, in all)",
                      (unsigned long long)srv->closed_slow);
-        MHD_run(srv->daemon);
+        run(srv);
         schedule(srv);
     }
     if (!srv->conns)
@@ -137,6 +192,55 @@ static void on_sweep(uv_timer_t *t)
 struct head_size {
     size_t bytes;
 };
+
+/*
+ * Is 'host' (a Host header) an address, or localhost, with or without a
+ * port? Only such names reach a server bound to loopback honestly (a
+ * browser on the same host, an SSH tunnel, a reverse proxy passing the
+ * upstream's address); any other is a page that rebound its own name to
+ * 127.0.0.1 to read the answers from a browser on the gateway's host.
+ */
+static bool host_is_local(const char *host)
+{
+    char name[64];
+    const char *port = NULL;
+    size_t n;
+    struct in6_addr a6;
+    struct in_addr a4;
+
+    if (host[0] == '[') {
+        const char *end = strchr(host, ']');
+        if (!end || (size_t)(end - host - 1) >= sizeof(name))
+            return false;
+        n = (size_t)(end - host - 1);
+        memcpy(name, host + 1, n);
+        name[n] = '\0';
+        if (end[1] == ':')
+            port = end + 2;
+        else if (end[1] != '\0')
+            return false;
+        if (inet_pton(AF_INET6, name, &a6) != 1)
+            return false;
+    } else {
+        const char *colon = strchr(host, ':');
+        n = colon ? (size_t)(colon - host) : strlen(host);
+        if (n == 0 || n >= sizeof(name))
+            return false;
+        memcpy(name, host, n);
+        name[n] = '\0';
+        port = colon ? colon + 1 : NULL;
+        if (inet_pton(AF_INET, name, &a4) != 1 && strcasecmp(name, "localhost") != 0)
+            return false;
+    }
+    if (port) {
+        if (!*port || strlen(port) > 5)
+            return false;
+        for (const char *p = port; *p; p++)
+            if (*p < '0' || *p > '9')
+                return false;
+    }
+    return true;
+}
 
 static enum MHD_Result add_header(void *cls, enum MHD_ValueKind kind, const char *key,
                                   const char *value)
@@ -214,6 +318,19 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *connection,
         if (strcmp(method, "GET") != 0 && strcmp(method, "HEAD") != 0)
             return queue_text(connection, MHD_HTTP_METHOD_NOT_ALLOWED,
                               "read-only: GET and HEAD only\n", "GET, HEAD");
+        const char *host = MHD_lookup_connection_value(connection, MHD_HEADER_KIND, "Host");
+        if (srv->loopback && host && !host_is_local(host))
+            return queue_text(connection, MHD_HTTP_FORBIDDEN,
+                              "bound to loopback: Host must be an address or localhost\n",
+                              NULL);
+        /* A body would be read, and dropped, for as long as it is sent:
+         * refused, the connection closed. */
+        const char *length =
+            MHD_lookup_connection_value(connection, MHD_HEADER_KIND, "Content-Length");
+        if ((length && strcmp(length, "0") != 0) ||
+            MHD_lookup_connection_value(connection, MHD_HEADER_KIND, "Transfer-Encoding"))
+            return queue_text(connection, MHD_HTTP_CONTENT_TOO_LARGE,
+                              "a request body is not accepted\n", NULL);
         *con_cls = &request_accepted;
         return MHD_YES;
     }
@@ -235,7 +352,7 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *connection,
 static void on_timer(uv_timer_t *t)
 {
     struct http_server *srv = t->data;
-    MHD_run(srv->daemon);
+    run(srv);
     schedule(srv);
 }
 
@@ -246,8 +363,14 @@ static void schedule(struct http_server *srv)
 
     if (!srv->running)
         return;
+    /* Never 0: libuv before 1.45 runs a timer started at 0 from its own
+     * callback again in the same pass over the timers, without polling in
+     * between, and libmicrohttpd says 0 for as long as a connection has
+     * work left (pipelined requests, a long answer): HTTP clients kept the
+     * loop in that pass, and Modbus unanswered, for as long as they sent.
+     * 1 ms lets every other handle have its turn first. */
     if (MHD_get_timeout(srv->daemon, &ms) == MHD_YES)
-        uv_timer_start(&srv->timer, on_timer, ms, 0);
+        uv_timer_start(&srv->timer, on_timer, ms ? ms : 1, 0);
     else
         uv_timer_stop(&srv->timer);
     if (srv->conns && !uv_is_active((uv_handle_t *)&srv->sweep))
@@ -258,7 +381,7 @@ static void on_poll(uv_poll_t *p, int status, int events)
 {
     struct http_server *srv = p->data;
     (void)status, (void)events;
-    MHD_run(srv->daemon);
+    run(srv);
     schedule(srv);
 }
 
@@ -288,7 +411,7 @@ static void on_listener(uv_poll_t *p, int status, int events)
         /* Closes the descriptor itself when it cannot take it. */
         MHD_add_connection(srv->daemon, fd, (struct sockaddr *)&peer, len);
     }
-    MHD_run(srv->daemon);
+    run(srv);
     schedule(srv);
 }
 
@@ -384,7 +507,8 @@ int http_server_start(uv_loop_t *loop, struct http_server *srv, const char *bind
     srv->running = true;
     uv_poll_start(&srv->poll, UV_READABLE, on_poll);
     schedule(srv);
-    if (!is_loopback((struct sockaddr *)&addr))
+    srv->loopback = is_loopback((struct sockaddr *)&addr);
+    if (!srv->loopback)
         log_warn("http: listening on %s port %u, not only loopback: the status page and the "
                  "metrics are readable by anyone who can reach it (README, \"Metrics and "
                  "the status page\": an SSH tunnel or a reverse proxy with TLS)",
@@ -424,6 +548,7 @@ void http_server_close(struct http_server *srv, void (*cb)(struct http_server *s
         MHD_stop_daemon(srv->daemon); /* closes every connection now */
         srv->daemon = NULL;
     }
+    turn_clear(srv);
     uv_close((uv_handle_t *)&srv->timer, on_handle_closed);
     uv_close((uv_handle_t *)&srv->sweep, on_handle_closed);
     if (srv->listen_fd >= 0) {

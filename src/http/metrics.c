@@ -2,22 +2,38 @@
 /* metrics.c - the Prometheus text format (metrics.h). */
 #include "metrics.h"
 
+#include "log.h"
+
 #include <string.h>
 
 #define MS 1000.0
 
 void metrics_label_value(struct strbuf *out, const char *text)
 {
-    const char *run = text;
-    for (const char *p = text;; p++) {
-        const char *esc = *p == '\\' ? "\\\\" : *p == '"' ? "\\\"" : *p == '\n' ? "\\n" : NULL;
-        if (!esc && *p)
+    const unsigned char *p = (const unsigned char *)text;
+    size_t len = strlen(text), run = 0;
+    for (size_t i = 0; i <= len;) {
+        const char *esc = p[i] == '\\'  ? "\\\\"
+                          : p[i] == '"' ? "\\\""
+                          : p[i] == '\n' ? "\\n"
+                                         : NULL;
+        size_t n = 1;
+        /* Not UTF-8 (a PLC's JSON command name): U+FFFD for each byte, as
+         * Prometheus refuses the whole scrape otherwise. */
+        if (p[i] >= 0x80 && (n = utf8_sequence(p + i, len - i)) == 0) {
+            esc = "\xef\xbf\xbd";
+            n = 1;
+        }
+        if (!esc && p[i]) {
+            i += n;
             continue;
-        strbuf_append(out, run, (size_t)(p - run));
-        if (!*p)
+        }
+        strbuf_append(out, text + run, i - run);
+        if (!p[i])
             break;
-        strbuf_append(out, esc, 2);
-        run = p + 1;
+        strbuf_append(out, esc, strlen(esc));
+        i += n;
+        run = i;
     }
 }
 
@@ -88,11 +104,18 @@ static void modbus_metrics(const struct gateway *gw, struct strbuf *out)
     strbuf_printf(out, "jakagw_modbus_request_duration_seconds_sum %.9f\n", by->service_seconds);
     strbuf_printf(out, "jakagw_modbus_request_duration_seconds_count %llu\n",
                   (unsigned long long)cumulative);
-    head(out, "jakagw_modbus_clients", "gauge", "Modbus clients connected, by transport.");
-    strbuf_printf(out, "jakagw_modbus_clients{transport=\"modbus\"} %.15g\n",
-                  gw->gw_values[GW_modbus_clients] - gw->gw_values[GW_tls_clients]);
-    strbuf_printf(out, "jakagw_modbus_clients{transport=\"mbaps\"} %.15g\n",
+    /* Input register modbus_clients counts the RTU line while it is
+     * polled (rtu_line_state 2): the line is its own transport here, not
+     * a TCP client. */
+    double line = gw->gw_values[GW_rtu_line_state] == MB_RTU_POLLED ? 1 : 0;
+    head(out, "jakagw_modbus_clients", "gauge",
+         "Modbus clients connected, by transport (their sum is input register "
+         "modbus_clients).");
+    strbuf_printf(out, "jakagw_modbus_clients{transport=\"%s\"} %.15g\n", transports[0],
+                  gw->gw_values[GW_modbus_clients] - gw->gw_values[GW_tls_clients] - line);
+    strbuf_printf(out, "jakagw_modbus_clients{transport=\"%s\"} %.15g\n", transports[1],
                   gw->gw_values[GW_tls_clients]);
+    strbuf_printf(out, "jakagw_modbus_clients{transport=\"%s\"} %.15g\n", transports[2], line);
     plain(out, "jakagw_modbus_evictions_total", "counter",
           "Modbus connections closed to admit a new one at max_clients.",
           gw->gw_values[GW_modbus_evictions]);
@@ -122,7 +145,7 @@ static void command_metrics(const struct gateway *gw, struct strbuf *out)
         strbuf_printf(out, "\"} %llu\n", (unsigned long long)a->counters[i].n);
     }
     head(out, "jakagw_writes_refused_total", "counter",
-         "Modbus writes the gateway refused after judging them, by exception code.");
+         "Modbus writes the gateway refused (judged, or outside the map), by exception code.");
     for (unsigned code = 0; code < 16; code++)
         if (a->refused_writes[code] || code == 1)
             strbuf_printf(out, "jakagw_writes_refused_total{code=\"%s\"} %llu\n",

@@ -2,6 +2,7 @@
 /* status_json.c - the state as JSON (status_json.h). */
 #include "status_json.h"
 
+#include "log.h"
 #include "strbuf.h"
 
 #include <cJSON.h>
@@ -151,22 +152,49 @@ static void add_registers(cJSON *root, const struct gateway *gw)
     }
 }
 
-/* Writes the printed JSON with <, > and & as \u escapes (only in strings:
- * JSON has them nowhere else). */
+/*
+ * Writes the printed JSON with <, > and & as \u escapes (only in strings:
+ * JSON has them nowhere else), U+2028 and U+2029 as \u escapes too (line
+ * ends to older JavaScript), and every byte that is not part of
+ * well-formed UTF-8 as U+FFFD: outside text (a robot's errorMsg, a program
+ * name) is any bytes, and JSON is UTF-8 or a strict reader refuses all of it.
+ */
 static char *harden(const char *json, size_t *size)
 {
     struct strbuf b;
-    strbuf_init(&b, strlen(json) + 256);
-    const char *run = json;
-    for (const char *p = json;; p++) {
-        const char *esc = *p == '<' ? "\\u003c" : *p == '>' ? "\\u003e" : *p == '&' ? "\\u0026" : NULL;
-        if (!esc && *p)
+    size_t len = strlen(json);
+    strbuf_init(&b, len + 256);
+    const unsigned char *p = (const unsigned char *)json;
+    size_t run = 0;
+    for (size_t i = 0; i <= len;) {
+        const char *esc = NULL;
+        size_t n = 1;
+        if (p[i] == '<')
+            esc = "\\u003c";
+        else if (p[i] == '>')
+            esc = "\\u003e";
+        else if (p[i] == '&')
+            esc = "\\u0026";
+        else if (p[i] >= 0x80) {
+            n = utf8_sequence(p + i, len - i);
+            if (n == 0) {
+                esc = "\xef\xbf\xbd"; /* U+FFFD for this byte */
+                n = 1;
+            } else if (n == 3 && p[i] == 0xE2 && p[i + 1] == 0x80 &&
+                       (p[i + 2] == 0xA8 || p[i + 2] == 0xA9)) {
+                esc = p[i + 2] == 0xA8 ? "\\u2028" : "\\u2029";
+            }
+        }
+        if (!esc && p[i]) {
+            i += n;
             continue;
-        strbuf_append(&b, run, (size_t)(p - run));
-        if (!*p)
+        }
+        strbuf_append(&b, json + run, i - run);
+        if (!p[i])
             break;
-        strbuf_append(&b, esc, 6);
-        run = p + 1;
+        strbuf_append(&b, esc, strlen(esc));
+        i += n;
+        run = i;
     }
     strbuf_append(&b, "\n", 1);
     return strbuf_take(&b, size);

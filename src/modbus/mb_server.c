@@ -514,6 +514,15 @@ static void answer_request(struct mb_client *c, const uint8_t *req, size_t size)
     }
     if (ex) {
         log_refused(c, req, size, ex);
+        if (mb_request_is_write(pdu[0]) && srv->hooks.on_write_refused) {
+            struct mb_write w = {.client = c->host, .client_addr = c->addr,
+                                 .client_id = c->accept_seq, .rights = c->rights,
+                                 .transport = c->transport->name, .subject = c->subject,
+                                 .role = c->role};
+            if (mb_request_write_range(pdu, pdu_size, &w.table, &w.address, &w.count) != 0)
+                w.count = 0;
+            srv->hooks.on_write_refused(srv->hooks.user, &w, ex);
+        }
         reply_exception(c, req, ex);
         return;
     }

@@ -26,7 +26,8 @@ import time
 import contextlib
 
 from harness import (JAKAGW, Gateway, ModbusPlc, Sim, TestFailure, check, free_port,
-                     log_lines, map_rows, port_open, run, wait_until)
+                     log_lines, map_rows, port_open, raw_client, read_input_registers, run,
+                     wait_until)
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 ALERTS = os.path.join(ROOT, "docs", "jakagw-alerts.yml")
@@ -256,8 +257,11 @@ def test_status_json_clients_policy_and_counters():
 
 
 def test_markup_from_the_robot_stays_text_in_json_and_audit():
-    message = '<img src=x onerror="alert(1)"><script>alert(2)</script>&amp;'
-    port, ctx = gateway_with_http(["--fail-command", "power_on", "--fail-message", message])
+    message = '<img src=x onerror="alert(1)"><script>alert(2)</script>&amp;\u2028'
+    # Bytes that are no UTF-8 after it: /status.json stays UTF-8 (U+FFFD).
+    raw = message.encode() + b"\xff\xc3"
+    port, ctx = gateway_with_http(["--fail-command", "power_on", "--fail-message",
+                                   raw.decode("utf-8", "surrogateescape")])
     with ctx as (sim, gw):
         web = Http(port)
         plc = ModbusPlc(gw.modbus_port)
@@ -266,10 +270,14 @@ def test_markup_from_the_robot_stays_text_in_json_and_audit():
         wait_until(lambda: any(c["command"] == "power_on" for c in web.status()["commands"]), 10,
                    "power_on in the last commands")
         status, headers, body = web.get("/status.json")
-        check(b"<" not in body and b">" not in body and b"&" not in body,
-              "raw markup in /status.json")
-        rec = [c for c in json.loads(body)["commands"] if c["command"] == "power_on"][0]
-        check(rec["error_msg"] == message and rec["result"] == "robot error" and
+        check(b"<" not in body and b">" not in body and b"&" not in body and
+              b"\xe2\x80\xa8" not in body, "raw markup or U+2028 in /status.json")
+        try:
+            doc = json.loads(body.decode("utf-8"))
+        except ValueError as e:
+            raise TestFailure("/status.json is not UTF-8 JSON: %s" % e)
+        rec = [c for c in doc["commands"] if c["command"] == "power_on"][0]
+        check(rec["error_msg"] == message + "\ufffd\ufffd" and rec["result"] == "robot error" and
               rec["error_code"] == 2 and rec["client"] == "127.0.0.1" and
               rec["transport"] == "modbus", "record %r" % rec)
         samples = parse_metrics(web.metrics())
@@ -321,6 +329,30 @@ def test_audit_records_commands_refusals_and_aggregates_outputs():
           % (power[0]["result"], refused[0]["what"], len(outputs)))
 
 
+def test_writes_refused_by_the_map_are_audited():
+    """A write the map refuses before it is judged (an address outside the
+    map: 02) is a refused write like any other: recorded once, with who."""
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        web = Http(port)
+        plc = ModbusPlc(gw.modbus_port)
+        rr = plc.client.write_coil(65000, True, slave=1)
+        check(rr.isError() and rr.exception_code == 2, "coil 65000: %s" % rr)
+        check(plc.ir(0)[0] == 0x4A4B, "still answering")
+        wait_until(lambda: any(c["command"] == "write" for c in web.status()["commands"]), 10,
+                   "the refusal in the last commands")
+        rec = [c for c in web.status()["commands"] if c["command"] == "write"]
+        check(len(rec) == 1 and rec[0]["what"] == "coil 65000" and rec[0]["error_code"] == 2 and
+              rec[0]["client"] == "127.0.0.1" and rec[0]["transport"] == "modbus",
+              "record %r" % rec)
+        samples = parse_metrics(web.metrics())
+        check(metric(samples, "jakagw_writes_refused_total", code="02") == 1, "counted as 02")
+        plc.close()
+    lines = [a for a in audit_lines(gw) if a["command"] == "write"]
+    check(len(lines) == 1 and lines[0]["what"] == "coil 65000" and lines[0]["error_code"] == "2",
+          "audit lines %r" % lines)
+
+
 def test_mbaps_clients_are_audited_with_certificate_and_role():
     """On Modbus/TCP Security, who is the certificate: its subject and role
     are in the audit records, /status.json and the transport's metrics."""
@@ -359,6 +391,67 @@ def test_mbaps_clients_are_audited_with_certificate_and_role():
         check(len(lines) == 1 and 'role="monitor"' in lines[0] and "transport=mbaps" in lines[0],
               "the refusal's line: %r" % lines)
         print("  %s" % lines[0])
+
+
+def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
+    """The RTU line is a client of its own transport: jakagw_modbus_clients
+    {transport="rtu"} (beside the TCP client, not counted as one), its
+    requests under transport="rtu", its entry in /status.json's clients and
+    its commands in the audit trail, named by its device (a path with
+    markup in it, kept as text)."""
+    import test_rtu as rtu
+    line = rtu.SerialPair()
+    # The device's path is outside text too: markup in a directory name.
+    hostile = os.path.join(line.dir, "<b>&x")
+    os.mkdir(hostile)
+    device = os.path.join(hostile, "tty")
+    os.symlink(line.device, device)
+    port = free_port()
+    try:
+        with running(["--log-commands"], http_config(port) + rtu.rtu_config(
+                device, rights="power")) as (sim, gw):
+            web = Http(port)
+            wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
+            plc = ModbusPlc(gw.modbus_port)
+            m = rtu.RawMaster(line.master)
+            try:
+                check(m.read_ir(rtu.IR_MAGIC) == [rtu.MAGIC], "the line answers")
+                req = rtu.write_coil_pdu(COIL["cmd_power_on"], 1)
+                check(m.request(rtu.UNIT, req) == rtu.frame(rtu.UNIT, req),
+                      "power_on over the line")
+                clients = plc.ir(IR["modbus_clients"])[0]
+                samples = parse_metrics(web.metrics())
+                by = {t: metric(samples, "jakagw_modbus_clients", transport=t)
+                      for t in ("modbus", "mbaps", "rtu")}
+                check(clients == 2 and by == {"modbus": 1, "mbaps": 0, "rtu": 1},
+                      "clients: register %d, metrics %r" % (clients, by))
+                check(metric(samples, "jakagw_modbus_requests_total", transport="rtu",
+                             function="4") == 1 and
+                      metric(samples, "jakagw_modbus_requests_total", transport="rtu",
+                             function="5") == 1, "the line's requests by transport")
+                wait_until(lambda: any(c["command"] == "power_on"
+                                       for c in web.status()["commands"]), 10, "power_on recorded")
+                status, headers, body = web.get("/status.json")
+                check(b"<b>" not in body and b"&x" not in body, "the device's markup raw in JSON")
+                doc = json.loads(body)
+                line_clients = [c for c in doc["clients"] if c["transport"] == "rtu"]
+                check(len(line_clients) == 1 and
+                      device in line_clients[0]["peer"] + line_clients[0]["address"],
+                      "the line in /status.json: %r" % doc["clients"])
+                rec = [c for c in doc["commands"] if c["command"] == "power_on"][0]
+                check(rec["transport"] == "rtu" and device in rec["client"], "record %r" % rec)
+            finally:
+                m.close()
+                plc.close()
+        audit = [a for a in audit_lines(gw) if a["command"] == "power_on"]
+        check(len(audit) == 1 and audit[0]["transport"] == "rtu" and device in audit[0]["client"],
+              "power_on's audit line: %r" % audit)
+        print("  clients by transport %r; audit: transport=rtu client=%s"
+              % (by, audit[0]["client"]))
+    finally:
+        os.unlink(device)
+        os.rmdir(hostile)
+        line.close()
 
 
 def journal_fields(datagram):
@@ -544,12 +637,12 @@ def abuse(port, gw):
               "%s: %d %s" % (method, status, headers.get("Allow")))
     # A 64 KiB header, and a 9000-byte one (past 8 KiB, within the pool).
     for size in (65536, 9000):
-        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: x\r\nX-Big: " +
+        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " +
                            b"a" * size + b"\r\n\r\n")
         check(out.startswith(b"HTTP/1.1 431 "), "%d-byte header: %r" % (size, out[:60]))
     # 100 requests pipelined in one write: 100 answers in order.
-    out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: x\r\n\r\n" * 99 +
-                       b"GET /status.json HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+    out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n" * 99 +
+                       b"GET /status.json HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
     check(out.count(b"HTTP/1.1 200 OK") == 100 and b'"links"' in out[-20000:],
           "pipelined: %d answers" % out.count(b"HTTP/1.1 200 OK"))
     # 500 idle connections: the limit's worth held, the rest closed at once.
@@ -585,6 +678,97 @@ def abuse(port, gw):
             "%d held, %d descriptors; slowloris closed after %.1f s" % (held, fds, closed))
 
 
+def test_request_bodies_are_refused_not_read():
+    """A GET or HEAD carries no body here: one announced (Content-Length or
+    chunked) is answered 413 and the connection closed, instead of the
+    body being read and dropped for as long as the client sends it (3.5 GB
+    in 5 s on one connection, the loop's time taken from Modbus)."""
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        report = []
+        for method, framing in ((b"GET", b"Content-Length: 100000000000"),
+                                (b"HEAD", b"Transfer-Encoding: chunked")):
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+            s.sendall(method + b" /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n" + framing + b"\r\n\r\n")
+            sent, start = 0, time.monotonic()
+            try:
+                while time.monotonic() - start < 5:
+                    sent += s.send(b"ffff\r\n" + b"a" * 65529)
+            except OSError:
+                pass
+            took = time.monotonic() - start
+            s.close()
+            check(sent < 64 << 20 and took < 5,
+                  "%s with a body: %d MB taken in %.1f s" % (method.decode(), sent >> 20, took))
+            report.append("%s: %.1f MB, closed after %.2f s" % (method.decode(), sent / 1e6, took))
+        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                           b"Content-Length: 5\r\n\r\nhello")
+        check(out.startswith(b"HTTP/1.1 413 "), "a GET with a body: %r" % out[:60])
+        out = raw_exchange(port, b"GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                           b"Content-Length: 0\r\nConnection: close\r\n\r\n")
+        check(out.startswith(b"HTTP/1.1 200 "), "Content-Length: 0 is no body: %r" % out[:60])
+        check(Http(port).get("/metrics")[0] == 200, "served after")
+        print("  " + "; ".join(report))
+
+
+# Thirty keep-alive connections, each pipelining 8 requests at a time for
+# a while (its own process: the test's Modbus reader keeps its interpreter).
+HAMMER = r"""
+import socket, sys, threading, time
+port, path, seconds = int(sys.argv[1]), sys.argv[2].encode(), float(sys.argv[3])
+end, answers = time.monotonic() + seconds, [0]
+def hammer():
+    s = socket.create_connection(("127.0.0.1", port), timeout=20)
+    while time.monotonic() < end:
+        s.sendall((b"GET " + path + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n") * 8)
+        n = 0
+        while n < 8:
+            d = s.recv(1 << 20)
+            if not d:
+                return
+            n += d.count(b"HTTP/1.1 200")
+        answers[0] += 8
+threads = [threading.Thread(target=hammer) for _ in range(30)]
+[t.start() for t in threads]
+[t.join() for t in threads]
+print(answers[0])
+"""
+
+
+def test_busy_http_clients_leave_modbus_answering():
+    """HTTP clients that always have a request waiting (pipelined, on 30
+    connections, for the largest answer) keep the loop busy but must not
+    keep it: a Modbus read meanwhile is answered within a fraction of a
+    second. (libmicrohttpd's timeout is 0 while it has work left; a 0 ms
+    timer restarted in its own callback ran again before any I/O, and a
+    Modbus read waited until the HTTP clients stopped: 4.98 s of 5.)"""
+    port, ctx = gateway_with_http()
+    with ctx as (sim, gw):
+        mb = raw_client(gw.modbus_port, timeout=20)
+        hammer = subprocess.Popen([sys.executable, "-c", HAMMER, str(port),
+                                   "/status.json?registers=1", "4"],
+                                  stdout=subprocess.PIPE, text=True)
+        waits = []
+        try:
+            time.sleep(0.3)
+            tid = 0
+            while hammer.poll() is None:
+                tid += 1
+                start = time.monotonic()
+                check(read_input_registers(mb, 0, 20, tid & 0xFFFF)[0] == 0x4A4B, "map magic")
+                waits.append(time.monotonic() - start)
+                time.sleep(0.02)
+        finally:
+            answers = hammer.communicate(timeout=30)[0].strip()
+            mb.close()
+        waits.sort()
+        check(len(waits) >= 20 and waits[-1] < 1.0,
+              "%d Modbus reads while HTTP was busy, the worst waited %.3f s"
+              % (len(waits), waits[-1] if waits else 0))
+        print("  %s HTTP answers in 4 s; Modbus meanwhile: %d reads, p50 %.1f ms, worst %.1f ms"
+              % (answers, len(waits), waits[len(waits) // 2] * 1000, waits[-1] * 1000))
+
+
 def test_non_loopback_bind_logs_one_warning():
     port = free_port()
     with running([], http_config(port, "bind = 0.0.0.0\n")) as (sim, gw):
@@ -594,6 +778,31 @@ def test_non_loopback_bind_logs_one_warning():
     with running([], http_config(port)) as (sim, gw):
         wait_until(lambda: Http(port).get("/")[0] == 200, 10, "the page")
         check(not log_lines(gw, "not only loopback"), "a warning for loopback")
+
+
+def test_loopback_server_answers_only_its_own_host_names():
+    """Bound to loopback, the server answers a Host that is an address or
+    localhost (a browser on the gateway's host, an SSH tunnel, the README's
+    reverse proxy) and refuses any other name with 403: a web page on that
+    browser cannot rebind its own name to 127.0.0.1 and read /status.json.
+    Bound elsewhere, names are the operator's choice and not checked."""
+    def status_for(port, host):
+        head = b"GET /status.json HTTP/1.1\r\n" + (b"Host: " + host + b"\r\n" if host else b"")
+        out = raw_exchange(port, head + b"Connection: close\r\n\r\n")
+        return int(out.split(b" ", 2)[1]) if out.startswith(b"HTTP/1.1 ") else out[:40]
+    port = free_port()
+    p = str(port).encode()
+    with running([], http_config(port)) as (sim, gw):
+        wait_http(port, gw)
+        for host in (b"127.0.0.1:" + p, b"localhost:" + p, b"LOCALHOST", b"[::1]:" + p,
+                     b"192.0.2.7", None):
+            check(status_for(port, host) == 200, "Host %r: %r" % (host, status_for(port, host)))
+        for host in (b"attacker.example:" + p, b"attacker.example", b"127.0.0.1.nip.io:" + p,
+                     b"localhost.attacker.example", b"[::1]x", b"127.0.0.1:80:80"):
+            check(status_for(port, host) == 403, "Host %r: %r" % (host, status_for(port, host)))
+    with running([], http_config(port, "bind = 0.0.0.0\n")) as (sim, gw):
+        wait_http(port, gw)
+        check(status_for(port, b"gateway.plant.example:" + p) == 200, "a name, bound elsewhere")
 
 
 def test_disabled_by_default():
@@ -730,10 +939,15 @@ TESTS = [
     test_markup_from_the_robot_stays_text_in_json_and_audit,
     test_audit_records_commands_refusals_and_aggregates_outputs,
     test_audit_goes_to_the_journal_as_fields,
+    test_writes_refused_by_the_map_are_audited,
     test_mbaps_clients_are_audited_with_certificate_and_role,
+    test_rtu_line_is_transport_rtu_in_metrics_status_and_audit,
     test_abuse_leaves_modbus_answering,
+    test_request_bodies_are_refused_not_read,
+    test_busy_http_clients_leave_modbus_answering,
     test_non_loopback_bind_logs_one_warning,
     test_disabled_by_default,
+    test_loopback_server_answers_only_its_own_host_names,
     test_alert_rules_check_and_unit_tests,
     test_page_shows_links_commands_and_robot_markup_as_text,
     test_page_says_when_the_gateway_stops_answering,
