@@ -275,7 +275,7 @@ valgrind: all unit-tests
 FUZZ_SECONDS ?= 60
 # make test under CI=true: each target from its seeds for this long (the
 # whole CI run has 20 minutes; make fuzz is for longer runs).
-CI_FUZZ_SECONDS ?= 20
+CI_FUZZ_SECONDS ?= 15
 FUZZ_BUILD ?= build-fuzz
 FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox fuzz_rtu
 FUZZ_SRCS := src/robot/framer.c src/robot/status.c src/core/json_arena.c src/modbus/regmap.c src/modbus/regmap_table.c src/modbus/mb_request.c src/core/log.c \

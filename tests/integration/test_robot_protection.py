@@ -26,6 +26,7 @@ import signal
 import socket
 import struct
 import subprocess
+import sys
 import time
 
 from harness import (JAKAGW, Gateway, ModbusPlc, Sim, check, log_lines, map_rows, run,
@@ -491,6 +492,9 @@ def test_silent_gateway_pauses_the_program():
 
 
 if __name__ == "__main__":
-    run([test_program_kept_paused_stopped_on_each_loss, test_handler_belongs_to_its_connection,
-         test_waiting_for_a_reply_is_not_silence, test_move_paused_and_resumed_or_stopped,
-         test_silent_gateway_pauses_the_program])
+    tests = [test_program_kept_paused_stopped_on_each_loss, test_handler_belongs_to_its_connection,
+             test_waiting_for_a_reply_is_not_silence, test_move_paused_and_resumed_or_stopped,
+             test_silent_gateway_pauses_the_program]
+    if sys.argv[1:]:
+        tests = [t for t in tests if t.__name__ in sys.argv[1:]]  # named tests only
+    run(tests)
