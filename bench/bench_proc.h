@@ -334,4 +334,17 @@ static inline void on_fatal_signal(int sig)
     _exit(1);
 }
 
+/* Makes the benchmark's directory for logs and files (/tmp/NAME.XXXXXX)
+ * and sees that SIGINT and SIGTERM stop its children; SIGPIPE ignored. */
+static inline void bench_begin(const char *name)
+{
+    bench_name = name;
+    signal(SIGPIPE, SIG_IGN);
+    signal(SIGINT, on_fatal_signal);
+    signal(SIGTERM, on_fatal_signal);
+    snprintf(bench_tmp_dir, sizeof(bench_tmp_dir), "/tmp/%s.XXXXXX", name);
+    if (!mkdtemp(bench_tmp_dir))
+        die("mkdtemp: %s", strerror(errno));
+}
+
 #endif

@@ -408,12 +408,7 @@ int main(int argc, char **argv)
     }
     if (rounds < 1 || rounds > 32)
         rounds = 3;
-    snprintf(bench_tmp_dir, sizeof(bench_tmp_dir), "/tmp/bench_rtu.XXXXXX");
-    if (!mkdtemp(bench_tmp_dir))
-        die("mkdtemp: %s", strerror(errno));
-    signal(SIGINT, on_fatal_signal);
-    signal(SIGTERM, on_fatal_signal);
-    signal(SIGPIPE, SIG_IGN);
+    bench_begin("bench_rtu");
 
     printf("== Modbus RTU: jakagw against a bare libmodbus RTU slave, socat ptys\n");
     start(&s);

@@ -335,12 +335,7 @@ int main(int argc, char **argv)
     }
     if (rounds < 1 || rounds > 32)
         rounds = 7;
-    snprintf(bench_tmp_dir, sizeof(bench_tmp_dir), "/tmp/bench_tls.XXXXXX");
-    if (!mkdtemp(bench_tmp_dir))
-        die("mkdtemp: %s", strerror(errno));
-    signal(SIGINT, on_fatal_signal);
-    signal(SIGTERM, on_fatal_signal);
-    signal(SIGPIPE, SIG_IGN);
+    bench_begin("bench_tls");
 
     printf("== Modbus/TCP Security against plain Modbus TCP, one jakagw, jakasim at 125 Hz\n");
     make_pki(&s);

@@ -177,4 +177,7 @@ void mb_rtu_clear_stats(struct mb_rtu *rtu);
 /* Closes the port and its handles; 'cb' runs when all are closed. */
 void mb_rtu_close(struct mb_rtu *rtu, void (*cb)(struct mb_rtu *rtu));
 
+/* The line as a transport of the one Modbus server (mb_server.h). */
+extern const struct mb_transport mb_transport_rtu;
+
 #endif

@@ -136,9 +136,9 @@ struct mb_server_hooks {
 };
 
 /*
- * The requests and exceptions above, broken down: by transport (0 plain
- * Modbus TCP, 1 the listener of mb_server_listen, 2 the clients of
- * mb_server_attach, such as the RTU line), function code and
+ * The requests and exceptions above, broken down: by transport (its
+ * stats_slot: 0 plain Modbus TCP, 1 Modbus/TCP Security, 2 the RTU line),
+ * function code and
  * exception code. Their sums are the totals; they are cleared with them.
  * The service time of each request counted (from its last byte to its
  * reply queued) goes into a histogram with the upper bounds below.
@@ -176,7 +176,9 @@ struct mb_client;
  * words, a TLS close_notify).
  */
 struct mb_transport {
-    const char *name; /* "modbus", "mbaps": for logs */
+    const char *name; /* "modbus", "mbaps", "rtu": for logs and metrics */
+    /* Its row in mb_server_breakdown (< MB_STATS_TRANSPORTS). */
+    unsigned stats_slot;
     /*
      * A connection was accepted. Returns 0 to have it served at once,
      * MB_TRANSPORT_PENDING to hold it until the transport calls

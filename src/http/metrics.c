@@ -59,12 +59,11 @@ static void modbus_metrics(const struct gateway *gw, struct strbuf *out)
 {
     const struct mb_server_stats *st = &gw->modbus.stats;
     const struct mb_server_breakdown *by = &st->by;
-    /* Index 1 is the second listener's transport (mb_server_listen), 2
-     * the clients without a socket (mb_server_attach): the RTU line. */
-    const struct mb_transport *extra = gw->modbus.listeners[MB_LISTENER_EXTRA].transport;
-    const char *const transports[MB_STATS_TRANSPORTS] = {mb_transport_plain.name,
-                                                         extra ? extra->name : "mbaps",
-                                                         "rtu"};
+    /* Each transport's row is its stats_slot. */
+    const char *transports[MB_STATS_TRANSPORTS];
+    transports[mb_transport_plain.stats_slot] = mb_transport_plain.name;
+    transports[mb_transport_tls.stats_slot] = mb_transport_tls.name;
+    transports[mb_transport_rtu.stats_slot] = mb_transport_rtu.name;
 
     head(out, "jakagw_modbus_requests_total", "counter",
          "Modbus requests answered, by transport and function code (their sum is input "

@@ -317,8 +317,9 @@ static void rtu_closed(void *state, struct mb_client *c, bool was_pending)
         rtu->client = NULL;
 }
 
-static const struct mb_transport rtu_transport = {
+const struct mb_transport mb_transport_rtu = {
     .name = "rtu",
+    .stats_slot = 2,
     .output = rtu_output,
     .closed = rtu_closed,
 };
@@ -365,7 +366,7 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
     if (rtu->fd < 0)
         return; /* the line failed while this chunk was being cut */
     if (!rtu->client) {
-        int rc = mb_server_attach(rtu->srv, rtu->peer, &rtu_transport, rtu, rtu->cfg.rights,
+        int rc = mb_server_attach(rtu->srv, rtu->peer, &mb_transport_rtu, rtu, rtu->cfg.rights,
                                   rtu->cfg.active_ms, &rtu->client);
         if (rc < 0) {
             if (rc != -ESHUTDOWN &&

@@ -75,9 +75,7 @@ const double mb_stats_service_bounds_s[MB_STATS_SERVICE_BUCKETS] = {
 /* The breakdown's transport index of a connection. */
 static unsigned transport_index(const struct mb_client *c)
 {
-    if (c->no_socket)
-        return 2;
-    return c->transport == &mb_transport_plain ? 0 : 1;
+    return c->transport->stats_slot < MB_STATS_TRANSPORTS ? c->transport->stats_slot : 0;
 }
 
 static void count_exception(struct mb_client *c, int code)
@@ -1284,6 +1282,7 @@ static void plain_output(void *state, struct mb_client *c, const uint8_t *data, 
 
 const struct mb_transport mb_transport_plain = {
     .name = "modbus",
+    .stats_slot = 0,
     .open = plain_open,
     .alloc = plain_alloc,
     .input = plain_input,

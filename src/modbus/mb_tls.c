@@ -490,6 +490,7 @@ static void tls_free(void *state, struct mb_client *c)
 
 const struct mb_transport mb_transport_tls = {
     .name = "mbaps",
+    .stats_slot = 1,
     .open = tls_open,
     .alloc = tls_alloc,
     .input = tls_input,
