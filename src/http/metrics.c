@@ -60,7 +60,7 @@ static void modbus_metrics(const struct gateway *gw, struct strbuf *out)
     const struct mb_server_stats *st = &gw->modbus.stats;
     const struct mb_server_breakdown *by = &st->by;
     /* Each transport's row is its stats_slot. */
-    const char *transports[MB_STATS_TRANSPORTS];
+    const char *transports[MB_STATS_TRANSPORTS] = {0};
     transports[mb_transport_plain.stats_slot] = mb_transport_plain.name;
     transports[mb_transport_tls.stats_slot] = mb_transport_tls.name;
     transports[mb_transport_rtu.stats_slot] = mb_transport_rtu.name;
