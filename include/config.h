@@ -102,6 +102,7 @@ struct gw_config {
     uint32_t rtu_stop_bits; /* 1 or 2 */
     uint32_t rtu_unit_id;   /* 1..247 */
     bool rtu_rs485;         /* TIOCSRS485 */
+    bool rtu_local_echo;    /* the adapter gives back what it sends */
     char rtu_rights[160];   /* as written */
     uint32_t rtu_rights_mask;
     /* [http]: metrics, status page */

@@ -12,31 +12,39 @@
  * server as requests and sends the replies back with their CRC.
  *
  * Timing. The serial fd is watched by a uv_poll; each read is stamped with
- * CLOCK_MONOTONIC. The end of a frame (3.5 character times of silence,
- * 1.75 ms above 19200 baud) is finer than libuv's millisecond timers, so a
- * timerfd under a second uv_poll fires at the last byte's time plus t3.5;
- * the loop never blocks. The times are those of the reads, not of the
- * bytes on the wire: a UART hands over its FIFO every 8 characters (the
- * rest 4 characters after the last), a USB adapter its packets, and a
- * host may be late to read. So a read marks a gap (a frame with a gap
- * inside it is discarded) only when it comes more than t1.5 after the
- * previous one once its own bytes' wire time and the port's delivery (4
- * characters and 1 ms) are taken off; a silence of t3.5 after a frame
- * begun but not whole by its length (rtu_missing_bytes) waits as long
- * again as its missing bytes and the delivery take; and frames are also
- * cut by their length and CRC (rtu_split), so a late reader keeps its
- * sync.
+ * the clock (CLOCK_MONOTONIC; a seam, 'now_ns', for tests) and handed to
+ * the line's conversation model (struct rtu_line, rtu_frame.h), which
+ * says which frames are requests for this unit, and when. The end of a
+ * frame (3.5 character times of silence, 1.75 ms above 19200 baud) is
+ * finer than libuv's millisecond timers, so a timerfd under a second
+ * uv_poll fires at the line's next deadline: the silence after the last
+ * byte, or the time our next reply may start; the loop never blocks. The
+ * times are those of the reads, not of the bytes on the wire: a UART
+ * hands over its FIFO every 8 characters, a USB adapter its packets, and
+ * a host may be late to read; the model allows for the port's delivery.
  *
- * What is answered: a frame with a good CRC addressed to unit_id. A frame
- * for another unit is counted and skipped; a broadcast (unit 0) is counted
- * and never acted on, because no reply could tell the master whether a
- * command was carried out. An RS-485 adapter that hears its own
- * transmitter gives each reply back: the frame equal to the last reply,
- * arriving within its wire time and 100 ms, is skipped, not taken for a
- * request (which would be answered, and heard again); but where the line
- * has shown that it does not echo, the same write (05, 06) repeated by a
- * master within that time, equal to its reply, is served. For
- * [network_exception] watch = connection, the line counts as a connected
+ * What is answered: a request for unit_id that the conversation makes
+ * certain (rtu_frame.h): a whole frame between two silences, or one whose
+ * boundaries the exchange before it in the same chunk gives. A frame for
+ * another unit is counted and skipped, and so is its response, by the
+ * length its request gives: a frame hidden in its data is never seen. A
+ * broadcast (unit 0) is counted and never acted on, because no reply
+ * could tell the master whether a command was carried out.
+ *
+ * Echo. An adapter that hears its own transmitter gives each reply back:
+ * [rtu] local_echo = true takes those bytes off the input (up to 100 ms
+ * after their wire time; a difference is a collision, counted and logged
+ * once). With either setting, no frame whose bytes began to arrive before
+ * our reply's wire time plus t3.5 is executed; with local_echo = false
+ * such a frame equal to our reply is counted as an echo and logged once
+ * with the hint to set local_echo = true. Nothing is learnt: a master
+ * that repeats a write is answered and acted on every time, as over TCP.
+ * Two frames we send are at least t3.5 apart, however the port's
+ * writability goes (replies wait in a small queue).
+ *
+ * Limits. The line is a client of the server with no socket: it never
+ * takes one of [modbus] max_clients' slots and never causes an eviction.
+ * For [network_exception] watch = connection, it counts as a connected
  * client while a valid request addressed to this unit arrived within
  * 'active_ms'.
  *
@@ -72,6 +80,7 @@ struct mb_rtu_config {
     unsigned stop_bits; /* 1 or 2 */
     unsigned unit_id;   /* 1..247 */
     bool rs485;         /* TIOCSRS485: the kernel drives RTS while sending */
+    bool local_echo;    /* the adapter gives back what it sends */
     uint32_t rights;    /* what the line may write (regmap_parse_rights) */
     uint32_t active_ms; /* counted as a client this long after a request */
 };
@@ -85,13 +94,15 @@ enum mb_rtu_state {
 };
 
 struct mb_rtu_stats {
-    uint64_t frames;         /* frames with a good CRC, every unit */
-    uint64_t crc_errors;     /* runs of bytes that were no frame */
-    uint64_t foreign_frames; /* good frames for another unit, skipped */
+    uint64_t frames;         /* frames the conversation explained, every unit */
+    uint64_t crc_errors;     /* chunks (or their rest) that were not what was expected */
+    uint64_t foreign_frames; /* requests and responses of other units, skipped */
     uint64_t broadcasts;     /* good frames for unit 0, not acted on */
-    uint64_t overruns;       /* chunks longer than the receive buffer */
-    uint64_t gap_discards;   /* good frames with a silence inside them */
+    uint64_t overruns;       /* chunks longer than the receive buffer, replies not taken */
+    uint64_t gap_discards;   /* good frames with a pause inside them */
     uint64_t echoes;         /* our own replies read back, skipped */
+    uint64_t collisions;     /* local_echo: a reply came back different */
+    uint64_t out_of_turn;    /* frames begun before our reply's end + t3.5 */
     uint64_t replies;
     uint32_t turnaround_us;     /* the last reply: request's last byte to write */
     uint32_t turnaround_max_us;
@@ -101,10 +112,8 @@ struct mb_rtu_stats {
  * character receive timeout: the interrupt, the driver, a USB frame. */
 #define MB_RTU_DELIVERY_NS 1000000ull
 
-/* Bytes kept between two silences: several frames glued together. */
-#define MB_RTU_RX_SIZE 1024
-#define MB_RTU_MAX_GAPS 64
-#define MB_RTU_TX_SIZE 1024
+/* Replies waiting for the port or for their t3.5 (normally none). */
+#define MB_RTU_TX_FRAMES 4
 
 struct mb_rtu {
     uv_loop_t *loop;
@@ -112,46 +121,26 @@ struct mb_rtu {
     struct mb_rtu_config cfg;
     char device[256];
     char peer[48];
-    uint32_t t15_ns, t35_ns;
     int fd;                  /* the serial port, -1: not open */
     uv_poll_t serial;        /* watches fd */
     bool serial_handle;      /* 'serial' initialised and not yet closed */
     bool serial_closing;     /* its close callback is due */
-    int timer_fd;            /* the silence timer (timerfd) */
+    int timer_fd;            /* the line's next deadline (timerfd) */
     uv_poll_t silence;
     uv_timer_t retry;        /* reopens a failed device every second */
     int retry_error;         /* what the last reopen returned */
     struct mb_client *client; /* the server's client for this line, or NULL */
-    /* The chunk being received: bytes since the last silence of t3.5. */
-    uint8_t rx[MB_RTU_RX_SIZE];
-    size_t rx_used;
-    bool rx_overrun;
-    uint16_t gaps[MB_RTU_MAX_GAPS]; /* offsets of bytes after a gap > t1.5 */
-    size_t gap_count;
-    uint64_t last_rx_ns;     /* when the last bytes were read */
-    uint64_t request_end_ns; /* the frame being answered: its last read */
-    /* The last reply, as an adapter that hears its own transmitter gives
-     * it back: skipped when it comes back whole before echo_until_ns. */
-    uint8_t echo[RTU_MAX_ADU];
-    size_t echo_size;
-    uint64_t echo_until_ns;
-    /* Does the adapter give replies back? An echo is the next frame after
-     * a reply, before any master's; a reply unlike its request (a read, an
-     * exception) heard back says yes, three replies in a row followed by
-     * another frame say no. A write's reply (05, 06) equals its request,
-     * so a master repeating that write is told from the echo only on a
-     * line known not to echo. */
-    enum { MB_RTU_ECHO_UNKNOWN, MB_RTU_ECHO_YES, MB_RTU_ECHO_NO } line_echo;
-    unsigned no_echo_proofs;   /* replies not given back, in a row */
-    bool echo_probe;           /* the next frame tells whether the line echoes */
-    bool echo_is_request;      /* the last reply equals its request */
-    const uint8_t *request;    /* the frame being answered (in rx) */
-    size_t request_size;
+    struct rtu_line line;    /* the conversation (rtu_frame.h) */
+    uint64_t (*now_ns)(void); /* the clock: CLOCK_MONOTONIC, a seam for tests */
+    uint64_t request_end_ns; /* the request being answered: its last read */
     uint32_t char_ns;        /* one character on the wire */
-    uint64_t delivery_ns;    /* how late the port may hand bytes over */
-    uint8_t tx[MB_RTU_TX_SIZE]; /* what the port did not take at once */
-    size_t tx_used;
-    bool tx_waiting;         /* polling for writable: tx_used was > 0 */
+    struct mb_rtu_tx_frame {
+        uint8_t data[RTU_MAX_ADU];
+        size_t size, sent;
+    } tx[MB_RTU_TX_FRAMES];  /* tx[0] goes first */
+    size_t tx_count;
+    bool tx_waiting;         /* polling for writable */
+    bool echo_logged, collision_logged, no_echo_logged; /* each said once */
     uint16_t transaction;
     struct mb_rtu_stats stats;
     struct log_ratelimit log_limit;

@@ -237,6 +237,7 @@ struct mb_server {
     /* Doubly linked, newest first: the clients still open or flushing. */
     struct mb_client *clients;
     uint64_t sequence; /* orders accepts and requests, for eviction */
+    unsigned line_clients; /* clients with no socket (RTU): outside max_clients */
     struct mb_server_stats stats;
     char device_info[64];
     /* Lines a client can trigger, at most one per second per kind. */

@@ -1,19 +1,76 @@
 /* SPDX-License-Identifier: MIT */
 /*
  * rtu_frame.h - Modbus RTU framing by the serial line specification
- * (Modbus over Serial Line V1.02, 2.5): the CRC-16, the character times
- * and the split of a run of received bytes into frames.
+ * (Modbus over Serial Line V1.02): the CRC-16, the character times, and
+ * the line as a conversation (struct rtu_line), which decides which frames
+ * on the bus are requests this unit executes. No I/O and no clock of its
+ * own: the caller hands in the bytes it read with the time it read them,
+ * says when it sends, and asks when a silence is due (mb_rtu.h does it on
+ * a real port, tests/test_rtu_frame.c with a fake clock).
  *
- * What arrives between two silences of 3.5 character times is a "chunk".
- * A chunk normally holds one frame, but a reader that is late (a loaded
- * host, a pty that delivers two writes at once) may find two frames in
- * one chunk, or a foreign unit's frame glued to ours. rtu_split() cuts a
- * chunk into frames by their length, as the function code gives it for a
- * request or a response, checked by the CRC; where no frame starts, it
- * resynchronises at the next place where the line was silent for more
- * than 1.5 character times. A frame with such a gap inside it is
- * discarded, as the specification says. Nothing here allocates or keeps
- * state: the caller owns the bytes and the gap positions.
+ * THE MODEL. A bus is a conversation: a master's request, then at most one
+ * response from the unit it addressed, each frame framed by silences of at
+ * least 3.5 character times (t3.5). What arrives between two such
+ * silences is a "chunk"; normally one frame, but a reader that is late (a
+ * loaded host, a USB adapter's packet, a pty) may find an exchange and the
+ * next request glued in one chunk. Lengths are never guessed: a frame's
+ * length comes from what the conversation expects there, and a frame's
+ * content is never searched for other frames. States, kept between
+ * chunks and walked through a chunk frame by frame:
+ *
+ *   UNSYNCED  Where the conversation stands is unknown (at start, after a
+ *             chunk that did not parse, an overrun, a collision). Only a
+ *             frame that is a whole chunk (from a silence to the chunk's
+ *             end, or to the next silence waited past) is taken:
+ *               - a request of ours (its function's request length, or any
+ *                 length for a function we do not know): EXECUTED -> IDLE;
+ *               - a foreign frame of request form -> AWAIT its response;
+ *               - a broadcast (unit 0) -> IDLE, never executed;
+ *               - any other whole frame (a response) -> IDLE;
+ *               - anything else: dropped, stay UNSYNCED.
+ *   IDLE      An exchange ended: the next frame is a master's request, of
+ *             the length its function code gives (with the byte count
+ *             for 15, 16, 20, 21, 23):
+ *               - ours: EXECUTED if it is the last frame of its chunk (the
+ *                 master waits for our reply; bytes after it mean it did
+ *                 not, and the chunk is dropped from there) -> IDLE;
+ *               - foreign -> AWAIT (its response's length is now known);
+ *               - broadcast -> IDLE, never executed;
+ *               - a function whose request length we do not know: taken
+ *                 only as a whole chunk.
+ *   AWAIT     A request for unit U went out: the next frame is U's
+ *             response, whose length the request gives (5 for an
+ *             exception), skipped whole -> IDLE. At a silence the master
+ *             may instead have given up on a silent U: a frame that is no
+ *             such response is then read as a new request (as in IDLE).
+ *
+ * A frame that is not what its state expects (wrong unit, function,
+ * length or CRC, a pause longer than t1.5 inside it, or past the chunk's
+ * end) drops the chunk from there up to the next silence -> UNSYNCED.
+ * So a CRC-valid frame hidden in the register data of another unit's
+ * response is never seen: that response is skipped by its length, or,
+ * where the request was missed, is a whole chunk that starts with the
+ * other unit's id.
+ *
+ * OUR OWN TRANSMISSIONS. rtu_line_frame_out() and rtu_line_bytes_out()
+ * tell the line what we send and when; from them it knows when our last
+ * frame leaves the wire (tx_end: the bytes' wire time, none on a pty,
+ * which has no wire). No chunk whose last byte came before tx_end + t3.5
+ * is executed (a master may not speak before then): a chunk equal to our
+ * last frame is counted as an echo (RTU_EVENT_ECHO), anything else as out
+ * of turn. With local_echo, the bytes of each frame we send are expected
+ * back first, up to RTU_ECHO_LATE_NS after its wire time, and are taken
+ * off the input before any framing. Where the input differs (or comes
+ * later), what matched is input again with the rest, and the chunk is
+ * judged: what the conversation expects means the adapter gave nothing
+ * back (RTU_EVENT_NO_ECHO: a master's request starts as our reply did,
+ * with the unit id and function); anything else is a collision
+ * (RTU_EVENT_COLLISION, counted), dropped as any chunk that is no frame.
+ * The next frame we send
+ * may start at rtu_line_tx_ready_ns(): t3.5 after the last one's end.
+ *
+ * Hooks run from rtu_line_silence() after the line has consumed the
+ * chunk: a hook may call rtu_line_frame_out() (a reply sent at once).
  */
 #ifndef JAKAGW_RTU_FRAME_H
 #define JAKAGW_RTU_FRAME_H
@@ -44,50 +101,137 @@ size_t rtu_append_crc(uint8_t *frame, size_t size);
 void rtu_char_times(unsigned baud, bool parity, unsigned stop_bits, uint32_t *t15_ns,
                     uint32_t *t35_ns);
 
-/*
- * The length of the frame at the start of 'data' ('size' bytes there):
- * the request or the response form of its function code, or all 'size'
- * bytes, whichever ends in a good CRC first; 0 if none does.
- */
-size_t rtu_frame_length(const uint8_t *data, size_t size);
-
-enum rtu_drop {
-    RTU_DROP_CRC, /* no frame with a good CRC starts here (cut short, noise) */
-    RTU_DROP_GAP, /* a good frame, but the line fell silent inside it */
+/* How a length is known. */
+enum rtu_length {
+    RTU_LENGTH_EXACT,   /* *size is the frame's length */
+    RTU_LENGTH_MORE,    /* more bytes are needed to tell; *size is a lower bound */
+    RTU_LENGTH_UNKNOWN, /* a function whose form we do not know */
 };
 
-struct rtu_split_hooks {
-    /* A frame with a good CRC: unit id, PDU, CRC. */
-    void (*frame)(void *user, const uint8_t *frame, size_t size);
-    /* 'size' bytes dropped, and why. */
-    void (*dropped)(void *user, enum rtu_drop why, size_t size);
+/* The length of the request at 'frame' ('avail' bytes there). */
+enum rtu_length rtu_request_length(const uint8_t *frame, size_t avail, size_t *size);
+
+/* The length of the response at 'frame' ('avail' bytes there) to the
+ * request 'request' ('request_size' bytes, whole). */
+enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
+                                    const uint8_t *frame, size_t avail, size_t *size);
+
+/* How late an adapter with local echo may give a frame back after its
+ * wire time (a USB adapter's latency timer is 16 ms by default). */
+#define RTU_ECHO_LATE_NS 100000000ull
+/* A port hands over what it received at least every this many characters
+ * (a 16550's FIFO triggers at 14 at most; a USB adapter's lateness is the
+ * config's delivery_ns): how long a frame begun but not whole is waited
+ * for beyond t3.5, whatever it lacks (garbage that looks like the head of
+ * a long frame must not hold the line for 256 characters). */
+#define RTU_PIECE_CHARS 16
+/* Bytes kept between two silences: several frames glued together. */
+#define RTU_LINE_RX_SIZE 1024
+#define RTU_LINE_MAX_GAPS 64
+/* A gap offset with this bit set is a silence of t3.5 waited past for a
+ * frame not yet whole, and kept only if the bytes after it show that the
+ * line surely was silent that long (else it was the port's delay): a frame
+ * may start there. Without it: a pause > t1.5. A frame across either is
+ * discarded. */
+#define RTU_GAP_WAITED 0x8000
+
+struct rtu_line_config {
+    unsigned unit_id;     /* 1..247 */
+    uint32_t t15_ns, t35_ns;
+    uint32_t char_ns;     /* one character received */
+    uint32_t tx_char_ns;  /* one character we send, on the wire; 0 on a pty */
+    uint64_t delivery_ns; /* how late the port may hand over received bytes */
+    bool local_echo;      /* the adapter gives back what we send */
+};
+
+enum rtu_conv { RTU_CONV_UNSYNCED = 0, RTU_CONV_IDLE, RTU_CONV_AWAIT };
+
+struct rtu_line_stats {
+    uint64_t frames;         /* frames the conversation explained, every unit */
+    uint64_t crc_errors;     /* chunks (or their rest) that were not what was expected */
+    uint64_t foreign_frames; /* requests and responses of other units, skipped */
+    uint64_t broadcasts;     /* requests for unit 0, never executed */
+    uint64_t overruns;       /* chunks longer than the receive buffer */
+    uint64_t gap_discards;   /* frames with a pause inside them */
+    uint64_t echoes;         /* our frames heard back (local echo, or in our turn) */
+    uint64_t collisions;     /* local echo: our frame came back different */
+    uint64_t out_of_turn;    /* chunks begun before t3.5 after our frame, not our echo */
+    uint64_t executed;       /* requests of ours handed on */
+};
+
+enum rtu_event {
+    RTU_EVENT_ECHO,      /* our frame heard back in our turn (count in stats) */
+    RTU_EVENT_COLLISION, /* local echo differed from what we sent */
+    RTU_EVENT_NO_ECHO,   /* local echo: nothing of our frame came back */
+};
+
+struct rtu_line_hooks {
+    /* A request of ours, to execute and answer: unit id, PDU, CRC. */
+    void (*request)(void *user, const uint8_t *frame, size_t size);
+    void (*event)(void *user, enum rtu_event event); /* may be NULL */
     void *user;
 };
 
-/*
- * Cuts a chunk of 'size' bytes into frames, calling the hooks in order.
- * 'gaps' lists, in increasing order, the offsets in the chunk of the bytes
- * that came after a silence longer than 1.5 character times: a frame with
- * one inside is discarded, and after bytes that are no frame the next
- * frame is sought at the next gap. An offset with RTU_GAP_WAITED set is a
- * silence of t3.5 the caller waited past for a frame not yet whole
- * (rtu_missing_bytes): the next frame is sought there too, but a frame
- * across it is whole, not discarded (its bytes were late, not paused).
- */
-#define RTU_GAP_WAITED 0x8000
-void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t gap_count,
-               const struct rtu_split_hooks *hooks);
+struct rtu_line {
+    struct rtu_line_config cfg;
+    enum rtu_conv conv;
+    uint8_t await_request[RTU_MAX_ADU]; /* AWAIT: the request answered next */
+    size_t await_request_size;
+    /* The chunk being received. */
+    uint8_t rx[RTU_LINE_RX_SIZE];
+    size_t rx_used;
+    bool chunk_open;   /* bytes came since the last silence */
+    bool rx_overrun;   /* more than the buffer: dropped at the silence */
+    bool echo_broken;  /* local echo: our frame did not come back whole */
+    uint16_t gaps[RTU_LINE_MAX_GAPS];
+    size_t gap_count;
+    uint64_t first_rx_ns, last_rx_ns;
+    bool silence_before;  /* the line surely was silent for t3.5 before it */
+    uint64_t judge_at_ns; /* when the chunk's silence is due */
+    bool waited;          /* judge_at_ns includes the wait for missing bytes */
+    /* What we send. */
+    uint64_t tx_end_ns; /* our last frame's last byte off the wire; 0: none yet */
+    uint8_t sent[RTU_MAX_ADU];
+    size_t sent_size;
+    bool echo_pending; /* local echo: sent[echo_at..] still to come back */
+    size_t echo_at;
+    uint64_t echo_until_ns;
+    struct rtu_line_stats stats;
+};
+
+/* Sets the line up, UNSYNCED, nothing received or sent. */
+void rtu_line_init(struct rtu_line *line, const struct rtu_line_config *cfg);
+
+/* Forgets the chunk, the echo awaited and the conversation (a port
+ * opened again); the counters stay. */
+void rtu_line_reset(struct rtu_line *line);
+
+/* 'size' bytes read at 'now_ns' (their last byte's arrival, as well as the
+ * caller can tell: the time of the read). */
+void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
+                    const struct rtu_line_hooks *hooks);
+
+/* When the caller should call rtu_line_silence(): 0 if no chunk is open. */
+uint64_t rtu_line_deadline(const struct rtu_line *line);
 
 /*
- * How many more bytes the chunk needs to end in a whole frame: 0 when its
- * last frame is whole, or when its tail is no frame any function code
- * explains; else, for a tail that begins a frame (cut as rtu_split cuts),
- * the bytes up to that frame's next possible end. A UART that hands over
- * its FIFO every 8 characters, or a USB adapter's packets, deliver one
- * frame in pieces further apart than t3.5: the caller waits this many
- * more character times before it takes the silence for the frame's end.
+ * The time is 'now_ns' and nothing more came: if the chunk's silence has
+ * come, the chunk is judged (hooks run) and true is returned; false while
+ * a chunk waits (call again at rtu_line_deadline()). A frame begun but not
+ * whole waits as long again as its missing bytes and the port's delivery
+ * take: a UART hands over its FIFO every 8 characters, a USB adapter its
+ * packets, further apart than t3.5 though the wire had no pause.
  */
-size_t rtu_missing_bytes(const uint8_t *chunk, size_t size, const uint16_t *gaps,
-                         size_t gap_count);
+bool rtu_line_silence(struct rtu_line *line, uint64_t now_ns, const struct rtu_line_hooks *hooks);
+
+/* We start to send 'frame' (a reply; what an echo of it is compared to). */
+void rtu_line_frame_out(struct rtu_line *line, const uint8_t *frame, size_t size);
+
+/* 'size' bytes of it were handed to the port at 'now_ns'. */
+void rtu_line_bytes_out(struct rtu_line *line, size_t size, uint64_t now_ns);
+
+/* The earliest time our next frame may start: t3.5 after our last one
+ * left the wire (0: any time). */
+uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line);
 
 #endif

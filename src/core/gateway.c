@@ -612,6 +612,7 @@ static int start_rtu(struct gateway *gw)
         .stop_bits = cfg->rtu_stop_bits,
         .unit_id = cfg->rtu_unit_id,
         .rs485 = cfg->rtu_rs485,
+        .local_echo = cfg->rtu_local_echo,
         .rights = cfg->rtu_rights_mask,
         .active_ms = cfg->ne_time_limit_ms,
     };

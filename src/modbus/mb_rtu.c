@@ -17,11 +17,8 @@
 
 #define MBAP_SIZE 7
 #define RETRY_MS 1000
-/* How late an adapter's echo of our reply may come after its wire time
- * (a USB adapter's latency timer is 16 ms by default). */
-#define ECHO_SLACK_NS 100000000ull
 
-static uint64_t now_ns(void)
+static uint64_t monotonic_ns(void)
 {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
@@ -146,16 +143,12 @@ static int open_line(struct mb_rtu *rtu, char *why, size_t why_size)
     rtu->serial.data = rtu;
     rtu->serial_handle = true;
     rtu->open_handles++;
-    rtu->rx_used = 0;
-    rtu->gap_count = 0;
-    rtu->rx_overrun = false;
-    rtu->tx_used = 0;
+    rtu->tx_count = 0;
     rtu->tx_waiting = false;
-    /* Perhaps another adapter: whether it echoes is learnt again. */
-    rtu->echo_size = 0;
-    rtu->echo_probe = false;
-    rtu->line_echo = MB_RTU_ECHO_UNKNOWN;
-    rtu->no_echo_proofs = 0;
+    /* Perhaps another adapter: nothing of the old conversation holds. A
+     * pty has no wire: what is written is delivered at once. */
+    rtu->line.cfg.tx_char_ns = is_pseudo_terminal(fd) ? 0 : rtu->char_ns;
+    rtu_line_reset(&rtu->line);
     uv_poll_start(&rtu->serial, UV_READABLE, on_serial);
     return 0;
 }
@@ -201,9 +194,8 @@ static void close_line(struct mb_rtu *rtu)
     uv_close((uv_handle_t *)&rtu->serial, on_handle_closed);
     close(rtu->fd);
     rtu->fd = -1;
-    rtu->rx_used = 0;
-    rtu->gap_count = 0;
-    rtu->tx_used = 0;
+    rtu_line_reset(&rtu->line);
+    rtu->tx_count = 0;
     set_silence_timer(rtu, 0);
 }
 
@@ -242,71 +234,115 @@ static void line_fault(struct mb_rtu *rtu, const char *why)
     start_retry(rtu);
 }
 
-/* Writes what is queued; the rest waits for the port to be writable. */
+static void sync_stats(struct mb_rtu *rtu)
+{
+    const struct rtu_line_stats *l = &rtu->line.stats;
+    rtu->stats.frames = l->frames;
+    rtu->stats.crc_errors = l->crc_errors;
+    rtu->stats.foreign_frames = l->foreign_frames;
+    rtu->stats.broadcasts = l->broadcasts;
+    rtu->stats.gap_discards = l->gap_discards;
+    rtu->stats.echoes = l->echoes;
+    rtu->stats.collisions = l->collisions;
+    rtu->stats.out_of_turn = l->out_of_turn;
+    /* overruns: the line's receive overruns and the replies not taken */
+}
+
+/* The timerfd fires at the line's next deadline: the silence that ends
+ * the chunk being received, or the time a queued reply may start. */
+static void arm_timer(struct mb_rtu *rtu)
+{
+    uint64_t at = rtu_line_deadline(&rtu->line);
+
+    if (rtu->tx_count && !rtu->tx_waiting) {
+        uint64_t ready = rtu_line_tx_ready_ns(&rtu->line);
+        if (ready && (!at || ready < at))
+            at = ready;
+    }
+    set_silence_timer(rtu, at);
+}
+
+/*
+ * Writes the queued replies: each starts only t3.5 after the one before
+ * left the wire, and only once the one before went to the port whole; the
+ * rest waits for the port to be writable or for the timer.
+ */
 static void flush_tx(struct mb_rtu *rtu)
 {
     bool was_waiting = rtu->tx_waiting;
 
-    while (rtu->tx_used) {
-        ssize_t n = write(rtu->fd, rtu->tx, rtu->tx_used);
+    rtu->tx_waiting = false;
+    while (rtu->tx_count && rtu->fd >= 0) {
+        struct mb_rtu_tx_frame *f = &rtu->tx[0];
+        uint64_t now = rtu->now_ns();
+        if (f->sent == 0) {
+            uint64_t ready = rtu_line_tx_ready_ns(&rtu->line);
+            if (ready && now < ready)
+                break; /* the timer starts it */
+        }
+        ssize_t n = write(rtu->fd, f->data + f->sent, f->size - f->sent);
         if (n > 0) {
-            memmove(rtu->tx, rtu->tx + n, rtu->tx_used - (size_t)n);
-            rtu->tx_used -= (size_t)n;
+            if (f->sent == 0) {
+                rtu_line_frame_out(&rtu->line, f->data, f->size);
+                uint64_t us = now > rtu->request_end_ns ? (now - rtu->request_end_ns) / 1000 : 0;
+                rtu->stats.turnaround_us = us > UINT32_MAX ? UINT32_MAX : (uint32_t)us;
+                if (rtu->stats.turnaround_us > rtu->stats.turnaround_max_us)
+                    rtu->stats.turnaround_max_us = rtu->stats.turnaround_us;
+            }
+            rtu_line_bytes_out(&rtu->line, (size_t)n, now);
+            f->sent += (size_t)n;
+            if (f->sent == f->size) {
+                rtu->tx_count--;
+                memmove(&rtu->tx[0], &rtu->tx[1], rtu->tx_count * sizeof(rtu->tx[0]));
+            }
             continue;
         }
         if (n < 0 && errno == EINTR)
             continue;
-        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK))
+        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+            rtu->tx_waiting = true;
             break;
+        }
         line_fault(rtu, n < 0 ? strerror(errno) : "write failed");
         return;
     }
-    /* The poll changes only when a reply waits, or waited: nearly every
-     * reply goes out whole and costs no epoll_ctl. */
-    rtu->tx_waiting = rtu->tx_used > 0;
-    if (rtu->tx_waiting != was_waiting)
+    /* The poll changes only when a reply waits for the port, or waited:
+     * nearly every reply goes out whole and costs no epoll_ctl. */
+    if (rtu->fd >= 0 && rtu->tx_waiting != was_waiting)
         uv_poll_start(&rtu->serial, rtu->tx_waiting ? UV_READABLE | UV_WRITABLE : UV_READABLE,
                       on_serial);
+    if (rtu->fd >= 0)
+        arm_timer(rtu);
 }
 
 /* The server's reply (an MBAP frame) goes out as an RTU frame. */
 static void rtu_output(void *state, struct mb_client *c, const uint8_t *data, size_t size)
 {
     struct mb_rtu *rtu = state;
-    uint8_t frame[RTU_MAX_ADU];
-    size_t pdu_size = size - MBAP_SIZE, n;
+    size_t pdu_size = size - MBAP_SIZE;
     uint64_t suppressed;
 
     (void)c;
     if (rtu->fd < 0 || size <= MBAP_SIZE || pdu_size > RTU_MAX_ADU - 3)
         return;
-    frame[0] = (uint8_t)rtu->cfg.unit_id;
-    memcpy(frame + 1, data + MBAP_SIZE, pdu_size);
-    /* Report server id names the unit asked for: the line's. */
-    if (frame[1] == 17 && pdu_size >= 3)
-        frame[3] = (uint8_t)rtu->cfg.unit_id;
-    n = rtu_append_crc(frame, 1 + pdu_size);
-    if (rtu->tx_used + n > sizeof(rtu->tx)) {
+    if (rtu->tx_count == MB_RTU_TX_FRAMES) {
         rtu->stats.overruns++;
         if (log_ratelimit_pass(&rtu->log_limit, uv_now(rtu->loop), &suppressed))
             log_warn("rtu: %s: the port does not take replies: one dropped", rtu->device);
         return;
     }
-    memcpy(rtu->tx + rtu->tx_used, frame, n);
-    rtu->tx_used += n;
-    uint64_t t = now_ns();
-    memcpy(rtu->echo, frame, n);
-    rtu->echo_size = n;
-    rtu->echo_is_request = rtu->request && n == rtu->request_size &&
-                           memcmp(frame, rtu->request, n) == 0;
-    rtu->echo_probe = true; /* an echo would be the next frame */
-    rtu->echo_until_ns = t + n * (uint64_t)rtu->char_ns + ECHO_SLACK_NS;
-    uint64_t us = t > rtu->request_end_ns ? (t - rtu->request_end_ns) / 1000 : 0;
-    rtu->stats.turnaround_us = us > UINT32_MAX ? UINT32_MAX : (uint32_t)us;
-    if (rtu->stats.turnaround_us > rtu->stats.turnaround_max_us)
-        rtu->stats.turnaround_max_us = rtu->stats.turnaround_us;
+    uint8_t *frame = rtu->tx[rtu->tx_count].data;
+    frame[0] = (uint8_t)rtu->cfg.unit_id;
+    memcpy(frame + 1, data + MBAP_SIZE, pdu_size);
+    /* Report server id names the unit asked for: the line's. */
+    if (frame[1] == 17 && pdu_size >= 3)
+        frame[3] = (uint8_t)rtu->cfg.unit_id;
+    rtu->tx[rtu->tx_count].size = rtu_append_crc(frame, 1 + pdu_size);
+    rtu->tx[rtu->tx_count].sent = 0;
+    rtu->tx_count++;
     rtu->stats.replies++;
-    flush_tx(rtu);
+    if (!rtu->tx_waiting)
+        flush_tx(rtu);
 }
 
 static void rtu_closed(void *state, struct mb_client *c, bool was_pending)
@@ -324,8 +360,9 @@ const struct mb_transport mb_transport_rtu = {
     .closed = rtu_closed,
 };
 
-/* A frame with a good CRC: ours goes to the server as a request. */
-static void on_frame(void *user, const uint8_t *frame, size_t size)
+/* A request for this unit that the conversation made certain: to the
+ * server, as a TCP client's. */
+static void on_request(void *user, const uint8_t *frame, size_t size)
 {
     struct mb_rtu *rtu = user;
     unsigned unit = frame[0];
@@ -333,38 +370,9 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
     uint64_t suppressed;
     uint8_t *into;
 
-    rtu->stats.frames++;
-    bool probe = rtu->echo_probe;
-    rtu->echo_probe = false;
-    if (size == rtu->echo_size && memcmp(frame, rtu->echo, size) == 0 &&
-        now_ns() <= rtu->echo_until_ns) {
-        /* A reply unlike its request comes back only as an echo; a write's
-         * reply (equal to the request) also as a master repeating it, which
-         * is served where the line is known not to echo. */
-        if (!rtu->echo_is_request)
-            rtu->line_echo = MB_RTU_ECHO_YES;
-        if (rtu->line_echo != MB_RTU_ECHO_NO) {
-            rtu->echo_size = 0; /* our reply, heard back */
-            rtu->stats.echoes++;
-            return;
-        }
-    } else if (probe && rtu->line_echo == MB_RTU_ECHO_UNKNOWN &&
-               ++rtu->no_echo_proofs >= 3) {
-        /* Three replies in a row whose echo would have come first, and
-         * did not. */
-        rtu->line_echo = MB_RTU_ECHO_NO;
-    }
-    if (unit == RTU_BROADCAST) {
-        /* Never acted on: the master cannot learn the outcome. */
-        rtu->stats.broadcasts++;
-        return;
-    }
-    if (unit != rtu->cfg.unit_id) {
-        rtu->stats.foreign_frames++;
-        return;
-    }
     if (rtu->fd < 0)
-        return; /* the line failed while this chunk was being cut */
+        return; /* the line failed meanwhile */
+    rtu->request_end_ns = rtu->line.last_rx_ns;
     if (!rtu->client) {
         int rc = mb_server_attach(rtu->srv, rtu->peer, &mb_transport_rtu, rtu, rtu->cfg.rights,
                                   rtu->cfg.active_ms, &rtu->client);
@@ -388,37 +396,46 @@ static void on_frame(void *user, const uint8_t *frame, size_t size)
      * already judged its own. */
     into[6] = rtu->srv->cfg.unit_id >= 0 ? (uint8_t)rtu->srv->cfg.unit_id : (uint8_t)unit;
     memcpy(into + MBAP_SIZE, frame + 1, pdu_size);
-    rtu->request = frame;
-    rtu->request_size = size;
     mb_client_received(rtu->client, MBAP_SIZE + pdu_size);
-    rtu->request = NULL;
 }
 
-static void on_dropped(void *user, enum rtu_drop why, size_t size)
+/* What the line noticed about our own transmissions: each said once. */
+static void on_event(void *user, enum rtu_event event)
 {
     struct mb_rtu *rtu = user;
-    (void)size;
-    /* Perhaps our reply's echo, damaged: no proof either way. */
-    if (rtu->echo_probe && rtu->line_echo == MB_RTU_ECHO_UNKNOWN)
-        rtu->no_echo_proofs = 0;
-    rtu->echo_probe = false;
-    if (why == RTU_DROP_GAP)
-        rtu->stats.gap_discards++;
-    else
-        rtu->stats.crc_errors++;
+
+    switch (event) {
+    case RTU_EVENT_ECHO:
+        if (rtu->cfg.local_echo || rtu->echo_logged)
+            return;
+        rtu->echo_logged = true;
+        log_warn("rtu: %s: a reply came back as it was sent (the adapter echoes): skipped; "
+                 "set [rtu] local_echo = true for this adapter",
+                 rtu->device);
+        return;
+    case RTU_EVENT_COLLISION:
+        if (rtu->collision_logged)
+            return;
+        rtu->collision_logged = true;
+        log_warn("rtu: %s: a reply came back different from what was sent: another "
+                 "transmitter on the line at the same time (collision); counted",
+                 rtu->device);
+        return;
+    case RTU_EVENT_NO_ECHO:
+        if (rtu->no_echo_logged)
+            return;
+        rtu->no_echo_logged = true;
+        log_warn("rtu: %s: local_echo = true, but a reply did not come back: does this "
+                 "adapter echo?",
+                 rtu->device);
+        return;
+    }
 }
 
-/* The line was silent for t3.5: what arrived since the last silence. */
-static void end_of_chunk(struct mb_rtu *rtu)
+static struct rtu_line_hooks line_hooks_of(struct mb_rtu *rtu)
 {
-    struct rtu_split_hooks hooks = {.frame = on_frame, .dropped = on_dropped, .user = rtu};
-
-    rtu->request_end_ns = rtu->last_rx_ns;
-    if (!rtu->rx_overrun && rtu->rx_used)
-        rtu_split(rtu->rx, rtu->rx_used, rtu->gaps, rtu->gap_count, &hooks);
-    rtu->rx_used = 0;
-    rtu->gap_count = 0;
-    rtu->rx_overrun = false;
+    struct rtu_line_hooks hooks = {.request = on_request, .event = on_event, .user = rtu};
+    return hooks;
 }
 
 /* Reads what the port holds. Returns the bytes read, or -1 on a fault. */
@@ -426,6 +443,7 @@ static ssize_t read_line(struct mb_rtu *rtu)
 {
     uint8_t buf[512];
     ssize_t total = 0;
+    struct rtu_line_hooks hooks = line_hooks_of(rtu);
 
     while (rtu->fd >= 0) {
         ssize_t n = read(rtu->fd, buf, sizeof(buf));
@@ -437,36 +455,18 @@ static ssize_t read_line(struct mb_rtu *rtu)
             line_fault(rtu, n < 0 ? strerror(errno) : "hung up");
             return -1;
         }
-        uint64_t t = now_ns();
-        /* A silence is what is left of the time between two reads once the
-         * new bytes' own wire time and the port's delivery are taken off:
-         * a UART hands over its FIFO every 8 characters (and its last
-         * bytes 4 characters after them), a USB adapter its packets, so
-         * reads of one unbroken frame can lie further apart than t1.5. */
-        if (rtu->rx_used &&
-            t - rtu->last_rx_ns > rtu->t15_ns + (uint64_t)n * rtu->char_ns + rtu->delivery_ns &&
-            rtu->gap_count < MB_RTU_MAX_GAPS)
-            rtu->gaps[rtu->gap_count++] = (uint16_t)rtu->rx_used;
-        if (rtu->rx_overrun || rtu->rx_used + (size_t)n > sizeof(rtu->rx)) {
-            /* Longer than any run of frames: dropped up to the silence. */
-            if (!rtu->rx_overrun)
-                rtu->stats.overruns++;
-            rtu->rx_overrun = true;
-            rtu->rx_used = 0;
-            rtu->gap_count = 0;
-        } else {
-            memcpy(rtu->rx + rtu->rx_used, buf, (size_t)n);
-            rtu->rx_used += (size_t)n;
-        }
-        rtu->last_rx_ns = t;
+        uint64_t overruns = rtu->line.stats.overruns;
+        rtu_line_input(&rtu->line, buf, (size_t)n, rtu->now_ns(), &hooks);
+        rtu->stats.overruns += rtu->line.stats.overruns - overruns;
         total += n;
         /* A terminal gives all it holds, up to the size asked: less means
          * nothing is left, and the poll says when more comes. */
         if ((size_t)n < sizeof(buf))
             break;
     }
-    if (total > 0)
-        set_silence_timer(rtu, rtu->last_rx_ns + rtu->t35_ns);
+    sync_stats(rtu);
+    if (total > 0 && rtu->fd >= 0)
+        arm_timer(rtu);
     return total;
 }
 
@@ -491,6 +491,7 @@ static void on_silence(uv_poll_t *p, int status, int events)
 {
     struct mb_rtu *rtu = p->data;
     uint64_t expirations;
+    struct rtu_line_hooks hooks = line_hooks_of(rtu);
 
     (void)status, (void)events;
     if (read(rtu->timer_fd, &expirations, sizeof(expirations)) < 0 && errno == EAGAIN)
@@ -498,32 +499,16 @@ static void on_silence(uv_poll_t *p, int status, int events)
     if (rtu->fd < 0 || rtu->closing)
         return;
     /* Bytes that have arrived count before the silence is judged. */
-    if (read_line(rtu) != 0)
-        return; /* more came (the timer is set again) or the line failed */
-    if (rtu->rx_used == 0 && !rtu->rx_overrun)
+    if (read_line(rtu) < 0)
         return;
-    uint64_t now = now_ns();
-    if (now - rtu->last_rx_ns < rtu->t35_ns) {
-        set_silence_timer(rtu, rtu->last_rx_ns + rtu->t35_ns);
+    rtu_line_silence(&rtu->line, rtu->now_ns(), &hooks);
+    sync_stats(rtu);
+    if (rtu->fd < 0)
         return;
-    }
-    /* A frame begun but not whole: its bytes may still be in the port's
-     * FIFO or the adapter's next packet. The silence ends it only once
-     * they would have come. */
-    size_t missing =
-        rtu->rx_overrun ? 0 : rtu_missing_bytes(rtu->rx, rtu->rx_used, rtu->gaps, rtu->gap_count);
-    uint64_t until = rtu->last_rx_ns + rtu->t35_ns + missing * (uint64_t)rtu->char_ns +
-                     rtu->delivery_ns;
-    if (missing && now < until) {
-        /* If the frame was noise after all, the next starts here. */
-        if (rtu->gap_count < MB_RTU_MAX_GAPS &&
-            (rtu->gap_count == 0 ||
-             (rtu->gaps[rtu->gap_count - 1] & ~RTU_GAP_WAITED) != rtu->rx_used))
-            rtu->gaps[rtu->gap_count++] = (uint16_t)(rtu->rx_used | RTU_GAP_WAITED);
-        set_silence_timer(rtu, until);
-        return;
-    }
-    end_of_chunk(rtu);
+    if (rtu->tx_count && !rtu->tx_waiting)
+        flush_tx(rtu); /* also arms the timer */
+    else
+        arm_timer(rtu);
 }
 
 int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
@@ -545,11 +530,19 @@ int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
     rtu->cfg.device = rtu->device;
     snprintf(rtu->peer, sizeof(rtu->peer), "rtu:%s", cfg->device);
     rtu->log_limit.interval_ms = 1000;
-    rtu_char_times(cfg->baud, cfg->parity != MB_RTU_PARITY_NONE, cfg->stop_bits, &rtu->t15_ns,
-                   &rtu->t35_ns);
+    rtu->now_ns = monotonic_ns;
     rtu->char_ns = (uint32_t)((1 + 8 + (cfg->parity != MB_RTU_PARITY_NONE) + cfg->stop_bits) *
                               1000000000ull / (cfg->baud ? cfg->baud : 19200));
-    rtu->delivery_ns = 4ull * rtu->char_ns + MB_RTU_DELIVERY_NS;
+    struct rtu_line_config line_cfg = {
+        .unit_id = cfg->unit_id,
+        .char_ns = rtu->char_ns,
+        .tx_char_ns = rtu->char_ns,
+        .delivery_ns = 4ull * rtu->char_ns + MB_RTU_DELIVERY_NS,
+        .local_echo = cfg->local_echo,
+    };
+    rtu_char_times(cfg->baud, cfg->parity != MB_RTU_PARITY_NONE, cfg->stop_bits, &line_cfg.t15_ns,
+                   &line_cfg.t35_ns);
+    rtu_line_init(&rtu->line, &line_cfg);
 
     uv_timer_init(loop, &rtu->retry);
     rtu->retry.data = rtu;
@@ -581,14 +574,15 @@ int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
         start_retry(rtu);
         return 0;
     }
-    log_notice("rtu: %s: %u baud, parity %s, %u stop bit%s, unit %u%s; t1.5 %u us, "
+    log_notice("rtu: %s: %u baud, parity %s, %u stop bit%s, unit %u%s%s; t1.5 %u us, "
                "t3.5 %u us",
                rtu->device, cfg->baud,
                cfg->parity == MB_RTU_PARITY_NONE   ? "none"
                : cfg->parity == MB_RTU_PARITY_EVEN ? "even"
                                                    : "odd",
                cfg->stop_bits, cfg->stop_bits == 1 ? "" : "s", cfg->unit_id,
-               cfg->rs485 ? ", RS-485 mode" : "", rtu->t15_ns / 1000, rtu->t35_ns / 1000);
+               cfg->rs485 ? ", RS-485 mode" : "", cfg->local_echo ? ", local echo" : "",
+               rtu->line.cfg.t15_ns / 1000, rtu->line.cfg.t35_ns / 1000);
     return 0;
 }
 
@@ -602,6 +596,7 @@ enum mb_rtu_state mb_rtu_state(const struct mb_rtu *rtu)
 void mb_rtu_clear_stats(struct mb_rtu *rtu)
 {
     memset(&rtu->stats, 0, sizeof(rtu->stats));
+    memset(&rtu->line.stats, 0, sizeof(rtu->line.stats));
 }
 
 void mb_rtu_close(struct mb_rtu *rtu, void (*cb)(struct mb_rtu *rtu))

@@ -157,6 +157,8 @@ static void client_gone(struct mb_client *c)
 {
     struct mb_server *srv = c->srv;
     srv->stats.clients--;
+    if (c->no_socket)
+        srv->line_clients--;
     if (srv->hooks.on_client)
         srv->hooks.on_client(srv->hooks.user, c->accept_seq, false, srv->stats.clients);
 }
@@ -991,7 +993,9 @@ static void admit_client(struct mb_client *c)
 {
     struct mb_server *srv = c->srv;
 
-    if (srv->stats.clients >= srv->cfg.max_clients) {
+    /* A line with no socket (RTU) is not a connection: it takes no slot
+     * and evicts no one, however often it comes back after idle_timeout. */
+    if (!c->no_socket && srv->stats.clients - srv->line_clients >= srv->cfg.max_clients) {
         /* Judge on what has arrived: answer the requests the kernel holds
          * and let go of the peers that have closed. A burst of connects is
          * accepted in one go, before any of these would be read. */
@@ -1000,7 +1004,7 @@ static void admit_client(struct mb_client *c)
             next = o->next;
             drain_client(o);
         }
-        if (srv->stats.clients >= srv->cfg.max_clients)
+        if (srv->stats.clients - srv->line_clients >= srv->cfg.max_clients)
             evict_for(srv, c->peer);
     }
     if (c->state != CLIENT_PENDING)
@@ -1009,6 +1013,8 @@ static void admit_client(struct mb_client *c)
     c->accept_seq = ++srv->sequence;
     c->state = CLIENT_OPEN;
     srv->stats.clients++;
+    if (c->no_socket)
+        srv->line_clients++;
     if (srv->hooks.on_client)
         srv->hooks.on_client(srv->hooks.user, c->accept_seq, true, srv->stats.clients);
     log_debug("modbus: client %s connected (%u now)", c->peer, srv->stats.clients);

@@ -2,6 +2,8 @@
 /* rtu_frame.c - see rtu_frame.h. */
 #include "rtu_frame.h"
 
+#include <string.h>
+
 /* The CRC of every byte value, so that a byte costs one lookup and a shift
  * instead of eight shifts (the approach of libmodbus and of the Modbus
  * serial line specification's appendix, here as one 16-bit table). */
@@ -80,167 +82,584 @@ void rtu_char_times(unsigned baud, bool parity, unsigned stop_bits, uint32_t *t1
     *t35_ns = (uint32_t)(bits * 3500000000ull / baud);
 }
 
-/*
- * The lengths a frame of function code data[1] can have: its request and
- * its response, where the byte counts they depend on have arrived. Up to
- * two; the caller tries them in order.
- */
-static unsigned candidate_lengths(const uint8_t *d, size_t size, size_t out[2])
+enum rtu_length rtu_request_length(const uint8_t *d, size_t avail, size_t *size)
 {
-    unsigned n = 0;
-    uint8_t fc = d[1];
+    /* Where the length depends on a byte count: the offset of that count
+     * and the bytes around it. */
+    size_t count_at = 0, fixed = 0;
 
-    if (fc & 0x80) {
-        out[n++] = 5; /* an exception response */
-        return n;
+    if (avail < 2) {
+        *size = RTU_MIN_ADU;
+        return RTU_LENGTH_MORE;
     }
-    switch (fc) {
-    case 1: case 2: case 3: case 4:
-        out[n++] = 8;
-        if (size > 2)
-            out[n++] = 5 + (size_t)d[2];
-        break;
-    case 5: case 6: case 8: case 22:
-        out[n++] = fc == 22 ? 10 : 8;
-        break;
-    case 7:
-        out[n++] = 4;
-        out[n++] = 5;
-        break;
-    case 11:
-        out[n++] = 4;
-        out[n++] = 8;
-        break;
-    case 12: case 17:
-        out[n++] = 4;
-        if (size > 2)
-            out[n++] = 5 + (size_t)d[2];
-        break;
+    switch (d[1]) {
+    case 1: case 2: case 3: case 4: case 5: case 6: case 8:
+        *size = 8;
+        return RTU_LENGTH_EXACT;
+    case 7: case 11: case 12: case 17:
+        *size = 4;
+        return RTU_LENGTH_EXACT;
+    case 22:
+        *size = 10;
+        return RTU_LENGTH_EXACT;
+    case 24:
+        *size = 6;
+        return RTU_LENGTH_EXACT;
     case 15: case 16:
-        if (size > 6)
-            out[n++] = 9 + (size_t)d[6];
-        out[n++] = 8;
+        count_at = 6, fixed = 9;
         break;
     case 20: case 21:
-        if (size > 2)
-            out[n++] = 5 + (size_t)d[2];
+        count_at = 2, fixed = 5;
         break;
     case 23:
-        if (size > 10)
-            out[n++] = 13 + (size_t)d[10];
-        if (size > 2)
-            out[n++] = 5 + (size_t)d[2];
+        count_at = 10, fixed = 13;
         break;
     case 43:
-        out[n++] = 7; /* read device identification, the request */
-        if (size > 7 && d[2] == 14) {
-            /* The response: MEI type, code, conformity, more follows,
-             * next object, the number of objects, then each object's id,
-             * length and value. */
-            size_t end = 8;
-            for (unsigned i = 0; i < d[7] && end + 2 <= size; i++)
-                end += 2 + (size_t)d[end + 1];
-            if (end + 2 <= size && end + 2 <= RTU_MAX_ADU)
-                out[n++] = end + 2;
+        if (avail < 3) {
+            *size = 7;
+            return RTU_LENGTH_MORE;
         }
-        break;
+        if (d[2] != 14)
+            return RTU_LENGTH_UNKNOWN; /* 13, CANopen: not a form we know */
+        *size = 7;
+        return RTU_LENGTH_EXACT;
     default:
-        break;
+        return RTU_LENGTH_UNKNOWN;
     }
-    return n;
+    if (avail <= count_at) {
+        *size = fixed;
+        return RTU_LENGTH_MORE;
+    }
+    *size = fixed + d[count_at];
+    return RTU_LENGTH_EXACT;
 }
 
-size_t rtu_frame_length(const uint8_t *data, size_t size)
+/* Read device identification's response: MEI type, code, conformity, more
+ * follows, next object, the number of objects, then each object's id,
+ * length and value. */
+static enum rtu_length device_id_length(const uint8_t *d, size_t avail, size_t *size)
 {
-    size_t lengths[2];
-    unsigned n;
+    size_t end = 8;
 
-    if (size < RTU_MIN_ADU)
-        return 0;
-    n = candidate_lengths(data, size, lengths);
-    for (unsigned i = 0; i < n; i++)
-        if (lengths[i] <= size && lengths[i] <= RTU_MAX_ADU &&
-            rtu_crc_ok(data, lengths[i]))
-            return lengths[i];
-    /* A function whose length we do not know: the whole chunk is the
-     * frame if its CRC says so. */
-    if (size <= RTU_MAX_ADU && rtu_crc_ok(data, size))
-        return size;
-    return 0;
+    if (avail < 8) {
+        *size = 8 + 2;
+        return RTU_LENGTH_MORE;
+    }
+    for (unsigned i = 0; i < d[7]; i++) {
+        if (end + 2 > avail) {
+            *size = end + 2 + 2;
+            return RTU_LENGTH_MORE;
+        }
+        end += 2 + (size_t)d[end + 1];
+    }
+    *size = end + 2;
+    return RTU_LENGTH_EXACT;
+}
+
+enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
+                                    const uint8_t *d, size_t avail, size_t *size)
+{
+    unsigned count = (unsigned)request[4] << 8 | request[5];
+
+    if (avail < 2) {
+        *size = 5;
+        return RTU_LENGTH_MORE;
+    }
+    if (d[1] & 0x80) {
+        *size = 5; /* an exception */
+        return RTU_LENGTH_EXACT;
+    }
+    switch (request[1]) {
+    case 1: case 2:
+        *size = 5 + (count + 7) / 8;
+        return RTU_LENGTH_EXACT;
+    case 3: case 4: case 23: /* 23: the read's count, as for 3 */
+        *size = 5 + 2 * (size_t)count;
+        return RTU_LENGTH_EXACT;
+    case 5: case 6: case 8: case 11: case 15: case 16:
+        *size = 8;
+        return RTU_LENGTH_EXACT;
+    case 7:
+        *size = 5;
+        return RTU_LENGTH_EXACT;
+    case 21:
+        *size = request_size; /* the request, repeated */
+        return RTU_LENGTH_EXACT;
+    case 22:
+        *size = 10;
+        return RTU_LENGTH_EXACT;
+    case 12: case 17: case 20:
+        if (avail < 3) {
+            *size = 5;
+            return RTU_LENGTH_MORE;
+        }
+        *size = 5 + (size_t)d[2];
+        return RTU_LENGTH_EXACT;
+    case 24:
+        if (avail < 4) {
+            *size = 6;
+            return RTU_LENGTH_MORE;
+        }
+        *size = 6 + ((size_t)d[2] << 8 | d[3]);
+        return RTU_LENGTH_EXACT;
+    case 43:
+        return device_id_length(d, avail, size);
+    default:
+        return RTU_LENGTH_UNKNOWN;
+    }
+}
+
+/* ---- the line as a conversation ---- */
+
+void rtu_line_init(struct rtu_line *line, const struct rtu_line_config *cfg)
+{
+    memset(line, 0, sizeof(*line));
+    line->cfg = *cfg;
+    line->conv = RTU_CONV_UNSYNCED;
+}
+
+static void clear_chunk(struct rtu_line *line)
+{
+    line->rx_used = 0;
+    line->gap_count = 0;
+    line->chunk_open = false;
+    line->rx_overrun = false;
+    line->echo_broken = false;
+    line->waited = false;
+    line->judge_at_ns = 0;
+}
+
+void rtu_line_reset(struct rtu_line *line)
+{
+    clear_chunk(line);
+    line->conv = RTU_CONV_UNSYNCED;
+    line->echo_pending = false;
+}
+
+static void emit(const struct rtu_line_hooks *hooks, enum rtu_event event)
+{
+    if (hooks && hooks->event)
+        hooks->event(hooks->user, event);
 }
 
 #define GAP_AT(g) ((size_t)((g) & ~RTU_GAP_WAITED))
 
-/* Is there a pause (not a waited silence) inside [from, to)? */
-static bool pause_inside(const uint16_t *gaps, size_t g, size_t gap_count, size_t to)
+/* Bytes that are the line's input (not our echo). */
+static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns)
 {
-    for (; g < gap_count && GAP_AT(gaps[g]) < to; g++)
-        if (!(gaps[g] & RTU_GAP_WAITED))
+    if (size == 0)
+        return;
+    /* The silence the line surely had before these bytes: the time since
+     * the last read once their own wire time and the port's delivery are
+     * taken off (a UART hands over its FIFO every 8 characters, further
+     * apart than t3.5 at 19200 baud, with no pause on the wire). */
+    uint64_t since = now_ns - line->last_rx_ns,
+             own = (uint64_t)size * line->cfg.char_ns + line->cfg.delivery_ns;
+    uint64_t silence = !line->last_rx_ns ? UINT64_MAX : since > own ? since - own : 0;
+    if (!line->chunk_open) {
+        line->first_rx_ns = now_ns;
+        line->chunk_open = true;
+        line->silence_before = silence >= line->cfg.t35_ns;
+    } else if (line->rx_used) {
+        /* A silence waited past here was the port's delay unless the line
+         * surely was silent for t3.5. */
+        if (line->gap_count && GAP_AT(line->gaps[line->gap_count - 1]) == line->rx_used &&
+            silence < line->cfg.t35_ns)
+            line->gap_count--;
+        /* A pause longer than t1.5: a frame across it is discarded. */
+        if (silence > line->cfg.t15_ns && line->gap_count < RTU_LINE_MAX_GAPS &&
+            (!line->gap_count || GAP_AT(line->gaps[line->gap_count - 1]) != line->rx_used))
+            line->gaps[line->gap_count++] = (uint16_t)line->rx_used;
+    }
+    if (line->rx_overrun || line->rx_used + size > sizeof(line->rx)) {
+        if (!line->rx_overrun)
+            line->stats.overruns++;
+        line->rx_overrun = true;
+        line->rx_used = 0;
+        line->gap_count = 0;
+    } else {
+        memcpy(line->rx + line->rx_used, data, size);
+        line->rx_used += size;
+    }
+    line->last_rx_ns = now_ns;
+    line->judge_at_ns = now_ns + line->cfg.t35_ns;
+    line->waited = false;
+}
+
+/*
+ * Local echo: takes what comes back of our frame off the input. Returns
+ * the bytes consumed. Where the input differs from our frame, what matched
+ * of it is input again: a master's request starts as our reply did (unit
+ * id, function), so a request on an adapter that gave nothing back is
+ * read as a request; a collision leaves bytes that are no frame, and the
+ * chunk's judgement (end_chunk) counts it.
+ */
+static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns)
+{
+    size_t used = 0;
+
+    if (now_ns > line->echo_until_ns) {
+        /* Not back in time: what comes now is the master's. */
+        line->echo_pending = false;
+        line->echo_broken = true;
+        append(line, line->sent, line->echo_at, now_ns);
+        return 0;
+    }
+    while (used < size && line->echo_pending) {
+        if (data[used] == line->sent[line->echo_at]) {
+            used++;
+            if (++line->echo_at == line->sent_size) {
+                line->echo_pending = false;
+                line->stats.echoes++;
+            }
+        } else {
+            line->echo_pending = false;
+            line->echo_broken = true;
+            append(line, line->sent, line->echo_at, now_ns);
+        }
+    }
+    return used;
+}
+
+void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
+                    const struct rtu_line_hooks *hooks)
+{
+    (void)hooks;
+    if (line->echo_pending) {
+        size_t echo = take_echo(line, data, size, now_ns);
+        data += echo;
+        size -= echo;
+    }
+    append(line, data, size, now_ns);
+}
+
+uint64_t rtu_line_deadline(const struct rtu_line *line)
+{
+    return line->chunk_open ? line->judge_at_ns : 0;
+}
+
+/* Is there a pause or a silence strictly inside [from, to)? */
+static bool pause_inside(const struct rtu_line *line, size_t from, size_t to)
+{
+    for (size_t g = 0; g < line->gap_count; g++) {
+        size_t at = GAP_AT(line->gaps[g]);
+        if (at > from && at < to)
+            return true;
+    }
+    return false;
+}
+
+/* Is 'at' after a silence of t3.5: the chunk's start if one came before
+ * it, or a silence waited past? */
+static bool after_silence(const struct rtu_line *line, size_t at)
+{
+    if (at == 0)
+        return line->silence_before;
+    for (size_t g = 0; g < line->gap_count; g++)
+        if ((line->gaps[g] & RTU_GAP_WAITED) && GAP_AT(line->gaps[g]) == at)
             return true;
     return false;
 }
 
-void rtu_split(const uint8_t *chunk, size_t size, const uint16_t *gaps, size_t gap_count,
-               const struct rtu_split_hooks *hooks)
+/* The next silence waited past after 'at', or 0. */
+static size_t next_silence(const struct rtu_line *line, size_t at)
 {
-    size_t off = 0, g = 0;
+    size_t best = 0;
+    for (size_t g = 0; g < line->gap_count; g++) {
+        size_t pos = GAP_AT(line->gaps[g]);
+        if ((line->gaps[g] & RTU_GAP_WAITED) && pos > at && (!best || pos < best))
+            best = pos;
+    }
+    return best;
+}
 
-    while (off < size) {
-        size_t len = rtu_frame_length(chunk + off, size - off);
-        while (g < gap_count && GAP_AT(gaps[g]) <= off)
-            g++;
-        if (len) {
-            /* A silence inside the frame: the specification discards it. */
-            if (pause_inside(gaps, g, gap_count, off + len))
-                hooks->dropped(hooks->user, RTU_DROP_GAP, len);
-            else
-                hooks->frame(hooks->user, chunk + off, len);
-            off += len;
-            continue;
-        }
-        /* No frame starts here: a frame can start again only after a
-         * silence, at the next gap, or nowhere in this chunk. */
-        size_t next = g < gap_count ? GAP_AT(gaps[g]) : size;
-        hooks->dropped(hooks->user, RTU_DROP_CRC, next - off);
-        off = next;
+/* Where a response repeats its request (05, 06: all of it; 15, 16: the
+ * address and count), does it? Else the master asking that unit again
+ * would pass for the response. */
+static bool echoes_request(const uint8_t *request, const uint8_t *rsp, size_t size)
+{
+    if (rsp[1] & 0x80)
+        return true;
+    switch (request[1]) {
+    case 5: case 6:
+        return size == 8 && memcmp(request, rsp, 8) == 0;
+    case 15: case 16:
+        return memcmp(request, rsp, 6) == 0;
+    default:
+        return true;
     }
 }
 
-/* The bytes a tail of 'have' bytes lacks to reach its next possible end. */
-static size_t missing_at(const uint8_t *d, size_t have)
-{
-    size_t lengths[2], best = 0;
-    unsigned n;
+/* What the walk of a chunk found. */
+struct walk {
+    enum rtu_conv conv;
+    uint8_t await_request[RTU_MAX_ADU];
+    size_t await_request_size;
+    struct rtu_line_stats stats; /* added to the line's */
+    size_t execute_at, execute_size; /* a request of ours, or size 0 */
+    size_t missing; /* bytes the tail lacks to be what is expected */
+};
 
-    if (have < 2)
-        return RTU_MIN_ADU - have;
-    n = candidate_lengths(d, have, lengths);
-    for (unsigned i = 0; i < n; i++)
-        if (lengths[i] > have && lengths[i] <= RTU_MAX_ADU && (!best || lengths[i] < best))
-            best = lengths[i];
-    if (!best && have < RTU_MIN_ADU && n == 0)
-        best = RTU_MIN_ADU; /* an unknown function: at least a whole frame */
-    return best ? best - have : 0;
+enum frame_kind { FRAME_NONE, FRAME_REQUEST, FRAME_RESPONSE };
+
+/* The length the tail at 'd' ('avail' bytes) lacks to be a frame of the
+ * form 'len' says. */
+static size_t lacking(enum rtu_length how, size_t len, size_t avail)
+{
+    if (how == RTU_LENGTH_UNKNOWN || len > RTU_MAX_ADU || len <= avail)
+        return 0;
+    return len - avail;
 }
 
-size_t rtu_missing_bytes(const uint8_t *chunk, size_t size, const uint16_t *gaps,
-                         size_t gap_count)
+/*
+ * Walks the chunk as the model in rtu_frame.h says, from the line's state,
+ * without changing the line: the state after it, the counters, the
+ * request to execute, and what a frame begun at the end lacks. 'final':
+ * the chunk is being judged, nothing more will come.
+ */
+static void walk_chunk(const struct rtu_line *line, bool final, struct walk *w)
 {
-    size_t off = 0, g = 0;
+    const uint8_t *rx = line->rx;
+    size_t size = line->rx_used, at = 0;
 
-    while (off < size) {
-        size_t len = rtu_frame_length(chunk + off, size - off);
-        while (g < gap_count && GAP_AT(gaps[g]) <= off)
-            g++;
-        if (len) {
-            off += len;
+    memset(w, 0, sizeof(*w));
+    w->conv = line->conv;
+    memcpy(w->await_request, line->await_request, line->await_request_size);
+    w->await_request_size = line->await_request_size;
+    while (at < size) {
+        const uint8_t *d = rx + at;
+        size_t avail = size - at, len = 0;
+        bool silence = after_silence(line, at);
+        enum frame_kind kind = FRAME_NONE;
+        enum rtu_length how;
+
+        size_t missing = 0;
+        if (w->conv == RTU_CONV_UNSYNCED) {
+            /* Only a whole chunk: from a silence to the end. */
+            how = rtu_request_length(d, avail, &len);
+            if (silence && avail >= RTU_MIN_ADU && avail <= RTU_MAX_ADU &&
+                rtu_crc_ok(d, avail)) {
+                kind = how == RTU_LENGTH_UNKNOWN || (how == RTU_LENGTH_EXACT && len == avail)
+                           ? FRAME_REQUEST
+                           : FRAME_RESPONSE;
+                len = avail;
+            } else if (silence) {
+                missing = lacking(how, len, avail);
+                if (!missing && avail < RTU_MIN_ADU)
+                    missing = RTU_MIN_ADU - avail;
+            }
+        } else {
+            size_t as_response = 0, as_request = 0;
+            bool response = w->conv == RTU_CONV_AWAIT && avail >= 2 &&
+                            d[0] == w->await_request[0] &&
+                            (d[1] & 0x7F) == w->await_request[1];
+            if (w->conv == RTU_CONV_AWAIT && avail < 2) {
+                as_response = RTU_MIN_ADU - avail;
+            } else if (response) {
+                /* The unit and function awaited: the response. While it
+                 * may still become whole it is never read as anything else
+                 * (its data is whatever that unit holds); once its length
+                 * has come with a bad CRC, or no more is coming (final),
+                 * it may be the master asking that unit again. */
+                how = rtu_response_length(w->await_request, w->await_request_size, d, avail,
+                                          &len);
+                if (how == RTU_LENGTH_UNKNOWN && silence)
+                    how = RTU_LENGTH_EXACT, len = avail; /* the rest of the chunk */
+                if (how == RTU_LENGTH_EXACT && len <= avail && len >= RTU_MIN_ADU &&
+                    len <= RTU_MAX_ADU && rtu_crc_ok(d, len) &&
+                    echoes_request(w->await_request, d, len))
+                    kind = FRAME_RESPONSE;
+                else
+                    as_response = lacking(how, len, avail);
+                if (kind == FRAME_NONE && (!as_response || final))
+                    response = false;
+            }
+            if (kind == FRAME_NONE && !response && (w->conv == RTU_CONV_IDLE || silence)) {
+                how = rtu_request_length(d, avail, &len);
+                if (how == RTU_LENGTH_UNKNOWN && silence)
+                    how = RTU_LENGTH_EXACT, len = avail; /* only as a whole chunk */
+                if (how == RTU_LENGTH_EXACT && len <= avail && len >= RTU_MIN_ADU &&
+                    len <= RTU_MAX_ADU && rtu_crc_ok(d, len))
+                    kind = FRAME_REQUEST;
+                else
+                    as_request = lacking(how, len, avail);
+            }
+            /* Whichever form the tail may still become first. */
+            missing = !as_response ? as_request
+                         : !as_request ? as_response
+                         : as_request < as_response ? as_request : as_response;
+        }
+        if (kind != FRAME_NONE && pause_inside(line, at, at + len)) {
+            w->stats.gap_discards++;
+            kind = FRAME_NONE;
+            missing = 0;
+        } else if (kind == FRAME_NONE) {
+            w->stats.crc_errors++;
+        }
+        /* A frame begun and not whole: every byte after it may be its
+         * late pieces (a silence waited past in it is the port's delay),
+         * so nothing after it is searched for frames; it is waited for,
+         * and dropped with them if it does not come. */
+        if (kind == FRAME_NONE && missing) {
+            w->missing = missing;
+            w->conv = RTU_CONV_UNSYNCED;
+            return;
+        }
+        if (kind == FRAME_REQUEST && d[0] == line->cfg.unit_id && at + len != size) {
+            /* Bytes after our request: the master did not wait for us. */
+            w->stats.crc_errors++;
+            kind = FRAME_NONE;
+        }
+        if (kind == FRAME_NONE) {
+            /* Dropped up to the next silence, where nothing is known. */
+            size_t next = next_silence(line, at);
+            w->conv = RTU_CONV_UNSYNCED;
+            if (!next)
+                return;
+            at = next;
             continue;
         }
-        if (g < gap_count) {
-            off = GAP_AT(gaps[g]); /* no frame here: rtu_split drops up to the gap */
-            continue;
+        w->stats.frames++;
+        if (kind == FRAME_RESPONSE) {
+            w->stats.foreign_frames++;
+            w->conv = RTU_CONV_IDLE;
+        } else if (d[0] == RTU_BROADCAST) {
+            w->stats.broadcasts++;
+            w->conv = RTU_CONV_IDLE;
+        } else if (d[0] == line->cfg.unit_id) {
+            w->execute_at = at;
+            w->execute_size = len;
+            w->conv = RTU_CONV_IDLE; /* our reply ends the exchange */
+        } else {
+            w->stats.foreign_frames++;
+            memcpy(w->await_request, d, len);
+            w->await_request_size = len;
+            w->conv = RTU_CONV_AWAIT;
         }
-        return missing_at(chunk + off, size - off);
+        at += len;
     }
-    return 0;
+    w->missing = 0; /* the chunk ends with a whole frame */
+}
+
+static void add_stats(struct rtu_line_stats *to, const struct rtu_line_stats *add)
+{
+    to->frames += add->frames;
+    to->crc_errors += add->crc_errors;
+    to->foreign_frames += add->foreign_frames;
+    to->broadcasts += add->broadcasts;
+    to->gap_discards += add->gap_discards;
+}
+
+/* The silence came: the chunk is judged and consumed; then our request,
+ * if any, is handed on. */
+static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
+{
+    uint8_t request[RTU_MAX_ADU];
+    size_t request_size = 0;
+
+    if (line->rx_overrun) {
+        /* Counted when it happened; nothing in it can be trusted. */
+        line->conv = RTU_CONV_UNSYNCED;
+    } else if (line->tx_end_ns && line->last_rx_ns < line->tx_end_ns + line->cfg.t35_ns) {
+        /* Begun in our turn: no master may speak before t3.5 after our
+         * frame. Our frame heard back, or a collision. */
+        if (line->rx_used == line->sent_size &&
+            memcmp(line->rx, line->sent, line->sent_size) == 0) {
+            line->stats.echoes++;
+            emit(hooks, RTU_EVENT_ECHO);
+        } else {
+            line->stats.out_of_turn++;
+            line->conv = RTU_CONV_UNSYNCED;
+        }
+    } else {
+        struct walk w;
+        walk_chunk(line, true, &w);
+        if (line->echo_broken) {
+            /* Our frame did not come back whole: a chunk that is what the
+             * conversation expects means the adapter gave nothing back;
+             * anything else, that another transmitter spoke over us. */
+            bool clean = !w.stats.crc_errors && !w.stats.gap_discards;
+            if (!clean)
+                line->stats.collisions++;
+            emit(hooks, clean ? RTU_EVENT_NO_ECHO : RTU_EVENT_COLLISION);
+        }
+        add_stats(&line->stats, &w.stats);
+        line->conv = w.conv;
+        memcpy(line->await_request, w.await_request, w.await_request_size);
+        line->await_request_size = w.await_request_size;
+        if (w.execute_size) {
+            memcpy(request, line->rx + w.execute_at, w.execute_size);
+            request_size = w.execute_size;
+            line->stats.executed++;
+        }
+    }
+    clear_chunk(line);
+    if (request_size && hooks && hooks->request)
+        hooks->request(hooks->user, request, request_size);
+}
+
+bool rtu_line_silence(struct rtu_line *line, uint64_t now_ns, const struct rtu_line_hooks *hooks)
+{
+    if (!line->chunk_open)
+        return true;
+    if (now_ns < line->judge_at_ns)
+        return false;
+    bool our_turn = line->tx_end_ns && line->last_rx_ns < line->tx_end_ns + line->cfg.t35_ns;
+    /* In our turn nothing is executed: no waiting (an echo's wait would
+     * hold the master's next request in the same chunk). */
+    if (!line->waited && !line->rx_overrun && !our_turn) {
+        /* A frame begun but not whole: its bytes may still be in the
+         * port's FIFO or the adapter's next packet. */
+        struct walk w;
+        walk_chunk(line, false, &w);
+        line->waited = true;
+        /* A frame begun but not whole waits for its next piece; where the
+         * line lost its place, a whole frame is taken only once the line
+         * surely fell silent after it (the next piece of a frame that
+         * merely paused would have come by then), so that a frame inside
+         * another unit's data, cut there by a port's delivery, is never
+         * taken for a whole one. Either way: t3.5 and what a port hands
+         * over at once, and its delivery. */
+        if (w.missing || line->conv == RTU_CONV_UNSYNCED) {
+            uint64_t until = line->last_rx_ns + line->cfg.t35_ns +
+                             (uint64_t)RTU_PIECE_CHARS * line->cfg.char_ns +
+                             line->cfg.delivery_ns;
+            if (now_ns < until) {
+                /* If the frame was noise after all, the next starts here. */
+                if (w.missing && line->gap_count < RTU_LINE_MAX_GAPS &&
+                    line->rx_used < RTU_GAP_WAITED &&
+                    (line->gap_count == 0 ||
+                     GAP_AT(line->gaps[line->gap_count - 1]) != line->rx_used))
+                    line->gaps[line->gap_count++] = (uint16_t)(line->rx_used | RTU_GAP_WAITED);
+                line->judge_at_ns = until;
+                return false;
+            }
+        }
+    }
+    end_chunk(line, hooks);
+    return true;
+}
+
+void rtu_line_frame_out(struct rtu_line *line, const uint8_t *frame, size_t size)
+{
+    if (size > sizeof(line->sent))
+        size = sizeof(line->sent);
+    memcpy(line->sent, frame, size);
+    line->sent_size = size;
+    line->echo_pending = line->cfg.local_echo && size > 0;
+    line->echo_at = 0;
+    line->conv = RTU_CONV_IDLE;
+}
+
+void rtu_line_bytes_out(struct rtu_line *line, size_t size, uint64_t now_ns)
+{
+    uint64_t from = line->tx_end_ns > now_ns ? line->tx_end_ns : now_ns;
+
+    line->tx_end_ns = from + (uint64_t)size * line->cfg.tx_char_ns;
+    line->echo_until_ns = line->tx_end_ns + RTU_ECHO_LATE_NS;
+}
+
+uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line)
+{
+    return line->tx_end_ns ? line->tx_end_ns + line->cfg.t35_ns : 0;
 }

@@ -97,18 +97,32 @@ class SerialPair:
         os.rmdir(self.dir)
 
 
-class RawMaster:
-    """A master that writes each frame in one write() and reads replies."""
+def t35_s(baud=19200, parity="even", stop_bits=1):
+    """3.5 character times of the line, as the specification gives them."""
+    if baud > 19200:
+        return 0.00175
+    return 3.5 * (1 + 8 + (parity != "none") + stop_bits) / baud
 
-    def __init__(self, path):
+
+class RawMaster:
+    """A master that writes each frame in one write() and reads replies. As
+    any master does, it sends a frame only after t3.5 of silence following
+    the last reply (a pty has no wire time: a reply arrives whole at once)."""
+
+    def __init__(self, path, t35=t35_s()):
         self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
         tty.setraw(self.fd)
         termios.tcflush(self.fd, termios.TCIOFLUSH)
+        self.t35 = t35
+        self.quiet_until = 0.0
 
     def close(self):
         os.close(self.fd)
 
     def send(self, data):
+        wait = self.quiet_until - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
         check(os.write(self.fd, data) == len(data), "one write of %d bytes" % len(data))
 
     def reply(self, timeout=3.0):
@@ -120,6 +134,7 @@ class RawMaster:
             if not r:
                 break
             buf += os.read(self.fd, 512)
+            self.quiet_until = time.monotonic() + self.t35
             for n in range(4, len(buf) + 1):
                 if buf[n - 2:n] == crc16(buf[:n - 2]):
                     check(n == len(buf), "extra bytes after a reply: %r" % buf)
@@ -155,12 +170,13 @@ def u32(plc, address):
 class Rig:
     """jakasim, a serial pair, jakagw serving both the pty and TCP."""
 
-    def __init__(self, sim_args=("--log-commands",), **keys):
+    def __init__(self, sim_args=("--log-commands",), extra_config="", **keys):
+        self.keys = keys
         self.line = SerialPair()
         self.sim = self.gw = self.plc = None
         try:
             self.sim = Sim(*sim_args)
-            self.gw = Gateway(self.sim, rtu_config(self.line.device, **keys))
+            self.gw = Gateway(self.sim, rtu_config(self.line.device, **keys) + extra_config)
             self.plc = ModbusPlc(self.gw.modbus_port)
             wait_until(lambda: self.plc.ir(IR_LINE_STATE)[0] == LINE_IDLE, 10, "the line open")
         except BaseException:
@@ -168,8 +184,12 @@ class Rig:
             self.close()
             raise
 
+    def t35(self):
+        return t35_s(int(self.keys.get("baud", 19200)), self.keys.get("parity", "even"),
+                     int(self.keys.get("stop_bits", 1)))
+
     def master(self):
-        return RawMaster(self.line.master)
+        return RawMaster(self.line.master, self.t35())
 
     def close(self):
         try:
@@ -214,6 +234,11 @@ def test_mbpoll_and_pymodbus_read_the_map():
             rr = client.read_input_registers(IR_MAGIC, 13, slave=UNIT)
             check(not rr.isError(), "pymodbus read: %s" % rr)
             check(rr.registers[0] == MAGIC, "magic %r" % rr.registers)
+            # pymodbus 3.0 sends its next request at once: on a wire the
+            # reply's 31 bytes (16 ms) would come first; a pty has none,
+            # and a frame that comes before our reply's end plus t3.5 is
+            # never executed (it could be our reply heard back).
+            time.sleep(0.02)
             rr = client.read_input_registers(IR_LINE_STATE, 1, slave=UNIT)
             check(not rr.isError() and rr.registers[0] == LINE_POLLED,
                   "the line polled, read over the line: %s" % rr)
@@ -332,14 +357,17 @@ def test_multidrop_keeps_sync():
                 if i % 2:
                     check(m.read_ir(IR_MAGIC) == [MAGIC], "round %d answered" % i)
                 else:
-                    # A late reader sees both frames at once: cut by length.
-                    m.send(frame(other, read_ir_pdu(i, 1)) + frame(UNIT, read_ir_pdu(0, 1)))
+                    # A late reader sees a whole exchange and our request at
+                    # once: the conversation gives each its length.
+                    m.send(frame(other, read_ir_pdu(i, 1)) +
+                           frame(other, struct.pack(">BBH", 4, 2, i)) +
+                           frame(UNIT, read_ir_pdu(0, 1)))
                     rsp = m.reply()
                     check(rsp == frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)),
                           "round %d: %r" % (i, rsp))
             m.no_reply()
             foreign = r.plc.u32(IR_FOREIGN)
-            check(foreign == 2 * rounds + rounds // 2, "foreign frames counted: %d" % foreign)
+            check(foreign == 2 * rounds + rounds, "foreign frames counted: %d" % foreign)
             check(r.plc.u32(IR_CRC_ERRORS) == 0, "no CRC error")
         finally:
             m.close()
@@ -557,59 +585,282 @@ def test_overrun_drops_to_the_next_silence():
             m.no_reply()
             wait_until(lambda: r.plc.u32(IR_OVERRUNS) == 1, 5, "the overrun counted")
             check(m.read_ir(IR_MAGIC) == [MAGIC], "the next frame answered")
-            # 127 foreign requests and ours, 1024 bytes in one write: all cut.
-            glued = b"".join(frame(UNIT + 1, read_ir_pdu(i, 1)) for i in range(127))
+            # 67 foreign exchanges and our request, 1013 bytes in one write
+            # (a reader late by all of them): all cut by the conversation.
+            glued = b"".join(frame(UNIT + 1, read_ir_pdu(i, 1)) +
+                             frame(UNIT + 1, struct.pack(">BBH", 4, 2, i)) for i in range(67))
             m.send(glued + frame(UNIT, read_ir_pdu(0, 1)))
             check(m.reply() == frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)), "ours answered")
             check(r.plc.u32(IR_OVERRUNS) == 1, "no second overrun")
-            check(r.plc.u32(IR_FOREIGN) == 127, "127 foreign frames")
+            check(r.plc.u32(IR_FOREIGN) == 134, "134 foreign frames")
         finally:
             m.close()
 
 
-def test_own_reply_heard_back_is_not_a_request():
-    """An adapter that hears its own transmitter gives every reply back to
-    the gateway: that frame is not taken for a request (answering it would
-    be heard again); a real request after it is answered."""
-    with rig(rights="faults") as r:
+COIL_DO0 = 200  # cabinet digital output 0: each write sends set_digital_output
+COIL_POWER_OFF = 101
+
+
+class EchoingMaster:
+    """The master's end of a line whose adapter, on the gateway's side,
+    gives back what the gateway sends (a passive RS-232/485 converter, an
+    echo jumper): a thread reads the pty and, once echo is on, writes every
+    reply back to the gateway 'echo_delay' seconds later. It keeps all it
+    read, so a test counts the replies, however many an echo loop draws."""
+
+    def __init__(self, path, t35, echo_delay=0.0):
+        self.master = RawMaster(path, t35)
+        self.echo = False
+        self.echo_delay = echo_delay
+        self.lock = threading.Lock()
+        self.buf = b""
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        fd = self.master.fd
+        while not self.stopping.is_set():
+            r, _, _ = select.select([fd], [], [], 0.05)
+            if not r:
+                continue
+            try:
+                data = os.read(fd, 512)
+            except OSError:
+                return
+            self.master.quiet_until = time.monotonic() + self.master.t35
+            with self.lock:
+                self.buf += data
+            if self.echo:
+                if self.echo_delay:
+                    time.sleep(self.echo_delay)
+                os.write(fd, data)
+
+    def replies(self):
+        """The frames read so far: each reply is one write of the gateway."""
+        with self.lock:
+            data = self.buf
+        out = []
+        while len(data) >= 4:
+            for n in range(4, len(data) + 1):
+                if data[n - 2:n] == crc16(data[:n - 2]):
+                    out.append(data[:n])
+                    data = data[n:]
+                    break
+            else:
+                break
+        return out
+
+    def request(self, req, timeout=3.0):
+        """Sends one frame; the next reply, or None."""
+        before = len(self.replies())
+        self.master.send(req)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            got = self.replies()
+            if len(got) > before:
+                return got[before]
+            time.sleep(0.005)
+        return None
+
+    def close(self):
+        self.stopping.set()
+        self.thread.join()
+        self.master.close()
+
+
+def echo_case(r, em, reads_before, value=1):
+    """'reads_before' reads without echo, then echo on and one write of
+    digital output 0. Returns (set_digital_output at the robot in 2 s,
+    replies to the write)."""
+    read = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
+    for i in range(reads_before):
+        check(em.request(read) is not None, "read %d answered" % i)
+    em.echo = True
+    before = len(em.replies())
+    sent_before = len(sim_commands(r.sim, "set_digital_output"))
+    rsp = em.request(frame(UNIT, write_coil_pdu(COIL_DO0, value)))
+    check(rsp is not None, "the write answered")
+    time.sleep(2.0)
+    sent = len(sim_commands(r.sim, "set_digital_output")) - sent_before
+    return sent, len(em.replies()) - before
+
+
+def test_echoing_line_acts_once():
+    """An adapter that gives the gateway's replies back. local_echo = false
+    (the default), echo within t3.5 (2400 baud): from the first frame, and
+    starting after 4 reads (the previous code had learnt "no echo" by then
+    and answered every echo: 742-942 set_digital_output in 2 s); each write
+    reaches the robot once, one reply, the echo counted and logged once
+    with the hint. local_echo = true, echo 40 ms late: the same."""
+    for reads_before in (0, 4):
+        with rig(rights="outputs", baud="2400", parity="none") as r:
+            em = EchoingMaster(r.line.master, r.t35())
+            try:
+                sent, replies = echo_case(r, em, reads_before)
+                print("    local_echo false, echo after %d reads: set_digital_output %d, "
+                      "replies %d" % (reads_before, sent, replies))
+                check(sent == 1 and replies == 1,
+                      "set_digital_output %d times, %d replies" % (sent, replies))
+                # Then a read with the echo still on: answered once.
+                check(em.request(frame(UNIT, read_ir_pdu(IR_MAGIC, 1))) ==
+                      frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)), "a read answered")
+                hints = log_lines(r.gw, "local_echo = true")
+                check(len(hints) == 1, "the hint once: %s" % r.gw.output())
+            finally:
+                em.close()
+    for reads_before in (0, 4):
+        with rig(rights="outputs", local_echo="true") as r:
+            em = EchoingMaster(r.line.master, r.t35(), echo_delay=0.04)
+            try:
+                if reads_before:
+                    # An adapter that starts to echo only now: the reads
+                    # before it find no echo (a collision is not counted for
+                    # a missing echo).
+                    em.echo_delay = 0.0
+                sent, replies = echo_case(r, em, reads_before)
+                print("    local_echo true, echo after %d reads: set_digital_output %d, "
+                      "replies %d" % (reads_before, sent, replies))
+                check(sent == 1 and replies == 1,
+                      "set_digital_output %d times, %d replies" % (sent, replies))
+                time.sleep(0.1)
+                check(em.request(frame(UNIT, read_ir_pdu(IR_MAGIC, 1))) ==
+                      frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)), "a read answered")
+            finally:
+                em.close()
+
+
+def test_echo_judged_when_it_arrived():
+    """The gateway's loop stalls (SIGSTOP for 0.3 s) after an echo arrived
+    and before its silence was judged (1200 baud: t3.5 is 29 ms): the echo
+    is still our reply heard back, judged by when its bytes came, not when
+    they were processed (the previous code acted on the write again)."""
+    with rig(rights="outputs", baud="1200", parity="none") as r:
+        em = EchoingMaster(r.line.master, r.t35())
+        try:
+            for _ in range(4):
+                check(em.request(frame(UNIT, read_ir_pdu(IR_MAGIC, 1))) is not None, "a read")
+            sent_before = len(sim_commands(r.sim, "set_digital_output"))
+            write = frame(UNIT, write_coil_pdu(COIL_DO0, 1))
+            check(em.request(write) == write, "the write answered")
+            em.master.quiet_until = 0
+            os.write(em.master.fd, write)  # the echo, at once
+            time.sleep(0.005)
+            r.gw.proc.send_signal(signal.SIGSTOP)
+            time.sleep(0.3)
+            r.gw.proc.send_signal(signal.SIGCONT)
+            time.sleep(1.0)
+            sent = len(sim_commands(r.sim, "set_digital_output")) - sent_before
+            print("    stalled loop: set_digital_output %d, replies %d" %
+                  (sent, len(em.replies()) - 4))
+            check(sent == 1 and len(em.replies()) == 5,
+                  "set_digital_output %d, replies %d" % (sent, len(em.replies()) - 4))
+        finally:
+            em.close()
+
+
+def smuggling_response(unit, hidden, registers=8):
+    """A CRC-valid FC03 response of 'unit' whose register data holds the
+    frame 'hidden' at byte 8, its first 8 bytes made a CRC-valid frame by
+    two chosen data bytes (a recipe or text register set by anyone)."""
+    head = bytes([unit, 3, 2 * registers, 0x11, 0x22, 0x33])
+    head += crc16(head)
+    data = head[3:] + hidden
+    data += bytes(2 * registers - len(data))
+    return frame(unit, bytes([3, 2 * registers]) + data)
+
+
+def test_frame_hidden_in_a_foreign_response_is_never_acted_on():
+    """A master reads 8 registers of unit 18; unit 18's response carries,
+    in its register data, a CRC-valid 'power_off := 1' for our unit. The
+    robot never gets power_off, and nothing is sent on the line (the
+    previous code powered the robot off and answered). Then our unit is
+    served as before."""
+    with rig(rights="power") as r:
         m = r.master()
         try:
-            req = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
-            for _ in range(3):
-                m.send(req)
-                rsp = m.reply()
-                check(rsp == frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)), "reply %r" % rsp)
-                m.send(rsp)  # the echo
+            wait_until(lambda: r.plc.ir(IR_TASK_STATE)[0] in (1, 2, 3, 4), 10, "robot status")
+            hidden = frame(UNIT, write_coil_pdu(COIL_POWER_OFF, 1))
+            for i in range(3):
+                m.send(frame(18, struct.pack(">BHH", 3, 0, 8)))
+                time.sleep(0.01)
+                rsp = smuggling_response(18, hidden)
+                check(rsp[8:16] == hidden and rsp[:8] == rsp[:6] + crc16(rsp[:6]), "crafted")
+                m.send(rsp)
                 m.no_reply()
-            check(r.plc.ir(IR_MODBUS_EXCEPTIONS_LOW)[0] == 0, "no exception answered")
-            # On a line that echoes, a write's echo (equal to the request) is
-            # not the write again.
-            write = frame(UNIT, write_coil_pdu(COIL_MOTION_ENABLE, 1))
-            m.send(write)
-            check(m.reply() == write, "the write answered")
-            m.send(write)  # its echo
-            m.no_reply()
+            time.sleep(0.3)
+            got = len(sim_commands(r.sim, "power_off"))
+            print("    power_off at the robot: %d" % got)
+            check(got == 0, "power_off sent %d times" % got)
+            check(m.read_ir(IR_MAGIC) == [MAGIC], "our unit served")
         finally:
             m.close()
 
 
-def test_repeated_write_answered_where_the_line_does_not_echo():
-    """A master that writes the same value again at once (05 or 06: the
-    reply equals the request, as an echo would): on a line that has shown
-    it gives no reply back, every such write is answered (the previous
-    code skipped every second one as an echo)."""
-    with rig(rights="faults") as r:
+def test_repeated_write_is_answered_and_acted_on_each_time():
+    """The same FC05 (digital output 0 := 1) every 30 ms, 40 times, on a
+    line that does not echo: 40 answers, and the robot gets as many
+    set_digital_output as the same 40 writes over TCP give (the previous
+    code answered 6-20 and acted on fewer)."""
+    with rig(rights="outputs") as r:
+        wait_until(lambda: r.plc.ir(IR_TASK_STATE)[0] in (1, 2, 3, 4), 10, "robot status")
+        before = len(sim_commands(r.sim, "set_digital_output"))
+        for _ in range(40):
+            check(r.plc.coil(COIL_DO0, 1) == 0, "TCP write")
+            time.sleep(0.03)
+        time.sleep(0.5)
+        tcp = len(sim_commands(r.sim, "set_digital_output")) - before
         m = r.master()
         try:
-            for _ in range(3):
-                check(m.read_ir(IR_MAGIC) == [MAGIC], "a read")
-            write = frame(UNIT, write_coil_pdu(COIL_MOTION_ENABLE, 1))
-            for i in range(6):
+            before = len(sim_commands(r.sim, "set_digital_output"))
+            write = frame(UNIT, write_coil_pdu(COIL_DO0, 1))
+            answered = 0
+            for _ in range(40):
                 m.send(write)
-                check(m.reply(timeout=1.0) == write, "write %d answered" % i)
-                time.sleep(0.02)
+                answered += m.reply(timeout=1.0) == write
+                time.sleep(0.03)
+            time.sleep(0.5)
+            rtu = len(sim_commands(r.sim, "set_digital_output")) - before
+            print("    40 writes: answered %d, set_digital_output RTU %d, TCP %d" %
+                  (answered, rtu, tcp))
+            check(answered == 40, "%d of 40 answered" % answered)
+            check(rtu == tcp and tcp >= 1, "RTU acted on %d, TCP %d" % (rtu, tcp))
         finally:
             m.close()
+
+
+def test_line_never_takes_a_slot_nor_evicts():
+    """max_clients = 2, two TCP PLCs polling, an RTU master polling every
+    0.5 s with time_limit_ms 300 (so the line lets go and comes back each
+    time): no TCP connection closed, no eviction (the previous code evicted
+    a PLC each time the line came back: 62 evictions in 9 s)."""
+    extra = ("[modbus]\nmax_clients = 2\n"
+             "[network_exception]\nwatch = connection\ntime_limit_ms = 300\n")
+    with rig() as r:
+        r.gw.stop()
+        r.plc.close()
+        r.plc = None
+        r.gw = Gateway(r.sim, rtu_config(r.line.device) + extra)
+        plcs = [ModbusPlc(r.gw.modbus_port) for _ in range(2)]
+        m = r.master()
+        try:
+            tcp_failed = 0
+            for i in range(12):
+                check(m.read_ir(IR_MAGIC) == [MAGIC], "RTU read %d" % i)
+                for p in plcs:
+                    try:
+                        tcp_failed += p.ir(IR_MAGIC) != [MAGIC]
+                    except Exception:  # counted: a closed connection
+                        tcp_failed += 1
+                time.sleep(0.5)
+            evicted = len(log_lines(r.gw, "evicted"))
+            print("    evictions: %d, failed TCP reads: %d" % (evicted, tcp_failed))
+            check(evicted == 0 and tcp_failed == 0, r.gw.output())
+            check(plcs[0].ir(IR_MODBUS_CLIENTS)[0] >= 2, "both PLCs counted")
+        finally:
+            m.close()
+            for p in plcs:
+                p.close()
 
 
 if __name__ == "__main__":
@@ -622,5 +873,7 @@ if __name__ == "__main__":
          test_device_back_but_refusing_rs485_is_logged,
          test_write_pending_at_stop_is_never_acted_on_unanswered, test_rtu_and_tcp_at_once,
          test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence,
-         test_own_reply_heard_back_is_not_a_request,
-         test_repeated_write_answered_where_the_line_does_not_echo])
+         test_echoing_line_acts_once, test_echo_judged_when_it_arrived,
+         test_frame_hidden_in_a_foreign_response_is_never_acted_on,
+         test_repeated_write_is_answered_and_acted_on_each_time,
+         test_line_never_takes_a_slot_nor_evicts])
