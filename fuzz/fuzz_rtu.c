@@ -1,16 +1,25 @@
 /* SPDX-License-Identifier: MIT */
 /*
- * fuzz_rtu.c - libFuzzer target: an arbitrary run of bytes from a serial
- * line, with the silences the reader saw inside it, cut by rtu_split() as
- * the RTU transport cuts what arrived between two silences of t3.5.
- * Input: one byte, the number of silences (mod 17), two bytes per silence
- * (its offset, taken mod the run's length), then the run (at most 1024
- * bytes, the receive buffer). Rules:
- * - every byte is accounted for once, in order: frames and dropped runs
- *   tile the chunk exactly, and cutting ends;
- * - every frame handed on has a good CRC, 4..256 bytes, and no silence
- *   strictly inside it;
- * - a frame dropped for a silence had a good CRC too.
+ * fuzz_rtu.c - libFuzzer target: the serial line's conversation model
+ * (struct rtu_line, rtu_frame.h) fed an arbitrary bus, checked against the
+ * invariant of the property test in tests/test_rtu_frame.c: the requests
+ * executed are exactly the whole requests addressed to our unit, each once,
+ * in order.
+ *
+ * Input: one byte of setup (baud, local_echo, pty), then events of a bus,
+ * each a tag byte and its bytes, every frame between silences the line can
+ * be sure of, delivered in pieces as a port hands them over:
+ *   tag % 8 == 0: a request of ours (function 1..6, 8 bytes, CRC made
+ *      good): it must be executed, once; our reply goes out;
+ *   1: one byte of noise (the line loses its place), then 'len' arbitrary
+ *      bytes: executed only if the run, whole, is a request of ours;
+ *   2: our last reply given back (within t3.5 without local_echo, up to
+ *      100 ms late with it): never executed;
+ *   3: a read of 'len' / 2 registers of another unit and its response,
+ *      the arbitrary bytes its register data: nothing executed;
+ *   4: a write of those bytes to another unit's registers (16) and its
+ *      response: nothing executed;
+ *   5..7: a silence of (tag >> 3) milliseconds.
  */
 #include <stdint.h>
 #include <stdlib.h>
@@ -18,82 +27,225 @@
 
 #include "rtu_frame.h"
 
-struct walk {
-    const uint8_t *chunk;
-    size_t size, at;
-    const uint16_t *gaps;
-    size_t gap_count;
+#define UNIT 17
+#define MS 1000000ull
+
+struct bus {
+    struct rtu_line line;
+    uint64_t now;
+    size_t executed, expected;
+    uint8_t last[RTU_MAX_ADU];
+    size_t last_size;
+    uint8_t want[RTU_MAX_ADU];
+    size_t want_size;
+    bool want_one;
+    uint8_t reply[RTU_MAX_ADU];
+    size_t reply_size;
+    bool reply_due;
 };
 
-static bool gap_inside(const struct walk *w, size_t from, size_t size)
+static void on_request(void *user, const uint8_t *frame, size_t size)
 {
-    for (size_t i = 0; i < w->gap_count; i++)
-        if (!(w->gaps[i] & RTU_GAP_WAITED) && w->gaps[i] > from && w->gaps[i] < from + size)
-            return true;
-    return false;
+    struct bus *b = user;
+    /* Only what the input made a whole request of ours, once. */
+    if (!b->want_one || size != b->want_size || memcmp(frame, b->want, size) != 0)
+        abort();
+    b->want_one = false;
+    b->executed++;
+    memcpy(b->reply, frame, size);
+    b->reply_size = size;
+    b->reply_due = true;
 }
 
-static void on_frame(void *user, const uint8_t *frame, size_t size)
+static const struct rtu_line_hooks hooks = {.request = on_request};
+
+static void run_to(struct bus *b, uint64_t t)
 {
-    struct walk *w = user;
-    if (frame != w->chunk + w->at || size < RTU_MIN_ADU || size > RTU_MAX_ADU ||
-        w->at + size > w->size || !rtu_crc_ok(frame, size) || gap_inside(w, w->at, size))
-        abort();
-    w->at += size;
+    uint64_t due;
+    while ((due = rtu_line_deadline(&b->line)) != 0 && due <= t) {
+        if (due > b->now)
+            b->now = due;
+        struct rtu_line_hooks h = hooks;
+        h.user = b;
+        rtu_line_silence(&b->line, b->now, &h);
+        if (b->reply_due) {
+            b->reply_due = false;
+            uint64_t at = b->now + 100000, ready = rtu_line_tx_ready_ns(&b->line);
+            if (ready > at)
+                at = ready;
+            b->now = at;
+            rtu_line_frame_out(&b->line, b->reply, b->reply_size);
+            rtu_line_bytes_out(&b->line, b->reply_size, at);
+        }
+    }
+    if (t > b->now)
+        b->now = t;
 }
 
-static void on_dropped(void *user, enum rtu_drop why, size_t size)
+/* A silence the line can be sure of, before or after any run. */
+static uint64_t sure(const struct bus *b)
 {
-    struct walk *w = user;
-    if (size == 0 || w->at + size > w->size)
-        abort();
-    if (why == RTU_DROP_GAP && !rtu_crc_ok(w->chunk + w->at, size))
-        abort();
-    w->at += size;
+    return 2 * ((uint64_t)b->line.cfg.t35_ns + RTU_PIECE_CHARS * (uint64_t)b->line.cfg.char_ns +
+                b->line.cfg.delivery_ns) +
+           RTU_ECHO_LATE_NS;
 }
 
-static int cmp_u16(const void *a, const void *b)
+static void deliver(struct bus *b, uint64_t t, const uint8_t *data, size_t size)
 {
-    return (int)(*(const uint16_t *)a & ~RTU_GAP_WAITED) -
-           (int)(*(const uint16_t *)b & ~RTU_GAP_WAITED);
+    struct rtu_line_hooks h = hooks;
+    h.user = b;
+    run_to(b, t);
+    rtu_line_input(&b->line, data, size, b->now, &h);
+}
+
+/* Is this run, whole, a request of ours? */
+static bool ours(const uint8_t *d, size_t n)
+{
+    size_t len;
+    enum rtu_length how;
+    if (n < RTU_MIN_ADU || n > RTU_MAX_ADU || d[0] != UNIT || !rtu_crc_ok(d, n))
+        return false;
+    how = rtu_request_length(d, n, &len);
+    return how == RTU_LENGTH_UNKNOWN || (how == RTU_LENGTH_EXACT && len == n);
+}
+
+static void expect(struct bus *b, const uint8_t *frame, size_t size)
+{
+    memcpy(b->want, frame, size);
+    b->want_size = size;
+    b->want_one = true;
+    b->expected++;
+}
+
+/* The next byte says how many bytes follow (at most 'max'). */
+static size_t take(const uint8_t *data, size_t size, size_t *at, size_t max)
+{
+    if (*at >= size)
+        return 0;
+    size_t n = data[(*at)++];
+    if (n > max)
+        n = max;
+    if (n > size - *at)
+        n = size - *at;
+    return n;
+}
+
+/* A frame (or run) on the wire after a sure silence, in pieces of up to 16
+ * bytes their wire time apart (the piece sizes from 'sizes', if given),
+ * and a sure silence after it. */
+static void send(struct bus *b, const uint8_t *frame, size_t size, const uint8_t *sizes,
+                 size_t sizes_n)
+{
+    uint64_t t = b->now + sure(b);
+    for (size_t off = 0, i = 0; off < size; i++) {
+        size_t piece = sizes && sizes_n ? 1 + (sizes[i % sizes_n] & 15) : 8;
+        if (piece > size - off)
+            piece = size - off;
+        t += piece * b->line.cfg.char_ns;
+        deliver(b, t, frame + off, piece);
+        off += piece;
+    }
+    run_to(b, b->now + sure(b));
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
-    uint16_t gaps[16];
-    size_t n = 0;
+    static const unsigned bauds[] = {9600, 19200, 38400, 115200};
+    struct bus *b = calloc(1, sizeof(*b));
+    struct rtu_line_config cfg = {.unit_id = UNIT};
+    size_t at = 1;
 
-    if (size < 1)
+    if (!b)
         return 0;
-    size_t count = data[0] % 17;
-    if (size < 1 + 2 * count)
+    if (size < 1) {
+        free(b);
         return 0;
-    const uint8_t *chunk = data + 1 + 2 * count;
-    size_t chunk_size = size - 1 - 2 * count;
-    if (chunk_size == 0 || chunk_size > 1024)
-        return 0;
-    for (size_t i = 0; i < count && n < 16; i++) {
-        unsigned raw = (unsigned)data[1 + 2 * i] << 8 | data[2 + 2 * i];
-        uint16_t g = (uint16_t)(raw % chunk_size);
-        if (g > 0) /* the top bit: a silence waited past, not a pause */
-            gaps[n++] = (uint16_t)(g | (raw & 0x8000 ? RTU_GAP_WAITED : 0));
     }
-    qsort(gaps, n, sizeof(gaps[0]), cmp_u16);
-    size_t unique = 0;
-    for (size_t i = 0; i < n; i++)
-        if (unique == 0 || (gaps[unique - 1] & ~RTU_GAP_WAITED) != (gaps[i] & ~RTU_GAP_WAITED))
-            gaps[unique++] = gaps[i];
+    unsigned baud = bauds[data[0] & 3];
+    cfg.local_echo = data[0] & 4;
+    rtu_char_times(baud, false, 1, &cfg.t15_ns, &cfg.t35_ns);
+    cfg.char_ns = (uint32_t)(10ull * 1000000000ull / baud);
+    cfg.tx_char_ns = data[0] & 8 ? 0 : cfg.char_ns;
+    cfg.delivery_ns = 4ull * cfg.char_ns + MS;
+    rtu_line_init(&b->line, &cfg);
+    b->now = 1000 * MS;
 
-    struct walk w = {.chunk = chunk, .size = chunk_size, .gaps = gaps, .gap_count = unique};
-    struct rtu_split_hooks hooks = {.frame = on_frame, .dropped = on_dropped, .user = &w};
-    rtu_split(chunk, chunk_size, gaps, unique, &hooks);
-    if (w.at != chunk_size)
+    while (at < size) {
+        uint8_t tag = data[at++];
+        switch (tag & 7) {
+        case 0: {
+            uint8_t req[8] = {UNIT, 3, 0, 0, 0, 1};
+            for (int i = 1; i < 6 && at < size; i++)
+                req[i] = data[at++];
+            req[1] = (uint8_t)(1 + req[1] % 6); /* 1..6: 8-byte requests */
+            rtu_append_crc(req, 6);
+            expect(b, req, 8);
+            send(b, req, 8, NULL, 0);
+            if (b->want_one) /* a whole request of ours, not executed */
+                abort();
+            break;
+        }
+        case 1: {
+            size_t n = take(data, size, &at, 255);
+            uint8_t noise = tag;
+            send(b, &noise, 1, NULL, 0);
+            if (n == 0)
+                break;
+            if (ours(data + at, n))
+                expect(b, data + at, n);
+            send(b, data + at, n, data + at, n);
+            at += n;
+            if (b->want_one)
+                abort();
+            break;
+        }
+        case 2:
+            if (b->reply_size && b->line.tx_end_ns) {
+                uint64_t t = b->line.tx_end_ns +
+                             (cfg.local_echo ? (uint64_t)(tag >> 3) * 3 * MS : cfg.t35_ns / 2);
+                if (t < b->now)
+                    break; /* too late to be an echo in its window */
+                deliver(b, t, b->reply, b->reply_size);
+                run_to(b, b->now + sure(b));
+            }
+            break;
+        case 3:
+        case 4: {
+            size_t n = take(data, size, &at, 240) & ~(size_t)1;
+            uint8_t unit = (uint8_t)(tag >> 3), frame[RTU_MAX_ADU];
+            if (unit == UNIT || unit == RTU_BROADCAST)
+                unit = 18;
+            if (n == 0)
+                break;
+            if ((tag & 7) == 3) {
+                size_t len = 0;
+                frame[0] = unit, frame[1] = 3, frame[2] = 0, frame[3] = 0;
+                frame[4] = 0, frame[5] = (uint8_t)(n / 2);
+                send(b, frame, rtu_append_crc(frame, 6), NULL, 0);
+                frame[2] = (uint8_t)n;
+                memcpy(frame + 3, data + at, n);
+                len = rtu_append_crc(frame, 3 + n);
+                send(b, frame, len, data + at, n);
+            } else {
+                frame[0] = unit, frame[1] = 16, frame[2] = 0, frame[3] = 0;
+                frame[4] = 0, frame[5] = (uint8_t)(n / 2), frame[6] = (uint8_t)n;
+                memcpy(frame + 7, data + at, n);
+                send(b, frame, rtu_append_crc(frame, 7 + n), data + at, n);
+                send(b, frame, rtu_append_crc(frame, 6), NULL, 0);
+            }
+            at += n;
+            break;
+        }
+        default:
+            run_to(b, b->now + (uint64_t)(tag >> 3) * MS);
+            break;
+        }
+    }
+    run_to(b, b->now + sure(b));
+    if (b->executed != b->expected)
         abort();
-    /* What a tail lacks is at most a whole frame: the wait it sets is
-     * bounded. */
-    if (rtu_missing_bytes(chunk, chunk_size, gaps, unique) >= RTU_MAX_ADU)
-        abort();
+    free(b);
     return 0;
 }
