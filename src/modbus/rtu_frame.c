@@ -429,7 +429,11 @@ static void walk_chunk(const struct rtu_line *line, bool final, struct walk *w)
     while (at < size) {
         const uint8_t *d = rx + at;
         size_t avail = size - at, len = 0;
-        bool silence = after_silence(line, at);
+        /* Where the line knows where it stands, a frame starts at the
+         * chunk's start; where it does not, only after a silence it is
+         * sure of. */
+        bool silence = w->conv == RTU_CONV_UNSYNCED ? after_silence(line, at)
+                                                    : at == 0 || after_silence(line, at);
         enum frame_kind kind = FRAME_NONE;
         enum rtu_length how;
 
