@@ -355,6 +355,59 @@ static void a_client_without_a_socket_is_served_counted_and_released(void **stat
     assert_int_equal(f->srv.stats.clients, 1);
 }
 
+/*
+ * The line is not a TCP client for limits: attached at max_clients (again
+ * and again, as after each idle time) it takes no slot and evicts no PLC;
+ * a TCP newcomer then displaces a TCP client, never the line.
+ */
+static void a_line_at_max_clients_takes_no_slot_and_evicts_no_one(void **state)
+{
+    struct fixture *f = *state;
+    static struct line l;
+
+    memset(&l, 0, sizeof(l));
+    f->srv.cfg.max_clients = 1;
+    int plc = connect_client(f);
+    for (int i = 0; i < 200 && f->srv.stats.clients < 1; i++)
+        uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
+    assert_int_equal(f->srv.stats.clients, 1);
+    for (int round = 0; round < 5; round++) {
+        assert_int_equal(mb_server_attach(&f->srv, "line:test", &line_transport, &l,
+                                          REGMAP_RIGHTS_NONE, 20, &l.client),
+                         0);
+        assert_int_equal(f->srv.stats.clients, 2);
+        assert_int_equal(f->srv.stats.evictions, 0);
+        /* Idle: released, to attach again. */
+        for (int i = 0; i < 1000 && l.client; i++)
+            uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
+        assert_null(l.client);
+    }
+    assert_int_equal(f->srv.stats.evictions, 0);
+    /* The PLC is still served. */
+    assert_int_equal(write(plc, read_magic, sizeof(read_magic)), (ssize_t)sizeof(read_magic));
+    uint8_t reply[64];
+    ssize_t got = 0;
+    for (int i = 0; i < 1000 && got <= 0; i++) {
+        uv_run(&f->loop, UV_RUN_NOWAIT);
+        got = recv(plc, reply, sizeof(reply), MSG_DONTWAIT);
+        if (got <= 0)
+            usleep(1000);
+    }
+    assert_true(got >= 9);
+    /* With the line attached, a second PLC displaces the first, not the line. */
+    assert_int_equal(mb_server_attach(&f->srv, "line:test", &line_transport, &l,
+                                      REGMAP_RIGHTS_NONE, 0, &l.client),
+                     0);
+    int second = connect_client(f);
+    for (int i = 0; i < 500 && f->srv.stats.evictions < 1; i++)
+        uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
+    assert_int_equal(f->srv.stats.evictions, 1);
+    assert_non_null(l.client);
+    assert_int_equal(l.closes, 5);
+    close(plc);
+    close(second);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -365,6 +418,8 @@ int main(void)
                                         setup, teardown),
         cmocka_unit_test_setup_teardown(a_plc_socket_notices_a_silent_peer_in_seconds, setup,
                                         teardown),
+        cmocka_unit_test_setup_teardown(a_line_at_max_clients_takes_no_slot_and_evicts_no_one,
+                                        setup, teardown),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
