@@ -121,35 +121,165 @@ static void add_policy(cJSON *root, const struct gateway *gw)
     cJSON_AddNumberToObject(o, "time_limit_ms", p->cfg.time_limit_ms);
 }
 
-/* Every element of the map: [table, address, name, value, unit]. */
-static void add_registers(cJSON *root, const struct gateway *gw)
-{
-    cJSON *array = cJSON_AddArrayToObject(root, "registers");
-    const struct regmap *map = &gw->map;
+/*
+ * The "registers" member: every element of the map as [table, address,
+ * name, value, unit]. About 2,300 elements and 90 KB, too much to build
+ * with cJSON for every request (5-7 ms of the loop each, and any local
+ * process may ask back to back): the parts that never change (table,
+ * address, name, unit) are printed once, and the member is rebuilt from
+ * them and the image's values at most once per status document, or once
+ * REGISTERS_MAX_AGE_MS old when documents come slower (the gateway's own
+ * values, a PLC's writes). Every request in between is served the same
+ * text.
+ */
+#define REGISTERS_MAX_AGE_MS 100
 
-    for (unsigned r = 0; array && r < map->row_count; r++) {
+struct reg_element {
+    const struct regmap_row *row;
+    unsigned i;
+    uint32_t head, head_len; /* in 'fixed': '[table,address,"name",' */
+    uint32_t tail, tail_len; /* ',"unit"]' */
+};
+
+static struct registers_cache {
+    const struct regmap *map; /* what 'fixed' was printed from */
+    struct reg_element *elements;
+    unsigned count;
+    char *fixed;
+    char *text; /* the member's value, hardened; NULL: none yet */
+    size_t size;
+    uint64_t documents; /* documents_parsed when built */
+    uint64_t built_ms;
+} cache;
+
+static char *harden(const char *json, size_t *size);
+
+/* 'text' as a JSON string, hardened as the rest of the document. */
+static void json_string(struct strbuf *b, const char *text)
+{
+    cJSON *s = cJSON_CreateString(text);
+    char *printed = s ? cJSON_PrintUnformatted(s) : NULL;
+    size_t n = 0;
+    char *hard = printed ? harden(printed, &n) : NULL;
+    if (hard)
+        strbuf_append(b, hard, n - 1); /* without harden's newline */
+    else
+        strbuf_append(b, "\"\"", 2);
+    free(hard);
+    cJSON_free(printed);
+    cJSON_Delete(s);
+}
+
+/* Prints the parts that never change, once per map. */
+static bool registers_prepare(const struct regmap *map)
+{
+    struct strbuf b;
+    unsigned count = 0;
+
+    if (cache.map == map && cache.elements)
+        return true;
+    for (unsigned r = 0; r < map->row_count; r++)
+        count += map->rows[r].elements;
+    struct reg_element *elements = calloc(count ? count : 1, sizeof(*elements));
+    if (!elements)
+        return false;
+    strbuf_init(&b, (size_t)count * 48);
+    unsigned k = 0;
+    for (unsigned r = 0; r < map->row_count; r++) {
         const struct regmap_row *row = &map->rows[r];
-        for (unsigned i = 0; i < row->elements; i++) {
-            char name[96], text[300];
-            cJSON *e = cJSON_CreateArray();
-            if (!e || !cJSON_AddItemToArray(array, e)) {
-                cJSON_Delete(e);
-                return;
-            }
+        for (unsigned i = 0; i < row->elements; i++, k++) {
+            char name[96];
+            struct reg_element *e = &elements[k];
+            e->row = row;
+            e->i = i;
             regmap_expand(name, sizeof(name), row->name, row->index + i, i + 1);
-            cJSON_AddItemToArray(e, cJSON_CreateNumber(row->table));
-            cJSON_AddItemToArray(e, cJSON_CreateNumber(regmap_element_address(row, i)));
-            cJSON_AddItemToArray(e, cJSON_CreateString(name));
-            if (row->type == REGMAP_STR) {
-                regmap_get_text(&gw->image, row, i, text, sizeof(text));
-                cJSON_AddItemToArray(e, cJSON_CreateString(text));
-            } else {
-                double v = regmap_get_number(&gw->image, row, i);
-                cJSON_AddItemToArray(e, isfinite(v) ? cJSON_CreateNumber(v) : cJSON_CreateNull());
-            }
-            cJSON_AddItemToArray(e, cJSON_CreateString(row->unit ? row->unit : ""));
+            e->head = (uint32_t)b.len;
+            strbuf_printf(&b, "[%u,%u,", (unsigned)row->table, regmap_element_address(row, i));
+            json_string(&b, name);
+            strbuf_append(&b, ",", 1);
+            e->head_len = (uint32_t)(b.len - e->head);
+            e->tail = (uint32_t)b.len;
+            strbuf_append(&b, ",", 1);
+            json_string(&b, row->unit ? row->unit : "");
+            strbuf_append(&b, "]", 1);
+            e->tail_len = (uint32_t)(b.len - e->tail);
         }
     }
+    char *fixed = strbuf_take(&b, NULL);
+    if (!fixed) {
+        free(elements);
+        return false;
+    }
+    free(cache.elements);
+    free(cache.fixed);
+    free(cache.text);
+    cache = (struct registers_cache){.map = map, .elements = elements, .count = count,
+                                     .fixed = fixed};
+    return true;
+}
+
+/* A number as JSON: integers as such, others with as few digits as give
+ * the same double back; not finite: null. */
+static void json_number(struct strbuf *b, double v)
+{
+    char text[32];
+    int n;
+
+    if (!isfinite(v)) {
+        strbuf_append(b, "null", 4);
+        return;
+    }
+    if (v == floor(v) && fabs(v) < 1e15) {
+        n = snprintf(text, sizeof(text), "%.0f", v);
+    } else {
+        n = snprintf(text, sizeof(text), "%.15g", v);
+        if (strtod(text, NULL) != v)
+            n = snprintf(text, sizeof(text), "%.17g", v);
+    }
+    strbuf_append(b, text, (size_t)n);
+}
+
+/* The member's value, rebuilt when out of date; NULL when out of memory. */
+static const char *registers_text(struct gateway *gw, size_t *size)
+{
+    uint64_t now = uv_now(gw->loop);
+
+    if (!registers_prepare(&gw->map))
+        return NULL;
+    if (cache.text && cache.documents == gw->counters.documents_parsed &&
+        now - cache.built_ms < REGISTERS_MAX_AGE_MS) {
+        *size = cache.size;
+        return cache.text;
+    }
+    struct strbuf b;
+    strbuf_init(&b, cache.size ? cache.size + 4096 : 131072);
+    strbuf_append(&b, "[", 1);
+    for (unsigned k = 0; k < cache.count; k++) {
+        const struct reg_element *e = &cache.elements[k];
+        if (k)
+            strbuf_append(&b, ",", 1);
+        strbuf_append(&b, cache.fixed + e->head, e->head_len);
+        if (e->row->type == REGMAP_STR) {
+            char text[300];
+            regmap_get_text(&gw->image, e->row, e->i, text, sizeof(text));
+            json_string(&b, text);
+        } else {
+            json_number(&b, regmap_get_number(&gw->image, e->row, e->i));
+        }
+        strbuf_append(&b, cache.fixed + e->tail, e->tail_len);
+    }
+    strbuf_append(&b, "]", 1);
+    size_t n;
+    char *text = strbuf_take(&b, &n);
+    if (!text)
+        return NULL;
+    free(cache.text);
+    cache.text = text;
+    cache.size = n;
+    cache.documents = gw->counters.documents_parsed;
+    cache.built_ms = now;
+    *size = n;
+    return text;
 }
 
 /*
@@ -241,13 +371,28 @@ char *status_json_render(struct gateway *gw, bool registers, size_t *size)
     cJSON *counters = cJSON_AddObjectToObject(root, "counters");
     for (unsigned i = 0; counters && i < GW_VALUE_COUNT; i++)
         cJSON_AddNumberToObject(counters, gw_value_names[i], v[i]);
-    if (registers)
-        add_registers(root, gw);
     char *printed = cJSON_PrintUnformatted(root);
     cJSON_Delete(root);
     if (!printed)
         return NULL;
     char *out = harden(printed, size);
     cJSON_free(printed);
-    return out;
+    if (!out || !registers)
+        return out;
+    /* The registers member spliced in before the closing brace (and the
+     * newline harden() ends with). */
+    size_t reg_size;
+    const char *reg = registers_text(gw, &reg_size);
+    if (!reg) {
+        free(out);
+        return NULL;
+    }
+    struct strbuf b;
+    strbuf_init(&b, *size + reg_size + 32);
+    strbuf_append(&b, out, *size - 2);
+    strbuf_append(&b, ",\"registers\":", 13);
+    strbuf_append(&b, reg, reg_size);
+    strbuf_append(&b, "}\n", 2);
+    free(out);
+    return strbuf_take(&b, size);
 }
