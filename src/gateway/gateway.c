@@ -19,6 +19,7 @@ static struct gateway *gateway_of_link(struct robot_link *link)
 
 static void notify_change(struct gateway *gw)
 {
+    events_check(gw);
     if (gw->on_change)
         gw->on_change(gw);
 }
@@ -55,6 +56,8 @@ static void on_status_document(struct robot_link *link, const char *json,
     regmap_encode_status(&gw->image, gw->status);
     if (!was_fresh)
         notify_change(gw);
+    else
+        events_check(gw); /* the robot's state may have changed */
 }
 
 static void on_status_framing(struct robot_link *link, enum framer_event event,
@@ -304,6 +307,7 @@ static void on_policy_timer(uv_timer_t *t)
     struct gateway *gw = t->data;
     check_policy(gw);
     audit_flush(&gw->audit);
+    events_check(gw); /* a fault latched, the status gone stale */
 }
 
 /* The policy's action goes out as pause_program or stop_program. */
@@ -392,6 +396,8 @@ static int on_write(void *user, const struct mb_write *w)
     audit_clear_writer(&gw->audit);
     if (ex)
         audit_refusal(gw, w, ex);
+    else
+        events_check(gw); /* a fault reset, a new write owner */
     return ex;
 }
 

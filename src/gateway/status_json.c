@@ -10,8 +10,16 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #define NEVER_MS 4294967295.0
+
+static uint64_t wall_now_ms(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    return (uint64_t)ts.tv_sec * 1000 + (uint64_t)ts.tv_nsec / 1000000;
+}
 
 static const char *const link_states[] = {"disconnected", "connecting", "connected", "silent"};
 static const char *const fault_names[] = {"none", "PLC heartbeat lost", "no Modbus client",
@@ -112,13 +120,117 @@ static void add_policy(cJSON *root, const struct gateway *gw)
     add_age(o, "heartbeat_age_ms", gw->gw_values[GW_plc_heartbeat_age_ms]);
     cJSON_AddNumberToObject(o, "fault", p->fault);
     cJSON_AddStringToObject(o, "fault_name", (unsigned)p->fault < 4 ? fault_names[p->fault] : "?");
-    cJSON_AddNumberToObject(o, "fault_age_ms",
-                            (double)policy_fault_age_ms(p, uv_now(gw->loop)));
+    uint64_t fault_age = policy_fault_age_ms(p, uv_now(gw->loop));
+    cJSON_AddNumberToObject(o, "fault_age_ms", (double)fault_age);
+    /* When it latched, as wall time, and how the PLC resets it. */
+    if (p->fault != POLICY_FAULT_NONE)
+        cJSON_AddNumberToObject(o, "fault_time_ms", (double)(wall_now_ms() - fault_age));
+    else
+        cJSON_AddNullToObject(o, "fault_time_ms");
+    cJSON_AddStringToObject(o, "action",
+                            p->cfg.action == POLICY_STOP    ? "stop_program"
+                            : p->cfg.action == POLICY_PAUSE ? "pause_program"
+                                                            : "none");
+    const struct regmap_row *reset = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault_reset");
+    if (reset)
+        cJSON_AddNumberToObject(o, "fault_reset_coil", reset->address);
+    const struct regmap_row *beat = NULL;
+    for (unsigned r = 0; r < gw->map.row_count && !beat; r++)
+        if (gw->map.rows[r].source == REGMAP_SRC_GW && gw->map.rows[r].id == GW_plc_heartbeat &&
+            gw->map.rows[r].writable)
+            beat = &gw->map.rows[r];
+    if (beat)
+        cJSON_AddNumberToObject(o, "heartbeat_register", beat->address);
     cJSON_AddNumberToObject(o, "faults", (double)p->faults);
     cJSON_AddStringToObject(o, "handler", handler < 4 ? handler_names[handler] : "?");
     cJSON_AddStringToObject(o, "write_owner", p->owner_address);
     cJSON_AddBoolToObject(o, "motion_enabled", p->motion_enabled);
     cJSON_AddNumberToObject(o, "time_limit_ms", p->cfg.time_limit_ms);
+}
+
+static const char *const program_states[] = {"idle", "loading", "paused", "running"};
+static const char *const task_modes[] = {"?", "manual", "automatic", "reserved", "drag"};
+
+static void add_flag(cJSON *obj, const char *name, int v)
+{
+    if (v < 0)
+        cJSON_AddNullToObject(obj, name);
+    else
+        cJSON_AddBoolToObject(obj, name, v != 0);
+}
+
+static void add_text_or_null(cJSON *obj, const char *name, const char *text, bool known)
+{
+    if (known)
+        cJSON_AddStringToObject(obj, name, text);
+    else
+        cJSON_AddNullToObject(obj, name);
+}
+
+/*
+ * The robot as the status link shows it. Every value that comes from the
+ * link is null ("unknown") while it is down or stale: an old program or
+ * "no error" during an outage would be a claim the gateway cannot make.
+ */
+static void add_robot(cJSON *root, const struct gateway *gw)
+{
+    struct robot_view v;
+    char text[300] = "";
+    cJSON *robot = cJSON_AddObjectToObject(root, "robot");
+
+    robot_view_of(gw, &v);
+    cJSON_AddBoolToObject(robot, "known", v.known);
+    add_flag(robot, "powered_on", v.powered_on);
+    add_flag(robot, "enabled", v.enabled);
+    add_text_or_null(robot, "program_state", v.program >= 0 ? program_states[v.program] : "",
+                     v.program >= 0);
+    const struct regmap_row *row =
+        regmap_find_path(&gw->map, REGMAP_SRC_PATH, "info.loaded_program");
+    if (row)
+        regmap_get_text(&gw->image, row, 0, text, sizeof(text));
+    add_text_or_null(robot, "loaded_program", text, v.known);
+    add_flag(robot, "emergency_stop", v.emergency_stop);
+    add_flag(robot, "protective_stop", v.protective_stop);
+    if (isfinite(v.speed_override))
+        cJSON_AddNumberToObject(robot, "speed_override", v.speed_override);
+    else
+        cJSON_AddNullToObject(robot, "speed_override");
+    add_text_or_null(robot, "mode", v.mode >= 1 && v.mode <= 4 ? task_modes[v.mode] : "",
+                     v.mode >= 1 && v.mode <= 4);
+    const struct status_num *code =
+        gw->status ? status_num_at(gw->status, STATUS_F_errcode, 0) : NULL;
+    if (v.known && code && code->present)
+        cJSON_AddNumberToObject(robot, "errcode", code->value);
+    else
+        cJSON_AddNullToObject(robot, "errcode");
+    text[0] = '\0';
+    for (unsigned r = 0; r < gw->map.row_count; r++)
+        if (gw->map.rows[r].source == REGMAP_SRC_STATUS && gw->map.rows[r].type == REGMAP_STR &&
+            strcmp(gw->map.rows[r].name, "errmsg") == 0) {
+            regmap_get_text(&gw->image, &gw->map.rows[r], 0, text, sizeof(text));
+            break;
+        }
+    add_text_or_null(robot, "errmsg", text, v.known);
+    /* From the command link's queries: not the status link's to void. */
+    add_text_row(robot, "controller_version", gw, REGMAP_SRC_PATH, "info.controller_version");
+}
+
+/* The event log, oldest first. */
+static void add_events(cJSON *root, const struct events *e)
+{
+    cJSON *array = cJSON_AddArrayToObject(root, "events");
+    for (unsigned i = 0; array && i < events_count(e); i++) {
+        const struct gw_event *ev = events_get(e, i);
+        cJSON *o = cJSON_CreateObject();
+        if (!o || !cJSON_AddItemToArray(array, o)) {
+            cJSON_Delete(o);
+            return;
+        }
+        cJSON_AddNumberToObject(o, "seq", (double)ev->seq);
+        cJSON_AddNumberToObject(o, "time_ms", (double)ev->wall_ms);
+        cJSON_AddStringToObject(o, "kind", ev->kind);
+        cJSON_AddStringToObject(o, "text", ev->text);
+    }
 }
 
 /*
@@ -351,23 +463,13 @@ char *status_json_render(struct gateway *gw, bool registers, size_t *size)
              v[GW_command_reconnects]);
     cJSON_AddBoolToObject(root, "status_fresh", v[GW_status_fresh] != 0);
     add_age(root, "status_age_ms", v[GW_status_age_ms]);
-    cJSON *robot = cJSON_AddObjectToObject(root, "robot");
-    add_text_row(robot, "controller_version", gw, REGMAP_SRC_PATH, "info.controller_version");
-    add_text_row(robot, "loaded_program", gw, REGMAP_SRC_PATH, "info.loaded_program");
-    const struct regmap_row *errmsg = NULL;
-    for (unsigned r = 0; r < gw->map.row_count && !errmsg; r++)
-        if (gw->map.rows[r].source == REGMAP_SRC_STATUS && gw->map.rows[r].type == REGMAP_STR &&
-            strcmp(gw->map.rows[r].name, "errmsg") == 0)
-            errmsg = &gw->map.rows[r];
-    char text[300] = "";
-    if (errmsg)
-        regmap_get_text(&gw->image, errmsg, 0, text, sizeof(text));
-    cJSON_AddStringToObject(robot, "errmsg", text);
+    add_robot(root, gw);
     struct clients_ctx ctx = {gw, cJSON_AddArrayToObject(root, "clients")};
     if (ctx.array)
         mb_server_foreach_client(&gw->modbus, add_client, &ctx);
     add_policy(root, gw);
     add_commands(root, &gw->audit);
+    add_events(root, &gw->events);
     cJSON *counters = cJSON_AddObjectToObject(root, "counters");
     for (unsigned i = 0; counters && i < GW_VALUE_COUNT; i++)
         cJSON_AddNumberToObject(counters, gw_value_names[i], v[i]);
