@@ -373,17 +373,19 @@ static void on_start_answered(void *user)
     policy_start_answered(&gw->policy, uv_now(gw->loop));
 }
 
-/* A refused write into the audit trail: who, where, the exception. */
-static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex)
+/* A refused write into the audit trail: who, where, the exception, why. */
+static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex, bool judged)
 {
-    static const char *const tables[] = {"coil", "discrete input", "input register",
-                                         "holding register"};
-    char what[48] = "a write too short to say where";
+    /* Refused before it was judged: the server's own checks. */
+    static const char *const unjudged[] = {"", "function not allowed on this table",
+                                           "no such address in the register map",
+                                           "invalid count or value"};
+    const char *why = judged ? gw->writes.why : ex >= 1 && ex <= 3 ? unjudged[ex] : "";
 
-    if (w->count > 0)
-        snprintf(what, sizeof(what), "%s %u%s%.0u", tables[w->table % 4], w->address,
-                 w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
-    audit_write_refused(&gw->audit, w->transport, w->client, w->subject, w->role, what, ex);
+    if (!judged)
+        plc_write_name_range(&gw->writes, w);
+    audit_write_refused(&gw->audit, w->transport, w->peer ? w->peer : w->client, w->subject,
+                        w->role, gw->writes.where, ex, why);
 }
 
 /* Every write judged; the commands it sends, and a refusal, audited. */
@@ -391,11 +393,12 @@ static int on_write(void *user, const struct mb_write *w)
 {
     struct gateway *gw = user;
 
-    audit_set_writer(&gw->audit, w->transport, w->client, w->subject, w->role);
+    audit_set_writer(&gw->audit, w->transport, w->peer ? w->peer : w->client, w->subject,
+                     w->role);
     int ex = plc_write_judge(&gw->writes, w);
     audit_clear_writer(&gw->audit);
     if (ex)
-        audit_refusal(gw, w, ex);
+        audit_refusal(gw, w, ex, true);
     else
         events_check(gw); /* a fault reset, a new write owner */
     return ex;
@@ -404,7 +407,7 @@ static int on_write(void *user, const struct mb_write *w)
 /* A write the map refused before it could be judged: audited the same. */
 static void on_write_refused(void *user, const struct mb_write *w, int ex)
 {
-    audit_refusal(user, w, ex);
+    audit_refusal(user, w, ex, false);
 }
 
 static void on_client(void *user, uint64_t client, bool open, unsigned clients)

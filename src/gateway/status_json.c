@@ -86,11 +86,13 @@ static void add_client(void *user, const struct mb_client_info *info)
     cJSON_AddNumberToObject(c, "connected_ms", (double)(now - info->accepted_ms));
 }
 
-static void add_commands(cJSON *root, const struct audit *a)
+/* Audit records (PLCs' or the gateway's own), oldest first, as 'name'. */
+static void add_commands(cJSON *root, const char *name, const struct audit *a, bool own)
 {
-    cJSON *array = cJSON_AddArrayToObject(root, "commands");
-    for (unsigned i = 0; array && i < audit_count(a); i++) {
-        const struct audit_record *r = audit_get(a, i);
+    cJSON *array = cJSON_AddArrayToObject(root, name);
+    unsigned count = own ? audit_own_count(a) : audit_count(a);
+    for (unsigned i = 0; array && i < count; i++) {
+        const struct audit_record *r = own ? audit_own_get(a, i) : audit_get(a, i);
         cJSON *c = cJSON_CreateObject();
         if (!c || !cJSON_AddItemToArray(array, c)) {
             cJSON_Delete(c);
@@ -105,6 +107,7 @@ static void add_commands(cJSON *root, const struct audit *a)
         cJSON_AddStringToObject(c, "command", r->command);
         cJSON_AddStringToObject(c, "what", r->what);
         cJSON_AddStringToObject(c, "result", r->result);
+        cJSON_AddStringToObject(c, "reason", r->reason);
         cJSON_AddNumberToObject(c, "error_code", (double)r->error_code);
         cJSON_AddStringToObject(c, "error_msg", r->error_msg);
         cJSON_AddNumberToObject(c, "count", r->count);
@@ -468,7 +471,8 @@ char *status_json_render(struct gateway *gw, bool registers, size_t *size)
     if (ctx.array)
         mb_server_foreach_client(&gw->modbus, add_client, &ctx);
     add_policy(root, gw);
-    add_commands(root, &gw->audit);
+    add_commands(root, "commands", &gw->audit, false);
+    add_commands(root, "gateway_commands", &gw->audit, true);
     add_events(root, &gw->events);
     cJSON *counters = cJSON_AddObjectToObject(root, "counters");
     for (unsigned i = 0; counters && i < GW_VALUE_COUNT; i++)
