@@ -137,6 +137,10 @@ static void add_policy(cJSON *root, const struct gateway *gw)
     const struct regmap_row *reset = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault_reset");
     if (reset)
         cJSON_AddNumberToObject(o, "fault_reset_coil", reset->address);
+    const struct regmap_row *enable =
+        regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion_enable");
+    if (enable)
+        cJSON_AddNumberToObject(o, "motion_enable_coil", enable->address);
     const struct regmap_row *beat = NULL;
     for (unsigned r = 0; r < gw->map.row_count && !beat; r++)
         if (gw->map.rows[r].source == REGMAP_SRC_GW && gw->map.rows[r].id == GW_plc_heartbeat &&
