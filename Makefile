@@ -102,7 +102,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o) $(BUILD)/gen/status_page.o
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: screenshot bench-http all deps demo test soak test-netem unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
+.PHONY: screenshot bench-http bench-http-registers all deps demo test soak test-netem unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
