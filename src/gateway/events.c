@@ -2,8 +2,6 @@
 /* events.c - the event log (events.h). */
 #include "events.h"
 
-#include "gateway.h"
-
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -32,11 +30,9 @@ static int number(const struct jaka_status *s, enum status_field f)
     return n->present ? (int)n->value : -1;
 }
 
-void robot_view_of(const struct gateway *gw, struct robot_view *v)
+void robot_view_of(const struct jaka_status *s, bool fresh, struct robot_view *v)
 {
-    const struct jaka_status *s = gw->status;
-
-    v->known = s && gateway_status_fresh(gw);
+    v->known = s && fresh;
     if (!v->known) {
         v->powered_on = v->enabled = v->program = v->emergency_stop = v->protective_stop =
             v->mode = -1;
@@ -82,22 +78,6 @@ static void add(struct events *e, const char *kind, const char *fmt, ...)
         e->count++;
 }
 
-static void state_of(struct gateway *gw, struct events_state *s)
-{
-    bool fresh = gateway_status_fresh(gw);
-
-    memset(s, 0, sizeof(*s));
-    s->status_link = gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh
-                         ? 3
-                         : (int)gw->status_link.state;
-    s->command_link = (int)command_port_state(&gw->command);
-    s->fault = gw->policy.fault;
-    s->handler = gw->commands.handle_state;
-    s->motion_enabled = gw->policy.motion_enabled;
-    snprintf(s->owner, sizeof(s->owner), "%s", gw->policy.owner_address);
-    robot_view_of(gw, &s->robot);
-}
-
 static const char *name_of(const char *const *names, unsigned count, int i)
 {
     return i >= 0 && (unsigned)i < count ? names[i] : "?";
@@ -113,12 +93,10 @@ static void robot_flag(struct events *e, const char *what, int was, int now, con
         add(e, "robot", "%s: %s", what, now ? on : off);
 }
 
-void events_check(struct gateway *gw)
+void events_update(struct events *e, const struct events_state *state)
 {
-    struct events *e = &gw->events;
-    struct events_state now;
+    struct events_state now = *state;
 
-    state_of(gw, &now);
     if (!e->started) {
         /* The state at start is no change: only what follows is. */
         e->last = now;

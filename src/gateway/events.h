@@ -6,11 +6,11 @@
  * enable, the robot's handler) and the robot's state (power, enabled,
  * program, emergency and protective stop), each with its wall time.
  *
- * The gateway calls events_check() wherever its state may have changed
- * (a link's state, a status document, a write, the policy's check timer):
- * the state is compared with the one last seen and every difference is
- * one event, so no change needs a hook of its own and none is logged
- * twice.
+ * The gateway calls events_update() with its state wherever it may have
+ * changed (a link's state, a status document, a write, the policy's check
+ * timer): the state is compared with the one last seen and every
+ * difference is one event, so no change needs a hook of its own and none
+ * is logged twice. Pure: the gateway gathers the state (gateway.c).
  */
 #ifndef JAKAGW_EVENTS_H
 #define JAKAGW_EVENTS_H
@@ -18,9 +18,9 @@
 #include <stdbool.h>
 #include <stdint.h>
 
-#define EVENTS_KEPT 100
+#include "status.h"
 
-struct gateway;
+#define EVENTS_KEPT 100
 
 /* The robot as the status link shows it; every value -1 when the link is
  * down or stale ("unknown"), else 0 or 1 (program: 0 idle, 1 loading,
@@ -31,7 +31,8 @@ struct robot_view {
     double speed_override; /* 0 to 1; NAN unknown */
 };
 
-void robot_view_of(const struct gateway *gw, struct robot_view *v);
+/* The robot as 'status' shows it; all unknown unless 'fresh'. */
+void robot_view_of(const struct jaka_status *status, bool fresh, struct robot_view *v);
 
 struct gw_event {
     uint64_t seq;     /* from 1 */
@@ -58,8 +59,8 @@ struct events {
     bool started;
 };
 
-/* Compares the gateway's state with the last seen; each change an event. */
-void events_check(struct gateway *gw);
+/* Compares 'now' with the state last seen; each change is an event. */
+void events_update(struct events *e, const struct events_state *now);
 
 /* The kept events, oldest first: 'i' from 0 to events_count() - 1. */
 unsigned events_count(const struct events *e);

@@ -17,6 +17,24 @@ static struct gateway *gateway_of_link(struct robot_link *link)
     return link->user;
 }
 
+/* The state the event log follows (events.h): each change one event. */
+static void events_check(struct gateway *gw)
+{
+    bool fresh = gateway_status_fresh(gw);
+    struct events_state s = {
+        .status_link = gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh
+                           ? 3
+                           : (int)gw->status_link.state,
+        .command_link = (int)command_port_state(&gw->command),
+        .fault = gw->policy.fault,
+        .handler = gw->commands.handle_state,
+        .motion_enabled = gw->policy.motion_enabled,
+    };
+    snprintf(s.owner, sizeof(s.owner), "%s", gw->policy.owner_address);
+    robot_view_of(gw->status, fresh, &s.robot);
+    events_update(&gw->events, &s);
+}
+
 static void notify_change(struct gateway *gw)
 {
     events_check(gw);

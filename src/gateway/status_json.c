@@ -185,7 +185,7 @@ static void add_robot(cJSON *root, const struct gateway *gw)
     char text[300] = "";
     cJSON *robot = cJSON_AddObjectToObject(root, "robot");
 
-    robot_view_of(gw, &v);
+    robot_view_of(gw->status, gateway_status_fresh(gw), &v);
     cJSON_AddBoolToObject(robot, "known", v.known);
     add_flag(robot, "powered_on", v.powered_on);
     add_flag(robot, "enabled", v.enabled);
