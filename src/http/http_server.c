@@ -49,13 +49,14 @@ static void on_rest_over(uv_timer_t *t);
  * (100 - HTTP_LOOP_PERCENT) / HTTP_LOOP_PERCENT times as long, so that
  * however many clients ask back to back, HTTP has at most that share of
  * the loop and Modbus requests wait for one short turn at most. A turn
- * under a millisecond's share (the usual one) rests not at all.
+ * shorter than HTTP_REST_AFTER_US (one request, even the registers
+ * document) rests not at all: a lone client is never slowed.
  */
 static void rest_after(struct http_server *srv, uint64_t spent_ns)
 {
     uint64_t rest_ms = spent_ns * (100 - HTTP_LOOP_PERCENT) / HTTP_LOOP_PERCENT / 1000000;
 
-    if (rest_ms == 0 || !srv->running)
+    if (spent_ns < HTTP_REST_AFTER_US * 1000 || rest_ms == 0 || !srv->running)
         return;
     srv->resting = true;
     srv->rests++;

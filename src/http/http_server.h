@@ -46,6 +46,7 @@
 /* The most of the loop's time HTTP takes when clients ask back to back
  * (http_server.c, rest_after). */
 #define HTTP_LOOP_PERCENT 20
+#define HTTP_REST_AFTER_US 500
 
 struct http_request {
     const char *path;  /* without the query */

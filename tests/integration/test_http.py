@@ -1131,7 +1131,7 @@ def test_registers_document_is_served_from_its_cache():
             with open("/proc/%d/stat" % gw.proc.pid) as f:
                 fields = f.read().rsplit(")", 1)[1].split()
             return (int(fields[11]) + int(fields[12])) / ticks
-        c0 = cpu()
+        c0, w0 = cpu(), time.monotonic()
         for _ in range(400):
             t = time.perf_counter()
             conn.request("GET", "/status.json?registers=1")
@@ -1139,16 +1139,32 @@ def test_registers_document_is_served_from_its_cache():
             times.append(time.perf_counter() - t)
         used = cpu() - c0
         conn.close()
+        # Less the status stream's own CPU over as long a window.
+        idle0 = cpu()
+        time.sleep(time.monotonic() - w0)
+        used -= cpu() - idle0
         doc = json.loads(body)
         check(len(doc["registers"]) > 2000 and doc["robot"]["known"], "the document")
         times.sort()
         median = times[len(times) // 2] * 1e3
         per_request = used / len(times) * 1e3
-        print("  %d bytes: median fetch %.2f ms, gateway CPU %.2f ms per request (with the "
-              "125 Hz status stream)" % (len(body), median, per_request))
+        print("  %d bytes: median fetch %.2f ms, gateway CPU %.2f ms per request"
+              % (len(body), median, per_request))
+        if instrumented():
+            print("  (sanitizer, valgrind or qemu: no time bound)")
+            return
         check(median <= 5.0, "median fetch %.2f ms (bound 5 ms; 1.5 ms on an idle machine)"
               % median)
-        check(per_request <= 1.0, "%.2f ms of CPU per request" % per_request)
+        check(per_request <= 1.0, "%.2f ms of CPU per request (7 ms before the cache)"
+              % per_request)
+
+
+def instrumented():
+    """ASan, valgrind or qemu-user make every request many times slower."""
+    if os.environ.get("JAKAGW_VALGRIND") == "1" or os.environ.get("JAKAGW_RUNNER"):
+        return True
+    out = subprocess.run(["ldd", JAKAGW], capture_output=True).stdout
+    return b"libasan" in out
 
 
 # ---- alert rules ----
