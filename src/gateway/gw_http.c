@@ -69,11 +69,10 @@ static void answer(void *user, const struct http_request *req, struct http_respo
     const char *registers = http_request_arg(req, "registers");
     bool with_registers = registers && strcmp(registers, "1") == 0;
     /* The state cannot change within one turn of the server: what was
-     * built for one request of the turn is the answer to the others. */
-    const char *key = strcmp(req->path, "/metrics") == 0       ? "metrics"
-                      : strcmp(req->path, "/status.json") != 0 ? NULL
-                      : with_registers                         ? "status+registers"
-                                                               : "status";
+     * built for one request of the turn is the answer to the others.
+     * /status.json is kept longer, by status_document(): not copied for
+     * the turn as well. */
+    const char *key = strcmp(req->path, "/metrics") == 0 ? "metrics" : NULL;
 
     if (key && http_turn_cached(&gw->http, key, resp))
         return;
