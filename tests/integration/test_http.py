@@ -1153,9 +1153,11 @@ def test_registers_document_is_served_from_its_cache():
         if instrumented():
             print("  (sanitizer, valgrind or qemu: no time bound)")
             return
-        check(median <= 5.0, "median fetch %.2f ms (bound 5 ms; 1.5 ms on an idle machine)"
+        # Generous: this machine is shared (0.2-0.5 ms median when quiet,
+        # 13.7 ms and 7.25 ms of CPU before the cache).
+        check(median <= 10.0, "median fetch %.2f ms (bound 10 ms; 1.5 ms on a quiet machine)"
               % median)
-        check(per_request <= 1.0, "%.2f ms of CPU per request (7 ms before the cache)"
+        check(per_request <= 2.0, "%.2f ms of CPU per request (7.25 ms before the cache)"
               % per_request)
 
 
