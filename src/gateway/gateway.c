@@ -2,7 +2,6 @@
 /* gateway.c - see gateway.h. */
 #include "gateway.h"
 
-#include "gw_http.h"
 #include "gw_tls.h"
 #include "log.h"
 
@@ -18,8 +17,27 @@ static struct gateway *gateway_of_link(struct robot_link *link)
     return link->user;
 }
 
+/* The state the event log follows (events.h): each change one event. */
+static void events_check(struct gateway *gw)
+{
+    bool fresh = gateway_status_fresh(gw);
+    struct events_state s = {
+        .status_link = gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh
+                           ? 3
+                           : (int)gw->status_link.state,
+        .command_link = (int)command_port_state(&gw->command),
+        .fault = gw->policy.fault,
+        .handler = gw->commands.handle_state,
+        .motion_enabled = gw->policy.motion_enabled,
+    };
+    snprintf(s.owner, sizeof(s.owner), "%s", gw->policy.owner_address);
+    robot_view_of(gw->status, fresh, &s.robot);
+    events_update(&gw->events, &s);
+}
+
 static void notify_change(struct gateway *gw)
 {
+    events_check(gw);
     if (gw->on_change)
         gw->on_change(gw);
 }
@@ -56,6 +74,8 @@ static void on_status_document(struct robot_link *link, const char *json,
     regmap_encode_status(&gw->image, gw->status);
     if (!was_fresh)
         notify_change(gw);
+    else
+        events_check(gw); /* the robot's state may have changed */
 }
 
 static void on_status_framing(struct robot_link *link, enum framer_event event,
@@ -183,6 +203,34 @@ static void refresh_rtu_values(struct gateway *gw, double *v)
     v[GW_rtu_turnaround_max_us] = s->turnaround_max_us;
 }
 
+static void refresh_tls_values(struct gateway *gw, double *v)
+{
+    static const struct mb_tls_stats none;
+    const struct mb_tls_stats *s = gw->mbaps ? &gw->mbaps->stats : &none;
+
+    v[GW_tls_clients] = s->clients;
+    v[GW_tls_handshakes_running] = s->handshakes;
+    v[GW_tls_handshakes_ok] = (double)s->handshakes_ok;
+    v[GW_tls_failed_total] = (double)mb_tls_failed_total(s);
+    v[GW_tls_failed_no_certificate] = (double)s->failed[TLS_FAIL_NO_CERTIFICATE];
+    v[GW_tls_failed_untrusted] = (double)s->failed[TLS_FAIL_UNTRUSTED];
+    v[GW_tls_failed_expired] = (double)s->failed[TLS_FAIL_EXPIRED];
+    v[GW_tls_failed_revoked] = (double)s->failed[TLS_FAIL_REVOKED];
+    v[GW_tls_failed_protocol] = (double)s->failed[TLS_FAIL_PROTOCOL];
+    v[GW_tls_failed_timeout] = (double)s->failed[TLS_FAIL_TIMEOUT];
+    v[GW_tls_failed_over_limit] = (double)s->failed[TLS_FAIL_OVER_LIMIT];
+    v[GW_status_link_tls_failure] = gw->status_link.tls_failure;
+    v[GW_command_link_tls_failure] = gw->command.link.tls_failure;
+}
+
+static void clear_tls_counters(struct gateway *gw)
+{
+    if (!gw->mbaps)
+        return;
+    gw->mbaps->stats.handshakes_ok = 0;
+    memset(gw->mbaps->stats.failed, 0, sizeof(gw->mbaps->stats.failed));
+}
+
 void gateway_refresh_values(struct gateway *gw)
 {
     double *v = gw->gw_values;
@@ -221,7 +269,7 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_can_frames_sent] = (double)gw->can.stats.frames_sent;
     v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
     v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
-    gw_tls_refresh_values(gw, v);
+    refresh_tls_values(gw, v);
     refresh_rtu_values(gw, v);
     regmap_encode_gw(&gw->image, v);
     plc_commands_refresh(&gw->commands);
@@ -242,7 +290,7 @@ static void clear_counters(void *user)
     gw->modbus.stats.bad_frames = 0;
     memset(&gw->modbus.stats.by, 0, sizeof(gw->modbus.stats.by));
     can_mirror_clear_stats(&gw->can);
-    gw_tls_clear_counters(gw);
+    clear_tls_counters(gw);
     if (gw->parts & GATEWAY_PART_RTU)
         mb_rtu_clear_stats(&gw->rtu);
     log_notice("counters cleared by a Modbus client");
@@ -277,6 +325,7 @@ static void on_policy_timer(uv_timer_t *t)
     struct gateway *gw = t->data;
     check_policy(gw);
     audit_flush(&gw->audit);
+    events_check(gw); /* a fault latched, the status gone stale */
 }
 
 /* The policy's action goes out as pause_program or stop_program. */
@@ -342,17 +391,19 @@ static void on_start_answered(void *user)
     policy_start_answered(&gw->policy, uv_now(gw->loop));
 }
 
-/* A refused write into the audit trail: who, where, the exception. */
-static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex)
+/* A refused write into the audit trail: who, where, the exception, why. */
+static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex, bool judged)
 {
-    static const char *const tables[] = {"coil", "discrete input", "input register",
-                                         "holding register"};
-    char what[48] = "a write too short to say where";
+    /* Refused before it was judged: the server's own checks. */
+    static const char *const unjudged[] = {"", "function not allowed on this table",
+                                           "no such address in the register map",
+                                           "invalid count or value"};
+    const char *why = judged ? gw->writes.why : ex >= 1 && ex <= 3 ? unjudged[ex] : "";
 
-    if (w->count > 0)
-        snprintf(what, sizeof(what), "%s %u%s%.0u", tables[w->table % 4], w->address,
-                 w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
-    audit_write_refused(&gw->audit, w->transport, w->client, w->subject, w->role, what, ex);
+    if (!judged)
+        plc_write_name_range(&gw->writes, w);
+    audit_write_refused(&gw->audit, w->transport, w->peer ? w->peer : w->client, w->subject,
+                        w->role, gw->writes.where, ex, why);
 }
 
 /* Every write judged; the commands it sends, and a refusal, audited. */
@@ -360,18 +411,21 @@ static int on_write(void *user, const struct mb_write *w)
 {
     struct gateway *gw = user;
 
-    audit_set_writer(&gw->audit, w->transport, w->client, w->subject, w->role);
+    audit_set_writer(&gw->audit, w->transport, w->peer ? w->peer : w->client, w->subject,
+                     w->role);
     int ex = plc_write_judge(&gw->writes, w);
     audit_clear_writer(&gw->audit);
     if (ex)
-        audit_refusal(gw, w, ex);
+        audit_refusal(gw, w, ex, true);
+    else
+        events_check(gw); /* a fault reset, a new write owner */
     return ex;
 }
 
 /* A write the map refused before it could be judged: audited the same. */
 static void on_write_refused(void *user, const struct mb_write *w, int ex)
 {
-    audit_refusal(user, w, ex);
+    audit_refusal(user, w, ex, false);
 }
 
 static void on_client(void *user, uint64_t client, bool open, unsigned clients)
@@ -623,6 +677,51 @@ static int start_rtu(struct gateway *gw)
     return rc;
 }
 
+static uint32_t rights_for_role(void *user, const char *role, bool valid, bool *listed)
+{
+    struct gateway *gw = user;
+    return config_role_rights(&gw->cfg, role, valid, listed);
+}
+
+/* The Modbus/TCP Security listener, when [tls] enabled. */
+static int start_mbaps(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct tls_context *ctx;
+    char why[600];
+    int rc;
+
+    if (!cfg->tls_enabled)
+        return 0;
+    rc = gw_tls_server_context(cfg, &ctx, why, sizeof(why));
+    if (rc) {
+        log_err("mbaps: %s", why);
+        return rc;
+    }
+    struct mb_tls_config tc = {
+        .handshake_timeout_ms = cfg->tls_handshake_timeout_ms,
+        .max_handshakes = cfg->tls_max_handshakes,
+        .rights_for_role = rights_for_role,
+        .user = gw,
+    };
+    gw->mbaps = calloc(1, sizeof(*gw->mbaps));
+    if (!gw->mbaps) {
+        tls_context_unref(ctx);
+        return -ENOMEM;
+    }
+    rc = mb_tls_init(gw->mbaps, ctx, &tc);
+    if (rc) {
+        tls_context_unref(ctx);
+        return rc;
+    }
+    log_notice("mbaps: certificate \"%s\"; TLS %s and later; clients must chain to %s%s%s",
+               tls_context_subject(ctx), cfg->tls_min_version ? "1.3" : "1.2",
+               cfg->tls_client_ca, cfg->tls_crl[0] ? ", CRL " : "", cfg->tls_crl);
+    return mb_server_listen(&gw->modbus, cfg->tls_bind[0] ? cfg->tls_bind : cfg->modbus_bind,
+                            (uint16_t)cfg->tls_port, cfg->tls_listen_fd, &mb_transport_tls,
+                            gw->mbaps);
+}
+
 int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *cfg)
 {
     int rc;
@@ -680,7 +779,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = mb_server_start(loop, &gw->modbus, &mc, &gw->image, &hooks);
     if (rc)
         return rc;
-    rc = gw_tls_start(gw);
+    rc = start_mbaps(gw);
     if (rc)
         return rc;
     rc = start_rtu(gw);
@@ -692,7 +791,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = start_can(gw);
     if (rc)
         return rc;
-    return gw_http_start(gw);
+    return 0;
 }
 
 static void part_closed(struct gateway *gw)
