@@ -34,8 +34,8 @@
  * Echo. An adapter that hears its own transmitter gives each reply back:
  * [rtu] local_echo = true takes those bytes off the input (up to 100 ms
  * after their wire time; a difference is a collision, counted and logged
- * once). With either setting, no frame whose bytes began to arrive before
- * our reply's wire time plus t3.5 is executed; with local_echo = false
+ * once). With either setting, no frame whose last byte arrived (was read)
+ * before our reply's wire time plus t3.5 is executed; with local_echo = false
  * such a frame equal to our reply is counted as an echo and logged once
  * with the hint to set local_echo = true. Nothing is learnt: a master
  * that repeats a write is answered and acted on every time, as over TCP.
