@@ -10,18 +10,31 @@
  *
  * THE MODEL. A bus is a conversation: a master's request, then at most one
  * response from the unit it addressed, each frame framed by silences of at
- * least 3.5 character times (t3.5). What arrives between two such
- * silences is a "chunk"; normally one frame, but a reader that is late (a
- * loaded host, a USB adapter's packet, a pty) may find an exchange and the
- * next request glued in one chunk. Lengths are never guessed: a frame's
- * length comes from what the conversation expects there, and a frame's
- * content is never searched for other frames. States, kept between
- * chunks and walked through a chunk frame by frame:
+ * least 3.5 character times (t3.5). What arrives between two silences is
+ * a "chunk"; normally one frame, but a reader that is late (a loaded host,
+ * a USB adapter's packet, a pty) may find an exchange and the next request
+ * glued in one chunk. Lengths are never guessed: a frame's length comes
+ * from what the conversation expects there, and a frame's content is never
+ * searched for other frames.
+ *
+ * Silences are judged from the times of the reads. A port hands bytes
+ * over in pieces (a UART's FIFO every 8 characters, further apart than
+ * t3.5 at 19200 baud; a USB adapter's packets), so the silence the line
+ * is SURE of before some bytes is the time since the last read less their
+ * own wire time and the port's delivery (delivery_ns). A pause over t1.5
+ * of that inside a frame discards it. A chunk is judged t3.5 after its
+ * last read, except: a frame begun and not whole waits for the port's
+ * next piece (RTU_PIECE_CHARS more characters and the delivery), and
+ * nothing after it in the chunk is searched (its late pieces); in UNSYNCED
+ * every chunk waits that long, so that the silence after it is sure too.
+ *
+ * States, kept between chunks and walked through a chunk frame by frame:
  *
  *   UNSYNCED  Where the conversation stands is unknown (at start, after a
- *             chunk that did not parse, an overrun, a collision). Only a
- *             frame that is a whole chunk (from a silence to the chunk's
- *             end, or to the next silence waited past) is taken:
+ *             chunk that did not parse, an overrun, a collision, a frame
+ *             out of turn). Only a frame that is a whole chunk, after a
+ *             sure silence (the chunk's start, or a silence waited past
+ *             that the next bytes proved) and before one, is taken:
  *               - a request of ours (its function's request length, or any
  *                 length for a function we do not know): EXECUTED -> IDLE;
  *               - a foreign frame of request form -> AWAIT its response;
@@ -40,17 +53,22 @@
  *                 only as a whole chunk.
  *   AWAIT     A request for unit U went out: the next frame is U's
  *             response, whose length the request gives (5 for an
- *             exception), skipped whole -> IDLE. At a silence the master
- *             may instead have given up on a silent U: a frame that is no
- *             such response is then read as a new request (as in IDLE).
+ *             exception; 05, 06 repeat the request, 15, 16 its address
+ *             and count), skipped whole -> IDLE. While a frame of U's
+ *             unit and function may still become that response it is
+ *             never read as anything else. At the chunk's start the
+ *             master may instead have given up on a silent U: a frame of
+ *             another unit, or one of U's that has come whole with a bad
+ *             CRC or stopped short, is read as a new request (as in IDLE).
  *
  * A frame that is not what its state expects (wrong unit, function,
- * length or CRC, a pause longer than t1.5 inside it, or past the chunk's
- * end) drops the chunk from there up to the next silence -> UNSYNCED.
- * So a CRC-valid frame hidden in the register data of another unit's
- * response is never seen: that response is skipped by its length, or,
- * where the request was missed, is a whole chunk that starts with the
- * other unit's id.
+ * length or CRC, a pause inside it, or past the chunk's end) drops the
+ * chunk from there up to the next silence -> UNSYNCED. So a CRC-valid
+ * frame hidden in the data of another unit's request or response is
+ * never seen: that frame is skipped by its length, or, where its request
+ * was missed, is a whole chunk that starts with the other unit's id; and
+ * a port's piece that happens to start at the hidden frame is no sure
+ * silence.
  *
  * OUR OWN TRANSMISSIONS. rtu_line_frame_out() and rtu_line_bytes_out()
  * tell the line what we send and when; from them it knows when our last
@@ -217,10 +235,9 @@ uint64_t rtu_line_deadline(const struct rtu_line *line);
 /*
  * The time is 'now_ns' and nothing more came: if the chunk's silence has
  * come, the chunk is judged (hooks run) and true is returned; false while
- * a chunk waits (call again at rtu_line_deadline()). A frame begun but not
- * whole waits as long again as its missing bytes and the port's delivery
- * take: a UART hands over its FIFO every 8 characters, a USB adapter its
- * packets, further apart than t3.5 though the wire had no pause.
+ * a chunk waits (call again at rtu_line_deadline()): a frame begun but not
+ * whole, or any chunk while the line does not know where the bus stands,
+ * waits RTU_PIECE_CHARS characters and the port's delivery past t3.5.
  */
 bool rtu_line_silence(struct rtu_line *line, uint64_t now_ns, const struct rtu_line_hooks *hooks);
 
