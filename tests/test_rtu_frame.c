@@ -18,8 +18,12 @@
  * glue an exchange to our request; the same write repeated), fed byte by
  * byte as a port delivers them, with our replies sent when the line hands
  * a request on. On every bus the requests executed are exactly the whole
- * requests addressed to our unit, each once, in order. RTU_PROPERTY_BUSES
- * sets how many (100000 by default); RTU_PROPERTY_SEED replays a run.
+ * requests addressed to our unit, each once, in order. Every tenth bus
+ * goes through the serial transport's own request path (mb_rtu.c, its
+ * clock seam set to the test's clock) to a real Modbus server, whose
+ * replies are the frames sent and heard back. RTU_PROPERTY_BUSES sets how
+ * many (100000 by default); RTU_PROPERTY_SEED replays a run (with
+ * RTU_PROPERTY_BUS=N RTU_PROPERTY_BUSES=1 RTU_PROPERTY_TRACE=1, one bus).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -33,7 +37,14 @@
 #include <time.h>
 #include <unistd.h>
 
+#include <sys/socket.h>
+
+#include "regmap.h"
 #include "rtu_frame.h"
+/* The serial transport itself, to reach its request path (on_request:
+ * the line's requests to the one Modbus server, replies through its
+ * queue) with the clock seam set to the test's clock. */
+#include "mb_rtu.c"
 
 #define UNIT 17
 #define MS 1000000ull
@@ -42,8 +53,28 @@
 
 /* ---- a line on a fake clock ---- */
 
+/* The server path: a real Modbus server on a loop, and the transport's
+ * struct mb_rtu without a port (its replies go to a socket pair). */
+struct server_path {
+    uv_loop_t loop;
+    struct regmap map;
+    struct regmap_image img;
+    struct mb_server srv;
+    struct mb_rtu rtu;
+    int peer; /* what the transport writes comes out here */
+    bool closed;
+};
+static struct server_path *server;
+static uint64_t fake_now;
+
+static uint64_t fake_clock(void)
+{
+    return fake_now;
+}
+
 struct rig {
-    struct rtu_line line;
+    struct rtu_line own_line;
+    struct rtu_line *l; /* own_line, or the transport's (the server path) */
     uint64_t now;
     size_t executed;
     uint8_t exec[MAX_EXEC][RTU_MAX_ADU];
@@ -55,6 +86,7 @@ struct rig {
     size_t reply_size;
     uint8_t reply[RTU_MAX_ADU];
     bool pending_reply;
+    bool via_server; /* requests go through mb_rtu's on_request to the server */
 };
 
 /* RTU_PROPERTY_TRACE: every delivery and decision, to read a replayed bus. */
@@ -70,7 +102,7 @@ static void trace_bytes(const char *what, uint64_t t, const uint8_t *data, size_
     printf("\n");
 }
 
-static void on_request(void *user, const uint8_t *frame, size_t size)
+static void rig_request(void *user, const uint8_t *frame, size_t size)
 {
     struct rig *r = user;
     trace_bytes("EXECUTE", r->now, frame, size);
@@ -93,17 +125,39 @@ static void on_request(void *user, const uint8_t *frame, size_t size)
     }
 }
 
-static void on_event(void *user, enum rtu_event event)
+static void rig_event(void *user, enum rtu_event event)
 {
     struct rig *r = user;
     r->events[event]++;
 }
 
+/* Through the server: recorded, handed to the transport's request path
+ * as the line hands it, and the reply the server built taken from the
+ * transport's port, as sent. */
+static void on_request_via_server(void *user, const uint8_t *frame, size_t size)
+{
+    struct rig *r = user;
+    uint8_t out[RTU_MAX_ADU * MB_RTU_TX_FRAMES];
+    r->answer = false;
+    rig_request(r, frame, size);
+    fake_now = r->now + r->turnaround;
+    uint64_t requests = server->srv.stats.requests;
+    on_request(&server->rtu, frame, size); /* mb_rtu.c's: the server answers */
+    assert_int_equal(server->srv.stats.requests, requests + 1);
+    ssize_t n = recv(server->peer, out, sizeof(out), MSG_DONTWAIT);
+    assert_true(n >= 5 && rtu_crc_ok(out, (size_t)n) && out[0] == UNIT);
+    memcpy(r->reply, out, (size_t)n);
+    r->reply_size = (size_t)n;
+    r->reply_at = fake_now;
+    r->now = fake_now;
+    trace_bytes("reply", r->now, r->reply, r->reply_size);
+}
+
 static const struct rtu_line_hooks *hooks_of(struct rig *r)
 {
     static struct rtu_line_hooks hooks;
-    hooks.request = on_request;
-    hooks.event = on_event;
+    hooks.request = r->via_server ? on_request_via_server : rig_request;
+    hooks.event = rig_event;
     hooks.user = r;
     return &hooks;
 }
@@ -111,27 +165,27 @@ static const struct rtu_line_hooks *hooks_of(struct rig *r)
 /* Our reply goes out as the transport sends it: not before its t3.5. */
 static void send_reply(struct rig *r)
 {
-    uint64_t at = r->now + r->turnaround, ready = rtu_line_tx_ready_ns(&r->line);
+    uint64_t at = r->now + r->turnaround, ready = rtu_line_tx_ready_ns(r->l);
     r->pending_reply = false;
     if (ready > at)
         at = ready;
     if (r->reply_at)
-        assert_true(at >= r->line.tx_end_ns + r->line.cfg.t35_ns);
+        assert_true(at >= r->l->tx_end_ns + r->l->cfg.t35_ns);
     r->now = at;
     r->reply_at = at;
     trace_bytes("reply", at, r->reply, r->reply_size);
-    rtu_line_frame_out(&r->line, r->reply, r->reply_size);
-    rtu_line_bytes_out(&r->line, r->reply_size, at);
+    rtu_line_frame_out(r->l, r->reply, r->reply_size);
+    rtu_line_bytes_out(r->l, r->reply_size, at);
 }
 
 /* The clock runs to 't': every silence due before it is judged. */
 static void run_to(struct rig *r, uint64_t t)
 {
     uint64_t due;
-    while ((due = rtu_line_deadline(&r->line)) != 0 && due <= t) {
+    while ((due = rtu_line_deadline(r->l)) != 0 && due <= t) {
         if (due > r->now)
             r->now = due;
-        rtu_line_silence(&r->line, r->now, hooks_of(r));
+        rtu_line_silence(r->l, r->now, hooks_of(r));
         if (r->pending_reply)
             send_reply(r);
     }
@@ -143,12 +197,12 @@ static void deliver(struct rig *r, uint64_t t, const uint8_t *data, size_t size)
 {
     run_to(r, t);
     if (trace)
-        printf("  [conv %d crc %llu frames %llu foreign %llu echoes %llu oot %llu]\n", r->line.conv,
-               (unsigned long long)r->line.stats.crc_errors, (unsigned long long)r->line.stats.frames,
-               (unsigned long long)r->line.stats.foreign_frames,
-               (unsigned long long)r->line.stats.echoes, (unsigned long long)r->line.stats.out_of_turn);
+        printf("  [conv %d crc %llu frames %llu foreign %llu echoes %llu oot %llu]\n", r->l->conv,
+               (unsigned long long)r->l->stats.crc_errors, (unsigned long long)r->l->stats.frames,
+               (unsigned long long)r->l->stats.foreign_frames,
+               (unsigned long long)r->l->stats.echoes, (unsigned long long)r->l->stats.out_of_turn);
     trace_bytes("read", r->now, data, size);
-    rtu_line_input(&r->line, data, size, r->now, hooks_of(r));
+    rtu_line_input(r->l, data, size, r->now, hooks_of(r));
 }
 
 static void rig_init(struct rig *r, unsigned baud, bool local_echo, bool pty)
@@ -159,7 +213,15 @@ static void rig_init(struct rig *r, unsigned baud, bool local_echo, bool pty)
     cfg.char_ns = (uint32_t)(10ull * 1000000000ull / baud);
     cfg.tx_char_ns = pty ? 0 : cfg.char_ns;
     cfg.delivery_ns = 4ull * cfg.char_ns + 1000000ull;
-    rtu_line_init(&r->line, &cfg);
+    r->l = &r->own_line;
+    if (server) {
+        /* The transport's own line, its queue empty, its clock ours. */
+        r->l = &server->rtu.line;
+        r->via_server = true;
+        server->rtu.tx_count = 0;
+        server->rtu.char_ns = cfg.char_ns;
+    }
+    rtu_line_init(r->l, &cfg);
     r->now = 1000 * MS;
     r->turnaround = 100 * US;
     r->answer = true;
@@ -174,12 +236,12 @@ static void start_synced(struct rig *r)
 {
     uint8_t req[8], rsp[8] = {18, 4, 2, 0, 1};
     /* Sure silences: t3.5, a port's piece and its delivery, twice over. */
-    uint64_t sure = 2 * (r->line.cfg.t35_ns + RTU_PIECE_CHARS * r->line.cfg.char_ns +
-                         r->line.cfg.delivery_ns);
+    uint64_t sure = 2 * (r->l->cfg.t35_ns + RTU_PIECE_CHARS * r->l->cfg.char_ns +
+                         r->l->cfg.delivery_ns);
     deliver(r, r->now + sure, req, read_request(req, 18, 4, 0, 1));
     deliver(r, r->now + sure, rsp, rtu_append_crc(rsp, 5));
     run_to(r, r->now + sure);
-    assert_int_equal(r->line.conv, RTU_CONV_IDLE);
+    assert_int_equal(r->l->conv, RTU_CONV_IDLE);
 }
 
 /* ---- frames ---- */
@@ -292,10 +354,10 @@ static void every_function_is_cut_by_the_conversation(void **state)
         n += 8;
         deliver(&r, r.now + 10 * MS, chunk, n);
         run_to(&r, r.now + 50 * MS);
-        if (r.executed != 2 || r.line.stats.crc_errors)
+        if (r.executed != 2 || r.l->stats.crc_errors)
             fail_msg("function %u: %zu executed, %llu dropped", x[i].req[1], r.executed,
-                     (unsigned long long)r.line.stats.crc_errors);
-        assert_int_equal(r.line.stats.foreign_frames, 2);
+                     (unsigned long long)r.l->stats.crc_errors);
+        assert_int_equal(r.l->stats.foreign_frames, 2);
     }
 }
 
@@ -347,11 +409,11 @@ static void a_pause_inside_a_frame_discards_it(void **state)
     /* 4 bytes, a pause of 3 characters (more than t1.5 beyond delivery,
      * less than t3.5 plus what the frame lacks), the rest. */
     deliver(&r, r.now, req, 4);
-    deliver(&r, r.now + 4 * r.line.cfg.char_ns + r.line.cfg.delivery_ns + 2 * r.line.cfg.t15_ns,
+    deliver(&r, r.now + 4 * r.l->cfg.char_ns + r.l->cfg.delivery_ns + 2 * r.l->cfg.t15_ns,
             req + 4, n - 4);
     run_to(&r, r.now + 50 * MS);
     assert_int_equal(r.executed, 0);
-    assert_int_equal(r.line.stats.gap_discards, 1);
+    assert_int_equal(r.l->stats.gap_discards, 1);
     /* The next whole frame is executed. */
     deliver(&r, r.now, req, n);
     run_to(&r, r.now + 50 * MS);
@@ -407,18 +469,18 @@ static void an_echo_in_our_turn_is_never_executed(void **state)
         run_to(&r, r.now + 3 * MS); /* the silence: executed, answered */
         assert_int_equal(r.executed, (size_t)i + 1);
         /* The echo: in two pieces, or just before t3.5 after its end. */
-        uint64_t end = r.line.tx_end_ns;
+        uint64_t end = r.l->tx_end_ns;
         if (i % 3 == 0) {
-            deliver(&r, r.reply_at + 2 * r.line.cfg.char_ns, r.reply, 2);
-            deliver(&r, r.reply_at + 2 * r.line.cfg.char_ns + 1 * MS, r.reply + 2,
+            deliver(&r, r.reply_at + 2 * r.l->cfg.char_ns, r.reply, 2);
+            deliver(&r, r.reply_at + 2 * r.l->cfg.char_ns + 1 * MS, r.reply + 2,
                     r.reply_size - 2);
         } else {
-            deliver(&r, end + r.line.cfg.t35_ns - 10 * US, r.reply, r.reply_size);
+            deliver(&r, end + r.l->cfg.t35_ns - 10 * US, r.reply, r.reply_size);
         }
         run_to(&r, r.now + 20 * MS);
         assert_int_equal(r.executed, (size_t)i + 1);
     }
-    assert_int_equal(r.line.stats.echoes, 5);
+    assert_int_equal(r.l->stats.echoes, 5);
     assert_int_equal(r.events[RTU_EVENT_ECHO], 5);
 }
 
@@ -438,18 +500,18 @@ static void local_echo_is_taken_off_the_input(void **state)
     deliver(&r, r.now, write, n);
     run_to(&r, r.now + 3 * MS);
     assert_int_equal(r.executed, 1);
-    deliver(&r, r.line.tx_end_ns + 60 * MS, r.reply, 3);
-    deliver(&r, r.line.tx_end_ns + 95 * MS, r.reply + 3, r.reply_size - 3);
+    deliver(&r, r.l->tx_end_ns + 60 * MS, r.reply, 3);
+    deliver(&r, r.l->tx_end_ns + 95 * MS, r.reply + 3, r.reply_size - 3);
     run_to(&r, r.now + 10 * MS);
     assert_int_equal(r.executed, 1);
-    assert_int_equal(r.line.stats.echoes, 1);
+    assert_int_equal(r.l->stats.echoes, 1);
     /* The echo and the next request in one USB packet. */
     deliver(&r, r.now + 5 * MS, write, n);
     run_to(&r, r.now + 3 * MS);
     assert_int_equal(r.executed, 2);
     memcpy(both, r.reply, r.reply_size);
     memcpy(both + r.reply_size, read, 8);
-    deliver(&r, r.line.tx_end_ns + 40 * MS, both, r.reply_size + 8);
+    deliver(&r, r.l->tx_end_ns + 40 * MS, both, r.reply_size + 8);
     run_to(&r, r.now + 10 * MS);
     assert_int_equal(r.executed, 3);
     assert_memory_equal(r.exec[2], read, 8);
@@ -457,10 +519,10 @@ static void local_echo_is_taken_off_the_input(void **state)
     uint8_t damaged[RTU_MAX_ADU];
     memcpy(damaged, r.reply, r.reply_size);
     damaged[3] ^= 0x40;
-    deliver(&r, r.line.tx_end_ns + 1 * MS, damaged, r.reply_size);
+    deliver(&r, r.l->tx_end_ns + 1 * MS, damaged, r.reply_size);
     run_to(&r, r.now + 10 * MS);
     assert_int_equal(r.executed, 3);
-    assert_int_equal(r.line.stats.collisions, 1);
+    assert_int_equal(r.l->stats.collisions, 1);
     assert_int_equal(r.events[RTU_EVENT_COLLISION], 1);
     /* Nothing comes back: the master's next request is served (once the
      * line, which lost its place in the collision, is sure of it). */
@@ -489,9 +551,9 @@ static void an_echo_is_judged_by_its_arrival(void **state)
     deliver(&r, r.reply_at + 1 * MS, r.reply, r.reply_size);
     /* The loop wakes 300 ms later. */
     r.now += 300 * MS;
-    rtu_line_silence(&r.line, r.now, hooks_of(&r));
+    rtu_line_silence(r.l, r.now, hooks_of(&r));
     assert_int_equal(r.executed, 1);
-    assert_int_equal(r.line.stats.echoes, 1);
+    assert_int_equal(r.l->stats.echoes, 1);
 }
 
 /* A master that repeats one write, 40 times 30 ms apart: 40 executed. */
@@ -506,7 +568,7 @@ static void a_repeated_write_is_executed_each_time(void **state)
         deliver(&r, r.now + 30 * MS, write, n);
     run_to(&r, r.now + 30 * MS);
     assert_int_equal(r.executed, 40);
-    assert_int_equal(r.line.stats.echoes, 0);
+    assert_int_equal(r.l->stats.echoes, 0);
 }
 
 /* Bytes after our request in the same chunk: the master did not wait for
@@ -530,7 +592,7 @@ static void our_request_must_end_its_chunk(void **state)
     deliver(&r, r.now, chunk, n);
     run_to(&r, r.now + 20 * MS);
     assert_int_equal(r.executed, 0);
-    assert_int_equal(r.line.stats.broadcasts, 1);
+    assert_int_equal(r.l->stats.broadcasts, 1);
 }
 
 /* Replies queued while the port waits keep t3.5 apart. */
@@ -541,11 +603,11 @@ static void our_frames_keep_t35_apart(void **state)
     size_t n = write_coil(frame, UNIT, 200, true);
     (void)state;
     rig_init(&r, 9600, false, false);
-    rtu_line_frame_out(&r.line, frame, n);
-    rtu_line_bytes_out(&r.line, 3, r.now);
-    rtu_line_bytes_out(&r.line, n - 3, r.now + 20 * MS); /* the port was full */
-    uint64_t ready = rtu_line_tx_ready_ns(&r.line);
-    assert_true(ready >= r.now + 20 * MS + (n - 3) * r.line.cfg.char_ns + r.line.cfg.t35_ns);
+    rtu_line_frame_out(r.l, frame, n);
+    rtu_line_bytes_out(r.l, 3, r.now);
+    rtu_line_bytes_out(r.l, n - 3, r.now + 20 * MS); /* the port was full */
+    uint64_t ready = rtu_line_tx_ready_ns(r.l);
+    assert_true(ready >= r.now + 20 * MS + (n - 3) * r.l->cfg.char_ns + r.l->cfg.t35_ns);
 }
 
 /* ---- the property test ---- */
@@ -626,7 +688,7 @@ static uint64_t next_start(struct bus *b)
         /* Every frame while the line does not know where it stands, and
          * the one after the frame it takes again (it takes that one once
          * it is sure nothing followed it). */
-        sure = RTU_PIECE_CHARS * b->char_ns + b->r.line.cfg.delivery_ns;
+        sure = RTU_PIECE_CHARS * b->char_ns + b->r.l->cfg.delivery_ns;
         if (b->synced)
             b->careful--;
     }
@@ -776,10 +838,10 @@ static void our_reply_and_echo(struct bus *b, bool local_echo)
     run_to(&b->r, b->read_at + b->t35 + b->r.turnaround);
     if (!b->r.reply_at) /* taken after a sure silence: the line had lost its place */
         run_to(&b->r, b->read_at + b->t35 + RTU_PIECE_CHARS * b->char_ns +
-                          b->r.line.cfg.delivery_ns + b->r.turnaround);
+                          b->r.l->cfg.delivery_ns + b->r.turnaround);
     if (!b->r.reply_at || b->r.reply_at < b->read_at)
         return; /* not answered: the master times out (the wire is free) */
-    uint64_t end = b->r.line.tx_end_ns;
+    uint64_t end = b->r.l->tx_end_ns;
     if (end > b->wire)
         b->wire = end;
     unsigned how = below(4);
@@ -820,8 +882,8 @@ static void one_bus(unsigned long bus_no)
     memset(&b, 0, sizeof(b));
     rig_init(&b.r, bauds[below(4)], local_echo, pty);
     b.r.turnaround = (20 + below(400)) * US;
-    b.char_ns = b.r.line.cfg.char_ns;
-    b.t35 = b.r.line.cfg.t35_ns;
+    b.char_ns = b.r.l->cfg.char_ns;
+    b.t35 = b.r.l->cfg.t35_ns;
     b.jitter = below(2) ? 0 : (unsigned)(MS / 2);
     b.wire = b.read_at = b.r.now;
     b.careful = 1; /* the line starts not knowing where the bus stands */
@@ -933,6 +995,53 @@ static void one_bus(unsigned long bus_no)
                  b.expected);
 }
 
+static void server_open(struct server_path *p)
+{
+    struct mb_server_config cfg = {.bind = "127.0.0.1", .port = 0, .max_clients = 8,
+                                   .frame_timeout_ms = 1000, .unit_id = -1};
+    struct mb_server_hooks hooks = {0};
+    int pair[2];
+
+    memset(p, 0, sizeof(*p));
+    assert_int_equal(uv_loop_init(&p->loop), 0);
+    assert_int_equal(regmap_init(&p->map), 0);
+    assert_int_equal(regmap_image_init(&p->img, &p->map, REGMAP_HIGH_WORD_FIRST), 0);
+    hooks.user = p;
+    assert_int_equal(mb_server_start(&p->loop, &p->srv, &cfg, &p->img, &hooks), 0);
+    assert_int_equal(socketpair(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK, 0, pair), 0);
+    p->rtu.loop = &p->loop;
+    p->rtu.srv = &p->srv;
+    p->rtu.fd = pair[0];
+    p->peer = pair[1];
+    p->rtu.timer_fd = -1; /* the test's clock runs the silences */
+    p->rtu.now_ns = fake_clock;
+    p->rtu.cfg.unit_id = UNIT;
+    p->rtu.cfg.rights = REGMAP_RIGHTS_NONE; /* writes: exception 01, answered */
+    p->rtu.log_limit.interval_ms = 1000;
+    snprintf(p->rtu.device, sizeof(p->rtu.device), "test");
+    snprintf(p->rtu.peer, sizeof(p->rtu.peer), "rtu:test");
+}
+
+static void on_test_server_closed(struct mb_server *srv)
+{
+    struct server_path *p = srv->hooks.user;
+    p->closed = true;
+}
+
+static void server_close(struct server_path *p)
+{
+    if (p->rtu.client)
+        mb_client_release(p->rtu.client, NULL);
+    mb_server_close(&p->srv, on_test_server_closed);
+    while (!p->closed)
+        uv_run(&p->loop, UV_RUN_ONCE);
+    close(p->rtu.fd);
+    close(p->peer);
+    regmap_image_free(&p->img);
+    regmap_free(&p->map);
+    assert_int_equal(uv_loop_close(&p->loop), 0);
+}
+
 static void generated_buses_execute_exactly_our_whole_requests(void **state)
 {
     const char *env = getenv("RTU_PROPERTY_BUSES"), *seed_env = getenv("RTU_PROPERTY_SEED");
@@ -949,14 +1058,29 @@ static void generated_buses_execute_exactly_our_whole_requests(void **state)
     fflush(stdout);
     unsigned long first = getenv("RTU_PROPERTY_BUS") ? strtoul(getenv("RTU_PROPERTY_BUS"), NULL, 10)
                                                       : 0;
+    /* Every tenth bus (RTU_PROPERTY_SERVER_EVERY) goes through the
+     * transport's request path to a real server, whose replies are the
+     * ones sent (and heard back). */
+    const char *every_env = getenv("RTU_PROPERTY_SERVER_EVERY");
+    unsigned long every = every_env ? strtoul(every_env, NULL, 10) : 10;
+    static struct server_path path;
+    unsigned long via_server = 0;
+    server_open(&path);
     for (unsigned long i = first; i < first + buses; i++) {
         /* Each bus from its own seed: a failure names one to replay. */
         rng_state = seed + i * 0x9E3779B97F4A7C15ull;
         if (!rng_state)
             rng_state = 1;
         rnd();
+        server = every && i % every == 0 ? &path : NULL;
+        via_server += server != NULL;
         one_bus(i);
     }
+    server = NULL;
+    uint64_t served = path.srv.stats.requests;
+    server_close(&path);
+    printf("rtu property: %lu buses through the server, %llu requests served\n", via_server,
+           (unsigned long long)served);
 }
 
 int main(void)
