@@ -133,13 +133,13 @@ static modbus_t *rtu_master(const char *path)
     return ctx;
 }
 
-/* t3.5 at 115200 baud, and a little: what a master keeps after a reply
- * before its next request. libmodbus's master does not wait it, and a pty
+/* t3.5 at 115200 baud and the request's own wire time, and a little: when
+ * a master's next request arrives after a reply on a wire. libmodbus's master does not wait it, and a pty
  * delivers the reply at once (a wire would take its 25 bytes' time):
  * jakagw never executes a frame that comes before its reply's end plus
  * t3.5 (it could be that reply heard back), so the master here keeps the
  * silence the specification asks for, against both slaves alike. */
-#define MASTER_SILENCE_S 0.0019
+#define MASTER_SILENCE_S 0.003 /* t3.5, the request's 8 characters, a margin */
 
 static void read_rtu(modbus_t *ctx)
 {

@@ -149,6 +149,8 @@ static int open_line(struct mb_rtu *rtu, char *why, size_t why_size)
      * pty has no wire: what is written is delivered at once. */
     rtu->line.cfg.tx_char_ns = is_pseudo_terminal(fd) ? 0 : rtu->char_ns;
     rtu_line_reset(&rtu->line);
+    /* Flushed just now: what is read later came after this. */
+    rtu->seen_empty_ns = rtu->now_ns();
     uv_poll_start(&rtu->serial, UV_READABLE, on_serial);
     return 0;
 }
@@ -253,6 +255,13 @@ static void sync_stats(struct mb_rtu *rtu)
 static void arm_timer(struct mb_rtu *rtu)
 {
     uint64_t at = rtu_line_deadline(&rtu->line);
+    uint64_t turn_end = rtu_line_tx_ready_ns(&rtu->line);
+
+    /* A look at the port when our turn ends (our reply's end plus t3.5):
+     * found empty then, what comes later surely came after it and may be
+     * a request; bytes found there may be our reply heard back. */
+    if (turn_end && rtu->seen_empty_ns < turn_end && (!at || turn_end < at))
+        at = turn_end;
 
     if (rtu->tx_count && !rtu->tx_waiting) {
         uint64_t ready = rtu_line_tx_ready_ns(&rtu->line);
@@ -446,17 +455,21 @@ static ssize_t read_line(struct mb_rtu *rtu)
     struct rtu_line_hooks hooks = line_hooks_of(rtu);
 
     while (rtu->fd >= 0) {
+        uint64_t before = rtu->now_ns();
         ssize_t n = read(rtu->fd, buf, sizeof(buf));
         if (n < 0 && errno == EINTR)
             continue;
-        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK))
+        if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+            rtu->seen_empty_ns = before; /* what comes next came after this */
             break;
+        }
         if (n <= 0) {
             line_fault(rtu, n < 0 ? strerror(errno) : "hung up");
             return -1;
         }
         uint64_t overruns = rtu->line.stats.overruns;
-        rtu_line_input(&rtu->line, buf, (size_t)n, rtu->now_ns(), &hooks);
+        rtu_line_input_read(&rtu->line, buf, (size_t)n, rtu->now_ns(), rtu->seen_empty_ns,
+                            &hooks);
         rtu->stats.overruns += rtu->line.stats.overruns - overruns;
         total += n;
         /* A terminal gives all it holds, up to the size asked: less means

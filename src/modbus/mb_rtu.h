@@ -133,6 +133,7 @@ struct mb_rtu {
     struct rtu_line line;    /* the conversation (rtu_frame.h) */
     uint64_t (*now_ns)(void); /* the clock: CLOCK_MONOTONIC, a seam for tests */
     uint64_t request_end_ns; /* the request being answered: its last read */
+    uint64_t seen_empty_ns;  /* the last read that found the port empty */
     uint32_t char_ns;        /* one character on the wire */
     struct mb_rtu_tx_frame {
         uint8_t data[RTU_MAX_ADU];

@@ -321,8 +321,8 @@ static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size,
     return used;
 }
 
-void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
-                    const struct rtu_line_hooks *hooks)
+void rtu_line_input_read(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
+                         uint64_t after_ns, const struct rtu_line_hooks *hooks)
 {
     (void)hooks;
     if (line->echo_pending) {
@@ -330,7 +330,16 @@ void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uin
         data += echo;
         size -= echo;
     }
+    if (size == 0)
+        return;
     append(line, data, size, now_ns);
+    line->last_after_ns = after_ns < now_ns ? after_ns : now_ns;
+}
+
+void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
+                    const struct rtu_line_hooks *hooks)
+{
+    rtu_line_input_read(line, data, size, now_ns, now_ns, hooks);
 }
 
 uint64_t rtu_line_deadline(const struct rtu_line *line)
@@ -554,6 +563,15 @@ static void add_stats(struct rtu_line_stats *to, const struct rtu_line_stats *ad
     to->gap_discards += add->gap_discards;
 }
 
+/* Did the chunk's last byte perhaps arrive before our last frame's end
+ * plus t3.5? Judged from the earliest it can have arrived (the last time
+ * the port was seen empty before it was read), not from when it was read
+ * or processed: a loop late to read an echo must not make it a request. */
+static bool in_our_turn(const struct rtu_line *line)
+{
+    return line->tx_end_ns && line->last_after_ns < line->tx_end_ns + line->cfg.t35_ns;
+}
+
 /* The silence came: the chunk is judged and consumed; then our request,
  * if any, is handed on. */
 static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
@@ -564,7 +582,7 @@ static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
     if (line->rx_overrun) {
         /* Counted when it happened; nothing in it can be trusted. */
         line->conv = RTU_CONV_UNSYNCED;
-    } else if (line->tx_end_ns && line->last_rx_ns < line->tx_end_ns + line->cfg.t35_ns) {
+    } else if (in_our_turn(line)) {
         /* Begun in our turn: no master may speak before t3.5 after our
          * frame. Our frame heard back, or a collision. */
         if (line->rx_used == line->sent_size &&
@@ -608,7 +626,7 @@ bool rtu_line_silence(struct rtu_line *line, uint64_t now_ns, const struct rtu_l
         return true;
     if (now_ns < line->judge_at_ns)
         return false;
-    bool our_turn = line->tx_end_ns && line->last_rx_ns < line->tx_end_ns + line->cfg.t35_ns;
+    bool our_turn = in_our_turn(line);
     /* In our turn nothing is executed: no waiting (an echo's wait would
      * hold the master's next request in the same chunk). */
     if (!line->waited && !line->rx_overrun && !our_turn) {

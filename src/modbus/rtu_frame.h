@@ -73,7 +73,8 @@
  * OUR OWN TRANSMISSIONS. rtu_line_frame_out() and rtu_line_bytes_out()
  * tell the line what we send and when; from them it knows when our last
  * frame leaves the wire (tx_end: the bytes' wire time, none on a pty,
- * which has no wire). No chunk whose last byte came before tx_end + t3.5
+ * which has no wire). No chunk whose last byte may have come before
+ * tx_end + t3.5 (rtu_line_input_read: from the earliest it can have come)
  * is executed (a master may not speak before then): a chunk equal to our
  * last frame is counted as an echo (RTU_EVENT_ECHO), anything else as out
  * of turn. With local_echo, the bytes of each frame we send are expected
@@ -204,6 +205,7 @@ struct rtu_line {
     uint16_t gaps[RTU_LINE_MAX_GAPS];
     size_t gap_count;
     uint64_t first_rx_ns, last_rx_ns;
+    uint64_t last_after_ns; /* the last bytes arrived after this (rtu_line_input_read) */
     bool silence_before;  /* the line surely was silent for t3.5 before it */
     uint64_t judge_at_ns; /* when the chunk's silence is due */
     bool waited;          /* judge_at_ns includes the wait for missing bytes */
@@ -228,6 +230,14 @@ void rtu_line_reset(struct rtu_line *line);
  * caller can tell: the time of the read). */
 void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
                     const struct rtu_line_hooks *hooks);
+
+/* The same, for a reader that knows more: the bytes arrived after
+ * 'after_ns' (the last time it found the port empty) and by 'now_ns'. The
+ * silences are judged from 'now_ns'; whether the bytes came in our turn
+ * (before our frame's end plus t3.5, never executed) from 'after_ns', so a
+ * loop late to read an echo cannot make it a request. */
+void rtu_line_input_read(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
+                         uint64_t after_ns, const struct rtu_line_hooks *hooks);
 
 /* When the caller should call rtu_line_silence(): 0 if no chunk is open. */
 uint64_t rtu_line_deadline(const struct rtu_line *line);
