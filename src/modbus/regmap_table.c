@@ -374,6 +374,15 @@ const struct regmap_row regmap_table_rows[] = {
          "[robot] tls: the same for the command port"),
 
     /* ---- input registers: Modbus RTU on the serial line ([rtu]) ---- */
+    /* ---- input registers: the gateway's own health ---- */
+    G_IR(5520, status_stale_ms, REGMAP_U32, "ms",
+         "How long the status has been stale, reconnects included: from when it went "
+         "stale until documents have flowed with no gap for 2 x status_timeout_ms; "
+         "0 while healthy"),
+    G_IR(5522, loop_stalls, REGMAP_U32, "",
+         "Gateway loop stalls: a gap between loop turns longer than time_limit_ms "
+         "(network-exception fault 4 when the robot may move)"),
+    G_IR(5524, loop_stall_last_ms, REGMAP_U32, "ms", "Length of the last loop stall"),
     G_IR(5540, rtu_line_state, REGMAP_U16, "",
          "Serial line: 0 off ([rtu] enabled = false), 1 open, no request for this unit "
          "within time_limit_ms, 2 open and polled, 3 device absent or failed (opened "
