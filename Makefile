@@ -6,7 +6,7 @@
 #   make install    install into $(DESTDIR)$(PREFIX) (binaries, config, units, man pages, docs)
 #   make deb        build the Debian package into $(BUILD)/deb/
 #   make ARCH=arm64 (or armhf), make deb ARCH=..., make test ARCH=...
-#                   the same for an ARM board, in build-ARCH/ (README, "ARM boards")
+#                   the same for an ARM board, in build-ARCH/ (docs/arm.md)
 
 VERSION   := 0.1.0
 PREFIX    ?= /usr/local
@@ -21,7 +21,7 @@ MANDIR    ?= $(PREFIX)/share/man
 UNITDIR   ?= $(if $(filter /usr,$(PREFIX)),/lib/systemd/system,$(PREFIX)/lib/systemd/system)
 DESTDIR   ?=
 
-# Cross builds for ARM boards (README, "ARM boards"): make ARCH=arm64 or
+# Cross builds for ARM boards (docs/arm.md): make ARCH=arm64 or
 # make ARCH=armhf builds into build-ARCH/ with Debian's cross compiler,
 # against a sysroot of Debian 12's packages for that architecture
 # (build-ARCH/sysroot/), which scripts/make-sysroot.sh makes when it is
@@ -222,7 +222,7 @@ test-load: all
 # under a random schedule of silent pulls, RSTs and random loss on every
 # link, in a private network namespace with nftables (needs root).
 # SOAK_SEED=N repeats a schedule. Prints faults, commands, violations (0
-# passes) and detection times per fault kind (README, "The chaos soak").
+# passes) and detection times per fault kind (docs/tests.md, "The chaos soak").
 SOAK_S ?= 600
 soak:
 	$(MAKE) BUILD=build-san CFLAGS="$(SAN_FLAGS)" EXTRA_LDFLAGS="-fsanitize=address,undefined" all
@@ -318,13 +318,13 @@ man: $(BUILD)/jakagw $(BUILD)/jakasim
 	/usr/bin/python3 scripts/gen-man.py $(BUILD) jakasim.1 > man/jakasim.1
 
 UNITS := jakagw.service jakagw@.service jakagw.socket jakagw-socket.service jakagw-mbaps.socket
-DOCS  := README.md docs/register-map.md docs/register-map.csv \
-         $(wildcard docs/plc-guide.md docs/jakagw.dbc docs/security.md docs/jakagw-alerts.yml)
+# README.md and, beside it in docs/, the pages it links to.
+DOCS  := $(wildcard docs/*.md docs/*.csv docs/*.dbc docs/*.yml docs/*.png)
 CONF  := $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
 # A configuration already there is the user's: it is never overwritten.
 install: all
 	install -d $(DESTDIR)$(SBINDIR) $(DESTDIR)$(BINDIR) $(DESTDIR)$(SYSCONFDIR)/jakagw \
-	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(DOCDIR) $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
+	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(DOCDIR)/docs $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
 	install -m 0755 $(BUILD)/jakagw $(DESTDIR)$(SBINDIR)/
 	install -m 0755 $(BUILD)/jakasim $(DESTDIR)$(BINDIR)/
 	@if [ -e $(CONF) ]; then \
@@ -341,7 +341,8 @@ install: all
 	done
 	install -m 0644 man/jakagw.8 $(DESTDIR)$(MANDIR)/man8/
 	install -m 0644 man/jakasim.1 $(DESTDIR)$(MANDIR)/man1/
-	install -m 0644 $(DOCS) $(DESTDIR)$(DOCDIR)/
+	install -m 0644 README.md $(DESTDIR)$(DOCDIR)/
+	install -m 0644 $(DOCS) $(DESTDIR)$(DOCDIR)/docs/
 	@case "$(UNITDIR)" in /lib/systemd/system|/usr/lib/systemd/system|/usr/local/lib/systemd/system|/etc/systemd/system) ;; \
 	*) echo "install: $(UNITDIR) is not on systemd's unit search path: 'systemctl link' the units there" ;; esac
 
