@@ -62,7 +62,7 @@ COIL_FAULT_RESET = ROWS[("coil", "fault_reset")]
 # second (status_timeout_ms and time_limit_ms at their default, 1000):
 # (seconds to fire after the fault, seconds to resolve after the recovery).
 BOUNDS = {
-    "JakagwStatusStale": (20, 5),
+    "JakagwStatusStale": (20, 10),
     "JakagwRobotLinkDown": (45, 35),
     "JakagwPlcHeartbeatLost": (15, 5),
     "JakagwPolicyFaultLatched": (5, 5),
