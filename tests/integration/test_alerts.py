@@ -403,6 +403,7 @@ def frozen_gateway(prom, cell):
     t_resume = cell.marks["recover"]
     after = [alert_key("JakagwLoopStalled"), alert_key("JakagwPolicyFaultLatched")]
     wait_firing(prom, cell, after, t_resume)
+    hold(prom, cell, after, t_resume + 7)  # latched until the PLC resets it
     fault = cell.plc.input_register(IR_FAULT)
     if fault != 4:
         cell.problems.append("fault register %d after the stall, expected 4 (the gateway's "
@@ -412,11 +413,13 @@ def frozen_gateway(prom, cell):
                                                                       "PLC heartbeat lost"))
     t_reset = time.time()
     cell.plc.write_coil(COIL_FAULT_RESET, 1)
+    cell.marks["reset"] = t_reset
     wait_resolved(prom, cell, [alert_key("JakagwPolicyFaultLatched")], t_reset)
     wait_resolved(prom, cell, [alert_key("JakagwLoopStalled")], t_resume)
     cell.marks["end"] = time.time()
     cell.expect.append(("resume+5", "JakagwPolicyFaultLatched", after[1]))
     cell.expect.append(("resume+5", "JakagwLoopStalled", after[0]))
+    cell.expect.append(("reset+5", "JakagwPolicyFaultLatched", None))
 
 
 FAULTS = [
@@ -478,6 +481,8 @@ def record(prom, cell):
             t = min(cell.marks["fault"] - start + BOUNDS[name][0], cell.marks["recover"] - start)
         elif when == "resolved":
             t = cell.marks["recover"] - start + BOUNDS[name][1]
+        elif when == "reset+5":
+            t = cell.marks["reset"] - start + BOUNDS[name][1]
         else:  # resume+5
             t = cell.marks["recover"] - start + 5
         lines.append("      - eval_time: %ds" % int(t))
@@ -664,7 +669,91 @@ def test_stall_is_the_gateways_own_fault():
             sim.stop()
 
 
+def http_get(port, path):
+    with urllib.request.urlopen("http://127.0.0.1:%d%s" % (port, path), timeout=5) as r:
+        return r.read().decode()
+
+
+def metric_lines(text, name):
+    return [l for l in text.splitlines() if l.startswith(name + " ") or
+            l.startswith(name + "{")]
+
+
+def test_never_seen_ages_have_no_sample_and_heartbeat_reads_back():
+    """No robot and no heartbeat yet: the two ages have no sample (not
+    4294967.295 s) while the stale streak grows from the start; a heartbeat
+    written shows in /status.json's counters (it read 0 forever) and its
+    age gets a sample."""
+    http_port = free_port()
+    gw = Gateway(None, "[http]\nenabled = true\nport = %d\n" % http_port)
+    plc = None
+    try:
+        wait_until(lambda: port_open(http_port), 10, "the HTTP port")
+        time.sleep(1.2)
+        text = http_get(http_port, "/metrics")
+        check("4294967" not in text, "a never-seen age exported as a number:\n%s" %
+              "\n".join(l for l in text.splitlines() if "4294967" in l))
+        for name in ("jakagw_status_age_seconds", "jakagw_plc_heartbeat_age_seconds"):
+            check(not metric_lines(text, name), "%s has a sample: %s" %
+                  (name, metric_lines(text, name)))
+            check("# TYPE %s gauge" % name in text, "%s not described" % name)
+        stale = float(metric_lines(text, "jakagw_status_stale_seconds")[0].split()[1])
+        check(stale >= 1.0, "stale streak %.3f s with no robot for over a second" % stale)
+        plc = ModbusPlc(gw.modbus_port)
+        check(plc.reg(0, 1234) == 0, "heartbeat write")
+        status = json.loads(http_get(http_port, "/status.json"))
+        check(status["counters"]["plc_heartbeat"] == 1234,
+              "counters.plc_heartbeat %s after writing 1234" % status["counters"]["plc_heartbeat"])
+        check(plc.hr(0)[0] == 1234, "holding register 0 reads %d" % plc.hr(0)[0])
+        ages = metric_lines(http_get(http_port, "/metrics"), "jakagw_plc_heartbeat_age_seconds")
+        check(len(ages) == 1 and float(ages[0].split()[1]) < 5, "heartbeat age: %s" % ages)
+        print("  no robot: no age samples, stale streak %.1f s; heartbeat 1234 reads back, "
+              "%s" % (stale, ages[0]))
+    finally:
+        if plc:
+            plc.close()
+        gw.stop()
+
+
+def test_stale_streak_survives_reconnects_that_bring_documents():
+    """A controller that drops the status connection every 1.5 s, with
+    documents flowing in between: status_fresh flaps back to 1 after every
+    reconnect, the stale streak (input register 5520) runs on, as the
+    alert needs."""
+    sim = Sim("--drop-every-ms", "1500")
+    gw = None
+    plc = None
+    try:
+        gw = Gateway(sim, "")
+        plc = ModbusPlc(gw.modbus_port)
+        fresh_seen = set()
+        stale_ms = 0
+        documents = []
+        deadline = time.monotonic() + 8
+        while time.monotonic() < deadline:
+            fresh_seen.add(plc.di(ROWS[("discrete_input", "status_fresh")])[0])
+            stale_ms = plc.u32(ROWS[("input_register", "status_stale_ms")])
+            documents.append(plc.u32(ROWS[("input_register", "documents_parsed")]))
+            time.sleep(0.05)
+        check(fresh_seen == {0, 1}, "status_fresh read %s: no flapping to test" % fresh_seen)
+        check(documents[-1] > documents[0] + 50, "documents flowed: %s" % documents[::40])
+        check(stale_ms >= 6000, "stale streak %d ms after 8 s of reconnects every 1.5 s" %
+              stale_ms)
+        print("  status_fresh flapped 0/1, %d documents, stale streak %d ms" %
+              (documents[-1] - documents[0], stale_ms))
+    finally:
+        if plc:
+            plc.close()
+        try:
+            if gw:
+                gw.stop()
+        finally:
+            sim.stop()
+
+
 TESTS = [
+    test_never_seen_ages_have_no_sample_and_heartbeat_reads_back,
+    test_stale_streak_survives_reconnects_that_bring_documents,
     test_stall_is_the_gateways_own_fault,
     test_silent_status_stream,
     test_killed_simulator,
