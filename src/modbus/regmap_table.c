@@ -330,7 +330,8 @@ const struct regmap_row regmap_table_rows[] = {
     /* ---- input registers: the network-exception policy ---- */
     P_ROW(REGMAP_INPUT_REGISTER, 60, 1, REGMAP_U16, 0, "", "fault", "fault",
           "Latched network-exception fault: 0 none, 1 PLC heartbeat lost, 2 no "
-          "Modbus client, 3 motion enable dropped; commands but stop are refused"),
+          "Modbus client, 3 motion enable dropped, 4 the gateway's own loop stalled; "
+          "commands but stop are refused"),
     P_ROW(REGMAP_INPUT_REGISTER, 61, 1, REGMAP_U32, 0, "ms", "fault_age_ms",
           "fault_age_ms", "Time since the fault latched; 0 when none"),
     P_ROW(REGMAP_INPUT_REGISTER, 63, 1, REGMAP_U16, 0, "", "faults", "faults",
