@@ -67,7 +67,7 @@ COIL_FAULT_RESET = ROWS[("coil", "fault_reset")]
 # second (status_timeout_ms and time_limit_ms at their default, 1000):
 # (seconds to fire after the fault, seconds to resolve after the recovery).
 BOUNDS = {
-    "JakagwStatusStale": (20, 10),
+    "JakagwStatusStale": (25, 10),
     "JakagwRobotLinkDown": (45, 35),
     "JakagwPlcHeartbeatLost": (15, 5),
     "JakagwPolicyFaultLatched": (5, 5),
@@ -407,9 +407,12 @@ def frozen_gateway(prom, cell):
     down = [alert_key("JakagwDown")]
     fault_and_recovery(prom, cell, down, lambda: cell.gw.proc.send_signal(signal.SIGSTOP),
                        lambda: cell.gw.proc.send_signal(signal.SIGCONT))
+    # Its status was stale while it could not read: no status alert for
+    # that once it runs again (the rule's "for").
+    must_not_after = ["JakagwStatusStale"]
     t_resume = cell.marks["recover"]
     after = [alert_key("JakagwLoopStalled"), alert_key("JakagwPolicyFaultLatched")]
-    wait_firing(prom, cell, after, t_resume)
+    wait_firing(prom, cell, after, t_resume, must_not_after)
     hold(prom, cell, after, t_resume + 7)  # latched until the PLC resets it
     fault = cell.plc.input_register(IR_FAULT)
     if fault != 4:
