@@ -17,8 +17,27 @@ static struct gateway *gateway_of_link(struct robot_link *link)
     return link->user;
 }
 
+/* The state the event log follows (events.h): each change one event. */
+static void events_check(struct gateway *gw)
+{
+    bool fresh = gateway_status_fresh(gw);
+    struct events_state s = {
+        .status_link = gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh
+                           ? 3
+                           : (int)gw->status_link.state,
+        .command_link = (int)command_port_state(&gw->command),
+        .fault = gw->policy.fault,
+        .handler = gw->commands.handle_state,
+        .motion_enabled = gw->policy.motion_enabled,
+    };
+    snprintf(s.owner, sizeof(s.owner), "%s", gw->policy.owner_address);
+    robot_view_of(gw->status, fresh, &s.robot);
+    events_update(&gw->events, &s);
+}
+
 static void notify_change(struct gateway *gw)
 {
+    events_check(gw);
     if (gw->on_change)
         gw->on_change(gw);
 }
@@ -97,6 +116,8 @@ static void on_status_document(struct robot_link *link, const char *json,
     regmap_encode_status(&gw->image, gw->status);
     if (!was_fresh)
         notify_change(gw);
+    else
+        events_check(gw); /* the robot's state may have changed */
 }
 
 static void on_status_framing(struct robot_link *link, enum framer_event event,
@@ -355,6 +376,7 @@ static void on_policy_timer(uv_timer_t *t)
     check_policy(gw);
     track_status_streak(gw, gateway_status_fresh(gw));
     audit_flush(&gw->audit);
+    events_check(gw); /* a fault latched, the status gone stale */
 }
 
 /* The policy's action goes out as pause_program or stop_program. */
@@ -431,17 +453,19 @@ static void on_start_answered(void *user)
     policy_start_answered(&gw->policy, uv_now(gw->loop));
 }
 
-/* A refused write into the audit trail: who, where, the exception. */
-static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex)
+/* A refused write into the audit trail: who, where, the exception, why. */
+static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex, bool judged)
 {
-    static const char *const tables[] = {"coil", "discrete input", "input register",
-                                         "holding register"};
-    char what[48] = "a write too short to say where";
+    /* Refused before it was judged: the server's own checks. */
+    static const char *const unjudged[] = {"", "function not allowed on this table",
+                                           "no such address in the register map",
+                                           "invalid count or value"};
+    const char *why = judged ? gw->writes.why : ex >= 1 && ex <= 3 ? unjudged[ex] : "";
 
-    if (w->count > 0)
-        snprintf(what, sizeof(what), "%s %u%s%.0u", tables[w->table % 4], w->address,
-                 w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
-    audit_write_refused(&gw->audit, w->transport, w->client, w->subject, w->role, what, ex);
+    if (!judged)
+        plc_write_name_range(&gw->writes, w);
+    audit_write_refused(&gw->audit, w->transport, w->peer ? w->peer : w->client, w->subject,
+                        w->role, gw->writes.where, ex, why);
 }
 
 /* Every write judged; the commands it sends, and a refusal, audited. */
@@ -449,18 +473,21 @@ static int on_write(void *user, const struct mb_write *w)
 {
     struct gateway *gw = user;
 
-    audit_set_writer(&gw->audit, w->transport, w->client, w->subject, w->role);
+    audit_set_writer(&gw->audit, w->transport, w->peer ? w->peer : w->client, w->subject,
+                     w->role);
     int ex = plc_write_judge(&gw->writes, w);
     audit_clear_writer(&gw->audit);
     if (ex)
-        audit_refusal(gw, w, ex);
+        audit_refusal(gw, w, ex, true);
+    else
+        events_check(gw); /* a fault reset, a new write owner */
     return ex;
 }
 
 /* A write the map refused before it could be judged: audited the same. */
 static void on_write_refused(void *user, const struct mb_write *w, int ex)
 {
-    audit_refusal(user, w, ex);
+    audit_refusal(user, w, ex, false);
 }
 
 static void on_client(void *user, uint64_t client, bool open, unsigned clients)

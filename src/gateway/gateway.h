@@ -17,6 +17,7 @@
 #include "can_mirror.h"
 #include "command_port.h"
 #include "config.h"
+#include "events.h"
 #include "http_server.h"
 #include "log.h"
 #include "mb_rtu.h"
@@ -81,6 +82,7 @@ struct gateway {
     bool config_error;
     struct audit audit;    /* who commanded the robot (audit.h) */
     struct http_server http; /* running when [http] enabled (gw_http.h) */
+    struct events events;    /* the status page's event log (events.h) */
     struct gateway_counters counters;
     double gw_values[GW_VALUE_COUNT];
 
