@@ -643,8 +643,9 @@ def test_stall_is_the_gateways_own_fault():
     sim = Sim("--auto-run", "--log-commands")
     gw = None
     plc = None
+    http_port = free_port()
     try:
-        gw = Gateway(sim, "")
+        gw = Gateway(sim, "[http]\nenabled = true\nport = %d\n" % http_port)
         plc = HeartbeatPlc(gw.modbus_port)
         probe = ModbusPlc(gw.modbus_port)
         wait_until(lambda: probe.di(ROWS[("discrete_input", "status_fresh")])[0] == 1, 20,
@@ -667,6 +668,13 @@ def test_stall_is_the_gateways_own_fault():
         check(not log_lines(gw, "PLC heartbeat lost"), "the log blames the PLC:\n" +
               "\n".join(log_lines(gw, "PLC heartbeat")))
         wait_until(lambda: "pause_program" in sim.output(), 5, "the pause sent to the robot")
+        status = json.loads(http_get(http_port, "/status.json"))
+        policy = status["policy"]
+        check(policy["fault"] == 4 and policy["fault_name"] == "gateway loop stalled",
+              "/status.json policy: %s" % policy)
+        events = [e.get("text", "") for e in status.get("events", [])]
+        check(any("gateway loop stalled" in t for t in events),
+              "no event names the stall: %s" % events[-5:])
         print("  stall of %d ms: fault 4, pause_program sent, logged: %s" %
               (gap, re.sub(r"^<\d>", "", stalled[0])[:90]))
     finally:
