@@ -18,7 +18,9 @@
  * Two signals make faults a test can start and end at a moment it chooses
  * (the alert tests time both): SIGUSR1 toggles a silent status stream
  * (connections stay open, nothing is pushed, as --silent-after-ms), SIGUSR2
- * toggles the robot's protective stop.
+ * toggles the robot's protective stop, SIGRTMIN its emergency stop (the
+ * button pressed: the robot disabled, a running program stopped; released,
+ * the robot stays disabled until enable_robot).
  */
 #include "framer.h"
 #include "log.h"
@@ -101,7 +103,7 @@ struct sim {
     struct sim_robot robot;
     uv_tcp_t status_server, command_server;
     uv_timer_t tick, drop, split_timer;
-    uv_signal_t sigint, sigterm, sigusr1, sigusr2;
+    uv_signal_t sigint, sigterm, sigusr1, sigusr2, sigestop;
     bool silenced; /* SIGUSR1 */
     struct peer *peers;
     struct pyjson doc;
@@ -794,9 +796,10 @@ static void on_signal(uv_signal_t *s, int signum)
     uv_close((uv_handle_t *)&sim->sigterm, on_close_quiet);
     uv_close((uv_handle_t *)&sim->sigusr1, on_close_quiet);
     uv_close((uv_handle_t *)&sim->sigusr2, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->sigestop, on_close_quiet);
 }
 
-/* SIGUSR1 and SIGUSR2: a fault toggled on or off (see the top). */
+/* SIGUSR1, SIGUSR2 and SIGRTMIN: a fault toggled on or off (see the top). */
 static void on_fault_signal(uv_signal_t *s, int signum)
 {
     struct sim *sim = s->data;
@@ -805,6 +808,12 @@ static void on_fault_signal(uv_signal_t *s, int signum)
         sim->silenced = !sim->silenced;
         log_notice("jakasim: status stream %s (SIGUSR1)",
                    sim->silenced ? "silent, connections kept" : "pushing again");
+    } else if (signum != SIGUSR2) {
+        sim->robot.emergency_stop = !sim->robot.emergency_stop;
+        if (sim->robot.emergency_stop)
+            sim->robot.enabled = false; /* the next tick stops a program */
+        log_notice("jakasim: emergency stop %s (SIGRTMIN)",
+                   sim->robot.emergency_stop ? "pressed" : "released");
     } else {
         sim->robot.protective_stop = !sim->robot.protective_stop;
         log_notice("jakasim: protective stop %s (SIGUSR2)",
@@ -881,7 +890,7 @@ static void usage(FILE *out)
         "  --reply-delay-ms N     answer commands after N ms\n"
         "  --delay-command NAME   delay only NAME's replies (with --reply-delay-ms)\n"
         "\nSignals: SIGUSR1 toggles a silent status stream (connections kept),\n"
-        "SIGUSR2 toggles a protective stop.\n");
+        "SIGUSR2 toggles a protective stop, SIGRTMIN an emergency stop.\n");
 }
 
 static int parse_uint(const char *flag, const char *text, unsigned max, unsigned *out)
@@ -1076,9 +1085,11 @@ int main(int argc, char **argv)
     uv_signal_start(&sim.sigterm, on_signal, SIGTERM);
     uv_signal_init(sim.loop, &sim.sigusr1);
     uv_signal_init(sim.loop, &sim.sigusr2);
-    sim.sigusr1.data = sim.sigusr2.data = &sim;
+    uv_signal_init(sim.loop, &sim.sigestop);
+    sim.sigusr1.data = sim.sigusr2.data = sim.sigestop.data = &sim;
     uv_signal_start(&sim.sigusr1, on_fault_signal, SIGUSR1);
     uv_signal_start(&sim.sigusr2, on_fault_signal, SIGUSR2);
+    uv_signal_start(&sim.sigestop, on_fault_signal, SIGRTMIN);
     sim.started_ms = uv_now(sim.loop);
     log_notice("jakasim: status port %s:%d, command port %s:%d, every %u ms, "
                "profile %s%s%s%s", sim.opt.bind, sim.opt.status_port, sim.opt.bind,
