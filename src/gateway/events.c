@@ -2,6 +2,8 @@
 /* events.c - the event log (events.h). */
 #include "events.h"
 
+#include "policy.h"
+
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -12,8 +14,6 @@ static const char *const link_names[] = {"disconnected", "connecting", "connecte
                                          "connected, but silent (status stale)"};
 static const char *const command_link_names[] = {"disconnected", "connecting", "connected",
                                                  "connected, no reply yet"};
-static const char *const fault_names[] = {"none", "PLC heartbeat lost", "no Modbus client",
-                                          "motion enable dropped"};
 static const char *const handler_names[] = {"not sent", "pending", "accepted",
                                             "refused or unanswered"};
 static const char *const program_names[] = {"idle", "loading", "paused", "running"};
@@ -121,10 +121,10 @@ void events_update(struct events *e, const struct events_state *state)
         add(e, "link", "command link: %s", NAME(command_link_names, now.command_link));
     if (now.fault != was->fault) {
         if (now.fault)
-            add(e, "fault", "fault %d latched: %s", now.fault, NAME(fault_names, now.fault));
+            add(e, "fault", "fault %d latched: %s", now.fault, policy_fault_name(now.fault));
         else
             add(e, "fault", "fault %d (%s) reset by the PLC", was->fault,
-                NAME(fault_names, was->fault));
+                policy_fault_name(was->fault));
     }
     if (now.handler != was->handler)
         add(e, "policy", "robot's network-exception handler: %s",

@@ -22,8 +22,6 @@ static uint64_t wall_now_ms(void)
 }
 
 static const char *const link_states[] = {"disconnected", "connecting", "connected", "silent"};
-static const char *const fault_names[] = {"none", "PLC heartbeat lost", "no Modbus client",
-                                          "motion enable dropped"};
 static const char *const handler_names[] = {"not sent", "pending", "accepted", "failed"};
 
 /* A text row of the map, by path ("info.loaded_program"), into 'obj'. */
@@ -122,7 +120,7 @@ static void add_policy(cJSON *root, const struct gateway *gw)
 
     add_age(o, "heartbeat_age_ms", gw->gw_values[GW_plc_heartbeat_age_ms]);
     cJSON_AddNumberToObject(o, "fault", p->fault);
-    cJSON_AddStringToObject(o, "fault_name", (unsigned)p->fault < 4 ? fault_names[p->fault] : "?");
+    cJSON_AddStringToObject(o, "fault_name", policy_fault_name(p->fault));
     uint64_t fault_age = policy_fault_age_ms(p, uv_now(gw->loop));
     cJSON_AddNumberToObject(o, "fault_age_ms", (double)fault_age);
     /* When it latched, as wall time, and how the PLC resets it. */

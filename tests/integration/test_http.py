@@ -1076,6 +1076,43 @@ def test_page_latched_fault_turns_the_header_red_with_how_to_reset():
             plc.close()
 
 
+def test_page_shows_a_pressed_emergency_stop_and_a_protective_stop():
+    """The robot's own stops, from jakasim's signals (SIGRTMIN: emergency
+    stop pressed, the robot disabled and its program stopped; SIGUSR2:
+    protective stop): both in /status.json's robot and red on their tiles,
+    and back to released when they are."""
+    import signal
+    port, ctx = gateway_with_http(["--auto-run"])
+    with ctx as (sim, gw):
+        web = Http(port)
+        wait_until(lambda: web.status()["robot"]["program_state"] == "running", 15,
+                   "the program running")
+        driver = browser(390, 844)
+        try:
+            driver.get("http://127.0.0.1:%d/" % port)
+            wait_until(lambda: text_of(driver, "estop") == "released", 15, "the page")
+            sim.proc.send_signal(signal.SIGRTMIN)
+            wait_until(lambda: web.status()["robot"]["emergency_stop"] is True, 5,
+                       "emergency_stop in /status.json")
+            wait_until(lambda: text_of(driver, "estop") == "TRIGGERED", 5, "the tile")
+            check("bad" in driver.find_element("id", "tile-estop").get_attribute("class"),
+                  "a pressed emergency stop not in red")
+            wait_until(lambda: web.status()["robot"]["enabled"] is False and
+                       web.status()["robot"]["program_state"] != "running", 5,
+                       "the robot disabled, the program stopped")
+            check(text_of(driver, "pstop") == "released", "protective stop with the button")
+            sim.proc.send_signal(signal.SIGUSR2)
+            wait_until(lambda: text_of(driver, "pstop") == "TRIGGERED", 5, "protective stop")
+            check(web.status()["robot"]["protective_stop"] is True, "protective_stop")
+            print("  both stops: %s" % " | ".join(text_of(driver, t) for t in ROBOT_TILES))
+            sim.proc.send_signal(signal.SIGRTMIN)
+            sim.proc.send_signal(signal.SIGUSR2)
+            wait_until(lambda: text_of(driver, "estop") == "released" and
+                       text_of(driver, "pstop") == "released", 5, "both released")
+        finally:
+            close_browser(driver)
+
+
 def test_page_shows_unknown_during_an_outage():
     """The status stream goes silent on an open connection, then the robot
     goes away: every value that depends on the status link reads
@@ -1200,6 +1237,7 @@ TESTS = [
     test_page_says_when_the_gateway_stops_answering,
     test_page_shows_the_robot_first_at_phone_and_desktop_width,
     test_page_latched_fault_turns_the_header_red_with_how_to_reset,
+    test_page_shows_a_pressed_emergency_stop_and_a_protective_stop,
     test_page_shows_unknown_during_an_outage,
     test_registers_document_is_served_from_its_cache,
 ]
