@@ -563,13 +563,21 @@ static void add_stats(struct rtu_line_stats *to, const struct rtu_line_stats *ad
     to->gap_discards += add->gap_discards;
 }
 
-/* Did the chunk's last byte perhaps arrive before our last frame's end
- * plus t3.5? Judged from the earliest it can have arrived (the last time
- * the port was seen empty before it was read), not from when it was read
- * or processed: a loop late to read an echo must not make it a request. */
+/* Did the chunk's last byte arrive before our last frame's end plus t3.5?
+ * As read; and for a chunk equal to that frame (our reply heard back),
+ * from the earliest it can have arrived (the last time the port was seen
+ * empty before it was read): a loop late to read an echo must not make it
+ * a request. Other frames are not held to that bound, so a request that
+ * comes while a busy loop has not yet looked at the port is served. */
 static bool in_our_turn(const struct rtu_line *line)
 {
-    return line->tx_end_ns && line->last_after_ns < line->tx_end_ns + line->cfg.t35_ns;
+    uint64_t turn_end = line->tx_end_ns + line->cfg.t35_ns;
+    if (!line->tx_end_ns)
+        return false;
+    if (line->last_rx_ns < turn_end)
+        return true;
+    return line->last_after_ns < turn_end && line->rx_used == line->sent_size &&
+           memcmp(line->rx, line->sent, line->sent_size) == 0;
 }
 
 /* The silence came: the chunk is judged and consumed; then our request,

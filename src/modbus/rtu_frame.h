@@ -73,9 +73,9 @@
  * OUR OWN TRANSMISSIONS. rtu_line_frame_out() and rtu_line_bytes_out()
  * tell the line what we send and when; from them it knows when our last
  * frame leaves the wire (tx_end: the bytes' wire time, none on a pty,
- * which has no wire). No chunk whose last byte may have come before
- * tx_end + t3.5 (rtu_line_input_read: from the earliest it can have come)
- * is executed (a master may not speak before then): a chunk equal to our
+ * which has no wire). No chunk whose last byte came before tx_end + t3.5
+ * is executed, and none equal to our last frame that may have come before
+ * it (rtu_line_input_read: from the earliest it can have come) (a master may not speak before then): a chunk equal to our
  * last frame is counted as an echo (RTU_EVENT_ECHO), anything else as out
  * of turn. With local_echo, the bytes of each frame we send are expected
  * back first, up to RTU_ECHO_LATE_NS after its wire time, and are taken
