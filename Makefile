@@ -19,6 +19,9 @@ MANDIR    ?= $(PREFIX)/share/man
 # other prefix keeps them under itself (/usr/local/lib/systemd/system is on
 # systemd's search path too).
 UNITDIR   ?= $(if $(filter /usr,$(PREFIX)),/lib/systemd/system,$(PREFIX)/lib/systemd/system)
+# The generator that gives the units the serial port of [rtu] device
+# (systemd/jakagw-generator.in), beside the units' directory.
+GENERATORDIR ?= $(patsubst %/system,%/system-generators,$(UNITDIR))
 DESTDIR   ?=
 
 # Cross builds for ARM boards (README, "ARM boards"): make ARCH=arm64 or
@@ -321,7 +324,7 @@ CONF  := $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
 # A configuration already there is the user's: it is never overwritten.
 install: all
 	install -d $(DESTDIR)$(SBINDIR) $(DESTDIR)$(BINDIR) $(DESTDIR)$(SYSCONFDIR)/jakagw \
-	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(DOCDIR) $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
+	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(GENERATORDIR) $(DESTDIR)$(DOCDIR) $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
 	install -m 0755 $(BUILD)/jakagw $(DESTDIR)$(SBINDIR)/
 	install -m 0755 $(BUILD)/jakasim $(DESTDIR)$(BINDIR)/
 	@if [ -e $(CONF) ]; then \
@@ -336,6 +339,9 @@ install: all
 	        systemd/$$unit.in > $(DESTDIR)$(UNITDIR)/$$unit && \
 	    chmod 0644 $(DESTDIR)$(UNITDIR)/$$unit || exit 1; \
 	done
+	sed 's|@SBINDIR@|$(SBINDIR)|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g' \
+	    systemd/jakagw-generator.in > $(DESTDIR)$(GENERATORDIR)/jakagw-generator
+	chmod 0755 $(DESTDIR)$(GENERATORDIR)/jakagw-generator
 	install -m 0644 man/jakagw.8 $(DESTDIR)$(MANDIR)/man8/
 	install -m 0644 man/jakasim.1 $(DESTDIR)$(MANDIR)/man1/
 	install -m 0644 $(DOCS) $(DESTDIR)$(DOCDIR)/
@@ -345,7 +351,7 @@ install: all
 # The configuration is left in place, as a package removal (not a purge) does.
 uninstall:
 	rm -f $(DESTDIR)$(SBINDIR)/jakagw $(DESTDIR)$(BINDIR)/jakagw $(DESTDIR)$(BINDIR)/jakasim \
-	    $(addprefix $(DESTDIR)$(UNITDIR)/,$(UNITS)) \
+	    $(addprefix $(DESTDIR)$(UNITDIR)/,$(UNITS)) $(DESTDIR)$(GENERATORDIR)/jakagw-generator \
 	    $(DESTDIR)$(MANDIR)/man8/jakagw.8 $(DESTDIR)$(MANDIR)/man1/jakasim.1
 	rm -rf $(DESTDIR)$(DOCDIR)
 	@echo "uninstall: $(DESTDIR)$(SYSCONFDIR)/jakagw is kept; remove it when its configuration is no longer wanted"
