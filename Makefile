@@ -6,7 +6,7 @@
 #   make install    install into $(DESTDIR)$(PREFIX) (binaries, config, units, man pages, docs)
 #   make deb        build the Debian package into $(BUILD)/deb/
 #   make ARCH=arm64 (or armhf), make deb ARCH=..., make test ARCH=...
-#                   the same for an ARM board, in build-ARCH/ (README, "ARM boards")
+#                   the same for an ARM board, in build-ARCH/ (docs/arm.md)
 
 VERSION   := 0.1.0
 PREFIX    ?= /usr/local
@@ -24,7 +24,7 @@ UNITDIR   ?= $(if $(filter /usr,$(PREFIX)),/lib/systemd/system,$(PREFIX)/lib/sys
 GENERATORDIR ?= $(patsubst %/system,%/system-generators,$(UNITDIR))
 DESTDIR   ?=
 
-# Cross builds for ARM boards (README, "ARM boards"): make ARCH=arm64 or
+# Cross builds for ARM boards (docs/arm.md): make ARCH=arm64 or
 # make ARCH=armhf builds into build-ARCH/ with Debian's cross compiler,
 # against a sysroot of Debian 12's packages for that architecture
 # (build-ARCH/sysroot/), which scripts/make-sysroot.sh makes when it is
@@ -87,17 +87,21 @@ TEST_LIBS  := $(shell $(PKG_CONFIG) --libs cmocka 2>/dev/null)
 
 WARN      := -Wall -Wextra -Werror -Wshadow -Wstrict-prototypes -Wmissing-prototypes -Wformat=2
 CFLAGS    ?= -O2 -g
+# src/ is one folder per layer or subsystem, each header beside its source
+# (docs/architecture.md); every folder is on the include path, and
+# tests/integration/test_layout.py checks that includes only point down.
+# A unit test may #include the .c under test from any of them.
+SRC_DIRS  := $(sort $(dir $(wildcard src/*/*.c)))
+INC_FLAGS := $(SRC_DIRS:%=-I%) $(if $(wildcard include/*.h),-Iinclude)
 ALL_CFLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' \
-              $(WARN) $(CPPFLAGS) $(CFLAGS) $(EXTRA_CFLAGS) $(ARCH_CFLAGS) -Iinclude $(PKG_CFLAGS) -MMD -MP
+              $(WARN) $(CPPFLAGS) $(CFLAGS) $(EXTRA_CFLAGS) $(ARCH_CFLAGS) $(INC_FLAGS) $(PKG_CFLAGS) -MMD -MP
 ALL_LDFLAGS := $(LDFLAGS) $(EXTRA_LDFLAGS)
 
-LIB_SRCS  := $(filter-out src/core/main.c,$(wildcard src/*/*.c))
+MAIN_SRC  := $(wildcard src/*/main.c)
+LIB_SRCS  := $(filter-out $(MAIN_SRC),$(wildcard src/*/*.c))
 SIM_SRCS  := $(wildcard sim/*.c)
 UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 
-# src/ is grouped by subsystem (core, robot, modbus, plc, can, http, tls);
-# a unit test may #include the .c under test from any of them.
-SRC_DIRS  := $(sort $(dir $(wildcard src/*/*.c)))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o) $(BUILD)/gen/status_page.o
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
@@ -119,7 +123,7 @@ $(BUILD)/gen/status_page.o: $(BUILD)/gen/status_page.c
 $(BUILD)/libjakagw.a: $(LIB_OBJS)
 	$(AR) rcs $@ $^
 
-$(BUILD)/jakagw: $(BUILD)/src/core/main.o $(BUILD)/libjakagw.a
+$(BUILD)/jakagw: $(MAIN_SRC:%.c=$(BUILD)/%.o) $(BUILD)/libjakagw.a
 	$(CC) $(ALL_CFLAGS) $^ -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) -lm
 
 $(BUILD)/jakasim: $(SIM_OBJS) $(BUILD)/libjakagw.a
@@ -128,7 +132,7 @@ $(BUILD)/jakasim: $(SIM_OBJS) $(BUILD)/libjakagw.a
 # A unit test may #include the .c under test to reach its static helpers.
 $(BUILD)/tests/%: tests/%.c $(BUILD)/libjakagw.a
 	@mkdir -p $(dir $@)
-	$(CC) $(ALL_CFLAGS) $(SRC_DIRS:%=-I%) -DSAMPLES_DIR="\"$(SAMPLES_DIR)\"" -DCONFIG_FILE="\"$(abspath config/jakagw.conf)\"" $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
+	$(CC) $(ALL_CFLAGS) -DSAMPLES_DIR="\"$(SAMPLES_DIR)\"" -DCONFIG_FILE="\"$(abspath config/jakagw.conf)\"" $< $(BUILD)/libjakagw.a -o $@ $(ALL_LDFLAGS) $(PKG_LIBS) $(TEST_LIBS) -lm
 
 unit-tests: $(UNIT_TESTS:%=$(BUILD)/tests/%)
 
@@ -221,7 +225,7 @@ test-load: all
 # under a random schedule of silent pulls, RSTs and random loss on every
 # link, in a private network namespace with nftables (needs root).
 # SOAK_SEED=N repeats a schedule. Prints faults, commands, violations (0
-# passes) and detection times per fault kind (README, "The chaos soak").
+# passes) and detection times per fault kind (docs/tests.md, "The chaos soak").
 SOAK_S ?= 600
 soak:
 	$(MAKE) BUILD=build-san CFLAGS="$(SAN_FLAGS)" EXTRA_LDFLAGS="-fsanitize=address,undefined" all
@@ -281,11 +285,10 @@ FUZZ_SECONDS ?= 60
 CI_FUZZ_SECONDS ?= 15
 FUZZ_BUILD ?= build-fuzz
 FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox fuzz_rtu
-FUZZ_SRCS := src/robot/framer.c src/robot/status.c src/core/json_arena.c src/modbus/regmap.c src/modbus/regmap_table.c src/modbus/mb_request.c src/core/log.c \
-             src/robot/command.c src/plc/plc_commands.c src/core/config.c src/can/can_map.c src/can/can_map_table.c \
-             src/plc/plc_write.c src/plc/policy.c src/core/ip_allow.c src/modbus/regmap_rights.c src/tls/tls.c \
-             src/modbus/rtu_frame.c src/core/audit.c
-FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' -g -O1 -Iinclude \
+FUZZ_MODULES := framer status json_arena regmap regmap_table mb_request log command plc_commands \
+                config can_map can_map_table plc_write policy ip_allow regmap_rights tls rtu_frame audit
+FUZZ_SRCS := $(foreach m,$(FUZZ_MODULES),$(wildcard src/*/$(m).c))
+FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' -g -O1 $(INC_FLAGS) \
               $(PKG_CFLAGS) -fno-sanitize-recover=all
 FUZZ_OBJS := $(FUZZ_SRCS:%.c=$(FUZZ_BUILD)/obj/%.o)
 .SECONDARY: $(FUZZ_OBJS)
@@ -318,13 +321,13 @@ man: $(BUILD)/jakagw $(BUILD)/jakasim
 	/usr/bin/python3 scripts/gen-man.py $(BUILD) jakasim.1 > man/jakasim.1
 
 UNITS := jakagw.service jakagw@.service jakagw.socket jakagw-socket.service jakagw-mbaps.socket
-DOCS  := README.md docs/register-map.md docs/register-map.csv \
-         $(wildcard docs/plc-guide.md docs/jakagw.dbc docs/security.md docs/jakagw-alerts.yml)
+# README.md and, beside it in docs/, the pages it links to.
+DOCS  := $(wildcard docs/*.md docs/*.csv docs/*.dbc docs/*.yml docs/*.png)
 CONF  := $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
 # A configuration already there is the user's: it is never overwritten.
 install: all
 	install -d $(DESTDIR)$(SBINDIR) $(DESTDIR)$(BINDIR) $(DESTDIR)$(SYSCONFDIR)/jakagw \
-	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(GENERATORDIR) $(DESTDIR)$(DOCDIR) $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
+	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(GENERATORDIR) $(DESTDIR)$(DOCDIR)/docs $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
 	install -m 0755 $(BUILD)/jakagw $(DESTDIR)$(SBINDIR)/
 	install -m 0755 $(BUILD)/jakasim $(DESTDIR)$(BINDIR)/
 	@if [ -e $(CONF) ]; then \
@@ -344,7 +347,8 @@ install: all
 	chmod 0755 $(DESTDIR)$(GENERATORDIR)/jakagw-generator
 	install -m 0644 man/jakagw.8 $(DESTDIR)$(MANDIR)/man8/
 	install -m 0644 man/jakasim.1 $(DESTDIR)$(MANDIR)/man1/
-	install -m 0644 $(DOCS) $(DESTDIR)$(DOCDIR)/
+	install -m 0644 README.md $(DESTDIR)$(DOCDIR)/
+	install -m 0644 $(DOCS) $(DESTDIR)$(DOCDIR)/docs/
 	@case "$(UNITDIR)" in /lib/systemd/system|/usr/lib/systemd/system|/usr/local/lib/systemd/system|/etc/systemd/system) ;; \
 	*) echo "install: $(UNITDIR) is not on systemd's unit search path: 'systemctl link' the units there" ;; esac
 
@@ -375,7 +379,7 @@ clean:
 
 # A cross build is made again when its sysroot is (new packages, headers).
 ifneq ($(TRIPLET),)
-$(LIB_OBJS) $(SIM_OBJS) $(BUILD)/src/core/main.o $(UNIT_TESTS:%=$(BUILD)/tests/%) \
+$(LIB_OBJS) $(SIM_OBJS) $(MAIN_SRC:%.c=$(BUILD)/%.o) $(UNIT_TESTS:%=$(BUILD)/tests/%) \
     $(BUILD)/bench/ref_slave $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands \
     $(BUILD)/bench/bench_modbus $(BUILD)/bench/bench_tls: $(SYSROOT)/.jakagw-sysroot
 endif

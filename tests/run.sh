@@ -137,8 +137,9 @@ fi
 
 # The Debian package, built and installed into a fresh Debian 12 root file
 # system (also make test-package): once, with the first build. For an ARM
-# build, its package: built, checked and run under qemu-user.
-if [ "$what" = all ] && [ -z "$SUITES" ]; then
+# build, its package: built, checked and run under qemu-user. SUITES leaves
+# it out unless WITH_PACKAGE=1.
+if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; then
     build=${BUILDS%% *}
     echo "== tests/package/test_package.py ($build)"
     "$PYTHON" tests/package/test_package.py "$build" 2>&1 | tee "$log"

@@ -102,6 +102,11 @@ static void bad_values_name_key_and_line(void **state)
         {"[modbus]\nport = 5o2\n", ":2: [modbus] port: '5o2' is not a whole number"},
         {"[modbus]\n\nmax_clients = -3\n", ":3: [modbus] max_clients: '-3' is not a whole number"},
         {"[robot]\nhots = x\n", ":2: [robot] hots: unknown key"},
+        /* A key under the wrong heading: the error says where it belongs. */
+        {"[modbus]\ntime_limit_ms = 500\n",
+         ":2: [modbus] time_limit_ms: unknown key in this section; it belongs in "
+         "[network_exception]"},
+        {"[robot]\nport = 502\n", "it belongs in [modbus] or [tls] or [http]"},
         {"[modbus]\nword_order = middle\n", "must be high_first or low_first"},
         {"[modbus]\nunit_id = 300\n", "must be 'any' or 0..255"},
         {"this is not ini\n", ":1: not a 'key = value' or [section] line"},

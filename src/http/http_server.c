@@ -510,8 +510,8 @@ int http_server_start(uv_loop_t *loop, struct http_server *srv, const char *bind
     srv->loopback = is_loopback((struct sockaddr *)&addr);
     if (!srv->loopback)
         log_warn("http: listening on %s port %u, not only loopback: the status page and the "
-                 "metrics are readable by anyone who can reach it (README, \"Metrics and "
-                 "the status page\": an SSH tunnel or a reverse proxy with TLS)",
+                 "metrics are readable by anyone who can reach it (docs/metrics.md: an SSH "
+                 "tunnel or a reverse proxy with TLS)",
                  bind, port);
     else
         log_notice("http: metrics and status page on http://%s%s%s:%u/", v6 ? "[" : "", bind,

@@ -33,7 +33,7 @@ The CAN mirror's period through robot-link faults is checked in the VM
   test_faults.py                 every test, each in a new namespace
   test_faults.py NAME...         those tests
   test_faults.py measure_false_trips   heartbeat false trips under loss
-                                 (README "Faults"; not run by make test)"""
+                                 (docs/faults.md; not run by make test)"""
 import os
 import re
 import socket
@@ -678,7 +678,7 @@ def test_random_loss_robot_ports():
         stopped(sim, gw)
 
 
-# ---- measurements for the README (not run by make test) ----
+# ---- measurements for docs/faults.md (not run by make test) ----
 
 class DelayProxy:
     """A TCP proxy on loopback that holds every chunk it reads for

@@ -104,8 +104,8 @@ def test_make_install_usr():
         make("install", "DESTDIR=" + stage, "PREFIX=/usr")
         for f in ["usr/sbin/jakagw", "usr/bin/jakasim", "etc/jakagw/jakagw.conf",
                   "usr/share/man/man8/jakagw.8", "usr/share/man/man1/jakasim.1",
-                  "usr/share/doc/jakagw/README.md", "usr/share/doc/jakagw/register-map.md",
-                  "usr/share/doc/jakagw/register-map.csv"] + \
+                  "usr/share/doc/jakagw/README.md", "usr/share/doc/jakagw/docs/register-map.md",
+                  "usr/share/doc/jakagw/docs/register-map.csv", "usr/share/doc/jakagw/docs/rtu.md"] + \
                 ["lib/systemd/system/" + u for u in UNITS]:
             check(os.path.isfile(os.path.join(stage, f)), "%s not installed" % f)
         check(os.access(os.path.join(stage, "usr/sbin/jakagw"), os.X_OK), "not executable")

@@ -128,7 +128,7 @@ def test_package_contents():
     for doc in ["README.md", "register-map.md", "register-map.csv", "plc-guide.md",
                 "jakagw.dbc"]:
         if doc == "README.md" or os.path.exists(os.path.join(ROOT, "docs", doc)):
-            want.append("/usr/share/doc/jakagw/" + doc)
+            want.append("/usr/share/doc/jakagw/" + ("" if doc == "README.md" else "docs/") + doc)
     for path in want:
         check(path in files or path + ".gz" in files, "%s is not in the package" % path)
     conffiles = sh(["dpkg-deb", "-I", deb, "conffiles"]).stdout.split()

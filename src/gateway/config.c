@@ -434,13 +434,31 @@ static const struct key_info *find_key(const char *section, const char *key)
     return NULL;
 }
 
+/*
+ * Why a key is unknown: "unknown key", and where it belongs when other
+ * sections have it (a key put under the wrong heading is the common slip).
+ */
+static void explain_unknown(const char *section, const char *key, char *why, size_t size)
+{
+    size_t used = (size_t)snprintf(why, size, "unknown key");
+    unsigned found = 0;
+
+    for (size_t i = 0; i < N_KEYS && used < size; i++) {
+        if (strcmp(keys[i].key, key) != 0 || strcmp(keys[i].section, section) == 0)
+            continue;
+        used += (size_t)snprintf(why + used, size - used, "%s[%s]",
+                                 found++ ? " or " : " in this section; it belongs in ",
+                                 keys[i].section);
+    }
+}
+
 int config_set(struct gw_config *cfg, const char *section, const char *key,
                const char *value, char *why, size_t why_size)
 {
     const struct key_info *k = find_key(section, key);
 
     if (!k) {
-        snprintf(why, why_size, "unknown key");
+        explain_unknown(section, key, why, why_size);
         return -EINVAL;
     }
     return set_key(cfg, k, value, why, why_size);
@@ -646,7 +664,8 @@ static int on_ini_entry(void *user, const char *section, const char *name,
     }
     k = find_key(section, name);
     if (!k) {
-        fail(st, "[%s] %s: unknown key", section, name);
+        explain_unknown(section, name, reason, sizeof(reason));
+        fail(st, "[%s] %s: %s", section, name, reason);
         return 0;
     }
     if (st->key_line[k - keys]) {

@@ -8,6 +8,7 @@
 #include "config.h"
 #include "config_reload.h"
 #include "gateway.h"
+#include "gw_http.h"
 #include "gw_tls.h"
 #include "log.h"
 #include "regmap.h"
@@ -461,7 +462,7 @@ int main(int argc, char **argv)
                    JAKAGW_VERSION, cfg.robot_host, cfg.status_port, cfg.command_port,
                    cfg.modbus_bind, cfg.modbus_port);
     svc.gw.on_change = NULL;
-    if (gateway_start(svc.loop, &svc.gw, &cfg) != 0) {
+    if (gateway_start(svc.loop, &svc.gw, &cfg) != 0 || gw_http_start(&svc.gw) != 0) {
         log_err("cannot start; see the lines above");
         stop_service(&svc, svc.gw.config_error ? EXIT_CONFIG : 1);
     } else {

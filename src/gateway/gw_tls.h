@@ -1,8 +1,9 @@
 /* SPDX-License-Identifier: MIT */
 /*
- * gw_tls.h - the gateway's TLS, from its configuration: the Modbus/TCP
- * Security listener ([tls], [roles]) and the links to the robot ([robot]
- * tls, tls_ca, tls_fingerprint).
+ * gw_tls.h - the gateway's TLS contexts, from its configuration: the
+ * Modbus/TCP Security listener's ([tls]) and the robot links' ([robot] tls,
+ * tls_ca, tls_fingerprint). The gateway starts the listener with the
+ * first (gateway.c) and a reload renews both (config_reload.c).
  *
  * [tls] private_key is a file name, or, without any '/', the name of a
  * systemd credential (LoadCredential=): the file of that name in
@@ -15,8 +16,6 @@
 
 #include "config.h"
 #include "tls.h"
-
-struct gateway;
 
 /*
  * Builds the server context of [tls] (its files loaded and checked) or the
@@ -42,23 +41,5 @@ int gw_tls_robot_links(const struct gw_config *cfg, struct tls_context **ctx, co
  * 'why' (one line naming the key).
  */
 int gw_tls_check(const struct gw_config *cfg, char *why, size_t why_size);
-
-/* Starts the mbaps listener when [tls] enabled. 0 or a negative errno. */
-int gw_tls_start(struct gateway *gw);
-
-/*
- * On reload (SIGHUP), with the new configuration already checked: new
- * mbaps connections get the certificate, key, CA and CRL as the files are
- * now, and [roles], default_rights and the handshake limits of 'next';
- * established connections keep what they have. New robot connections get
- * the robot context anew. A file that does not load changes nothing, and
- * the log says why.
- */
-void gw_tls_reload(struct gateway *gw, const struct gw_config *next);
-
-/* The TLS counters into the gateway values. */
-void gw_tls_refresh_values(struct gateway *gw, double *values);
-/* Clears the failed-handshake counters (clear_counters). */
-void gw_tls_clear_counters(struct gateway *gw);
 
 #endif

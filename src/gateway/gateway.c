@@ -2,7 +2,6 @@
 /* gateway.c - see gateway.h. */
 #include "gateway.h"
 
-#include "gw_http.h"
 #include "gw_tls.h"
 #include "log.h"
 
@@ -183,6 +182,34 @@ static void refresh_rtu_values(struct gateway *gw, double *v)
     v[GW_rtu_turnaround_max_us] = s->turnaround_max_us;
 }
 
+static void refresh_tls_values(struct gateway *gw, double *v)
+{
+    static const struct mb_tls_stats none;
+    const struct mb_tls_stats *s = gw->mbaps ? &gw->mbaps->stats : &none;
+
+    v[GW_tls_clients] = s->clients;
+    v[GW_tls_handshakes_running] = s->handshakes;
+    v[GW_tls_handshakes_ok] = (double)s->handshakes_ok;
+    v[GW_tls_failed_total] = (double)mb_tls_failed_total(s);
+    v[GW_tls_failed_no_certificate] = (double)s->failed[TLS_FAIL_NO_CERTIFICATE];
+    v[GW_tls_failed_untrusted] = (double)s->failed[TLS_FAIL_UNTRUSTED];
+    v[GW_tls_failed_expired] = (double)s->failed[TLS_FAIL_EXPIRED];
+    v[GW_tls_failed_revoked] = (double)s->failed[TLS_FAIL_REVOKED];
+    v[GW_tls_failed_protocol] = (double)s->failed[TLS_FAIL_PROTOCOL];
+    v[GW_tls_failed_timeout] = (double)s->failed[TLS_FAIL_TIMEOUT];
+    v[GW_tls_failed_over_limit] = (double)s->failed[TLS_FAIL_OVER_LIMIT];
+    v[GW_status_link_tls_failure] = gw->status_link.tls_failure;
+    v[GW_command_link_tls_failure] = gw->command.link.tls_failure;
+}
+
+static void clear_tls_counters(struct gateway *gw)
+{
+    if (!gw->mbaps)
+        return;
+    gw->mbaps->stats.handshakes_ok = 0;
+    memset(gw->mbaps->stats.failed, 0, sizeof(gw->mbaps->stats.failed));
+}
+
 void gateway_refresh_values(struct gateway *gw)
 {
     double *v = gw->gw_values;
@@ -221,7 +248,7 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_can_frames_sent] = (double)gw->can.stats.frames_sent;
     v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
     v[GW_can_errors] = (double)can_mirror_errors(&gw->can.stats);
-    gw_tls_refresh_values(gw, v);
+    refresh_tls_values(gw, v);
     refresh_rtu_values(gw, v);
     regmap_encode_gw(&gw->image, v);
     plc_commands_refresh(&gw->commands);
@@ -242,7 +269,7 @@ static void clear_counters(void *user)
     gw->modbus.stats.bad_frames = 0;
     memset(&gw->modbus.stats.by, 0, sizeof(gw->modbus.stats.by));
     can_mirror_clear_stats(&gw->can);
-    gw_tls_clear_counters(gw);
+    clear_tls_counters(gw);
     if (gw->parts & GATEWAY_PART_RTU)
         mb_rtu_clear_stats(&gw->rtu);
     log_notice("counters cleared by a Modbus client");
@@ -622,6 +649,51 @@ static int start_rtu(struct gateway *gw)
     return rc;
 }
 
+static uint32_t rights_for_role(void *user, const char *role, bool valid, bool *listed)
+{
+    struct gateway *gw = user;
+    return config_role_rights(&gw->cfg, role, valid, listed);
+}
+
+/* The Modbus/TCP Security listener, when [tls] enabled. */
+static int start_mbaps(struct gateway *gw)
+{
+    const struct gw_config *cfg = &gw->cfg;
+    struct tls_context *ctx;
+    char why[600];
+    int rc;
+
+    if (!cfg->tls_enabled)
+        return 0;
+    rc = gw_tls_server_context(cfg, &ctx, why, sizeof(why));
+    if (rc) {
+        log_err("mbaps: %s", why);
+        return rc;
+    }
+    struct mb_tls_config tc = {
+        .handshake_timeout_ms = cfg->tls_handshake_timeout_ms,
+        .max_handshakes = cfg->tls_max_handshakes,
+        .rights_for_role = rights_for_role,
+        .user = gw,
+    };
+    gw->mbaps = calloc(1, sizeof(*gw->mbaps));
+    if (!gw->mbaps) {
+        tls_context_unref(ctx);
+        return -ENOMEM;
+    }
+    rc = mb_tls_init(gw->mbaps, ctx, &tc);
+    if (rc) {
+        tls_context_unref(ctx);
+        return rc;
+    }
+    log_notice("mbaps: certificate \"%s\"; TLS %s and later; clients must chain to %s%s%s",
+               tls_context_subject(ctx), cfg->tls_min_version ? "1.3" : "1.2",
+               cfg->tls_client_ca, cfg->tls_crl[0] ? ", CRL " : "", cfg->tls_crl);
+    return mb_server_listen(&gw->modbus, cfg->tls_bind[0] ? cfg->tls_bind : cfg->modbus_bind,
+                            (uint16_t)cfg->tls_port, cfg->tls_listen_fd, &mb_transport_tls,
+                            gw->mbaps);
+}
+
 int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *cfg)
 {
     int rc;
@@ -679,7 +751,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = mb_server_start(loop, &gw->modbus, &mc, &gw->image, &hooks);
     if (rc)
         return rc;
-    rc = gw_tls_start(gw);
+    rc = start_mbaps(gw);
     if (rc)
         return rc;
     rc = start_rtu(gw);
@@ -691,7 +763,7 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     rc = start_can(gw);
     if (rc)
         return rc;
-    return gw_http_start(gw);
+    return 0;
 }
 
 static void part_closed(struct gateway *gw)

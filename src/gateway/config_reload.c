@@ -4,6 +4,7 @@
 
 #include "gw_tls.h"
 #include "log.h"
+#include "mb_tls.h"
 
 #include <string.h>
 
@@ -90,7 +91,7 @@ static void apply_unit_id(struct gateway *gw, const struct gw_config *next)
 }
 
 /*
- * [tls]: the files are read again on every reload (gw_tls_reload), so a
+ * [tls]: the files are read again on every reload (reload_tls), so a
  * changed name only has to be kept; new connections get what they hold.
  */
 #define APPLY_TLS_TEXT(member)                                                 \
@@ -158,6 +159,63 @@ bool config_reload_is_live(const char *section, const char *key)
     return find_live(section, key) != NULL;
 }
 
+/*
+ * [robot] tls (its own value needs a restart): tls_ca and tls_fingerprint,
+ * already applied to gw->cfg, and the CA file as it is now, for the robot
+ * links' next connections; a file that does not load changes nothing.
+ */
+static void reload_robot_context(struct gateway *gw)
+{
+    struct tls_context *ctx;
+
+    if (!(gw->parts & GATEWAY_PART_COMMAND_LINK) ||
+        gw_tls_robot_links(&gw->cfg, &ctx, "reload: robot links (next connections)") != 0 ||
+        !ctx)
+        return;
+    robot_link_set_tls(&gw->status_link, ctx);
+    robot_link_set_tls(&gw->command.link, ctx);
+    tls_context_unref(ctx);
+}
+
+/*
+ * The TLS files again, and [roles] (gw_tls.h): new mbaps connections get
+ * the certificate, key, CA and CRL as the files are now, [roles],
+ * default_rights and the handshake limits of 'next'; established
+ * connections keep theirs. A file that does not load changes nothing.
+ */
+static void reload_tls(struct gateway *gw, const struct gw_config *next)
+{
+    struct gw_config *cfg = &gw->cfg;
+    struct tls_context *ctx;
+    char why[600];
+    bool roles_changed = cfg->role_count != next->role_count ||
+                         memcmp(cfg->roles, next->roles, sizeof(cfg->roles)) != 0;
+
+    if (roles_changed) {
+        memcpy(cfg->roles, next->roles, sizeof(cfg->roles));
+        cfg->role_count = next->role_count;
+        log_notice("reload: [roles]: %u roles; new mbaps connections get them",
+                   cfg->role_count);
+    }
+    reload_robot_context(gw);
+    if (!gw->mbaps)
+        return; /* [tls] enabled needs a restart: config_reload.c says so */
+    /* The files are read again even when no key changed: rotating a
+     * certificate is replacing the file and reloading. */
+    if (gw_tls_server_context(next, &ctx, why, sizeof(why)) != 0) {
+        log_err("reload: mbaps: %s; new connections keep the certificate, key, CA and CRL "
+                "in force",
+                why);
+        return;
+    }
+    mb_tls_set_context(gw->mbaps, ctx);
+    gw->mbaps->cfg.handshake_timeout_ms = next->tls_handshake_timeout_ms;
+    gw->mbaps->cfg.max_handshakes = next->tls_max_handshakes;
+    log_notice("reload: mbaps: new connections get certificate \"%s\" and the CA and CRL as "
+               "the files are now; established ones keep theirs",
+               tls_context_subject(ctx));
+}
+
 int config_reload_print_keys(FILE *out)
 {
     struct gw_config defaults;
@@ -201,6 +259,6 @@ int config_reload_apply(struct gateway *gw, const struct gw_config *next,
         }
     }
     /* The TLS files again, and [roles]: new connections get them. */
-    gw_tls_reload(gw, next);
+    reload_tls(gw, next);
     return 0;
 }
