@@ -57,7 +57,7 @@ override PKG_CONFIG := PKG_CONFIG_SYSROOT_DIR=$(SYSROOT) \
 JAKAGW_RUNNER := $(CROSS_QEMU_$(ARCH)) -L $(SYSROOT)
 export JAKAGW_RUNNER
 # Goals that compile need the sysroot before pkg-config is asked.
-ifneq ($(filter-out deps demo test clean uninstall deb test-package,$(or $(MAKECMDGOALS),all)),)
+ifneq ($(filter-out deps demo test clean uninstall deb test-package test-service,$(or $(MAKECMDGOALS),all)),)
 ifneq ($(shell scripts/make-sysroot.sh $(ARCH) $(SYSROOT) >&2 || echo failed),)
 $(error could not make the $(ARCH) sysroot $(SYSROOT))
 endif
@@ -72,7 +72,7 @@ PKGS      := libuv libmodbus libcjson inih libsystemd openssl libmicrohttpd
 # deps, demo, test and clean work on a bare machine (demo and test install
 # the packages first); any other goal needs the compiler and the .pc files,
 # and says how to get them instead of failing with compiler errors.
-NO_PKG_GOALS := deps demo test clean uninstall deb test-package
+NO_PKG_GOALS := deps demo test clean uninstall deb test-package test-service
 ifneq ($(filter-out $(NO_PKG_GOALS),$(or $(MAKECMDGOALS),all)),)
 MISSING_PKGS := $(shell command -v $(CC) >/dev/null || echo $(CC); \
     for p in $(PKGS) $(if $(filter unit-tests san valgrind,$(MAKECMDGOALS)),cmocka); do \
@@ -105,7 +105,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o) $(BUILD)/gen/status_page.o
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: screenshot bench-http all deps demo test soak test-netem unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
+.PHONY: screenshot bench-http all deps demo test soak test-netem unit-tests check-docs docs man install uninstall deb test-package test-service clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -371,6 +371,15 @@ deb:
 # systemd-analyze verify and security, lintian. make test runs it.
 test-package:
 	@/usr/bin/python3 tests/package/test_package.py $(BUILD)
+
+# The installed package under systemd as PID 1, in a VM (docs/service.md,
+# "Tested under systemd"): make deb, a Debian 12 image with the package
+# installed by apt (cached in $(BUILD)/service-vm/ while its inputs are
+# unchanged), one qemu boot of this machine's kernel for every case
+# (ready, reload, watchdog, socket, instances, credential, rtu, can,
+# journal, upgrade, seccomp). make test runs it too, with the first build.
+test-service:
+	@/usr/bin/python3 tests/service/test_service_vm.py $(BUILD)
 
 clean:
 	rm -rf build build-san build-fuzz

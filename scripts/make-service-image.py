@@ -201,7 +201,7 @@ def build(outdir, deb):
         # The agent, the robot, and the machine's basics.
         os.makedirs(os.path.join(root, "usr/local/lib/jakagw-test"))
         shutil.copy(AGENT, os.path.join(root, "usr/local/lib/jakagw-test/agent.py"))
-        for name, text in (("jakagw-test-agent.service", AGENT_UNIT),
+        for name, text in (("vm-test-agent.service", AGENT_UNIT),
                            ("robot.service", ROBOT_UNIT)):
             with open(os.path.join(root, "etc/systemd/system", name), "w") as f:
                 f.write(text)
@@ -209,7 +209,7 @@ def build(outdir, deb):
             f.write("/dev/vda / ext4 rw,errors=remount-ro 0 1\n")
         with open(os.path.join(root, "etc/hostname"), "w") as f:
             f.write("jakagw-vm\n")
-        sh(["chroot", root, "systemctl", "enable", "jakagw-test-agent.service",
+        sh(["chroot", root, "systemctl", "enable", "vm-test-agent.service",
             "robot.service"])
         # No login prompt on the console; no network to wait for.
         sh(["chroot", root, "systemctl", "mask", "serial-getty@ttyS0.service",

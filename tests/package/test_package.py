@@ -125,6 +125,7 @@ def test_package_contents():
             "/usr/share/man/man8/jakagw.8.gz", "/usr/share/man/man1/jakasim.1.gz",
             "/usr/share/doc/jakagw/copyright"]
     want += ["/lib/systemd/system/" + u for u in UNITS]
+    want.append("/lib/systemd/system-generators/jakagw-generator")
     for doc in ["README.md", "register-map.md", "register-map.csv", "plc-guide.md",
                 "jakagw.dbc"]:
         if doc == "README.md" or os.path.exists(os.path.join(ROOT, "docs", doc)):

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 # SPDX-License-Identifier: MIT
 """The service VM's test agent (runs inside the VM, as root, from
-jakagw-test-agent.service): reads one JSON request a line from the virtio
+vm-test-agent.service): reads one JSON request a line from the virtio
 serial port the host holds, runs it, and writes one JSON reply a line.
 
   {"id": N, "sh": "shell command", "timeout": S}
