@@ -43,7 +43,7 @@ MAGIC = 0x4A4B
 # The register map, as the installed jakagw prints it (case_boot).
 ADDR = {}
 COIL_POWER_ON = IR_INTERP = IR_HANDLE = None
-PAUSED = 2
+PAUSED, RUNNING = 2, 3
 WATCHDOG_S, RESTART_S = 10, 2   # the units' WatchdogSec= and RestartSec=
 FIGURES = []                    # (case, text) for the closing summary
 state = {}
@@ -559,7 +559,12 @@ def case_watchdog():
     WatchdogSec + RestartSec; meanwhile the robot's own handler paused the
     running program; nothing is delivered twice or replayed."""
     v = vm()
+    # A robot running its program (jakasim --auto-run, started again), and
+    # the gateway connected to it.
+    v.sh("systemctl restart robot.service")
     wait_robot_link()
+    wait_vm(lambda: v.py("result = ir(502, %d)[0]" % IR_INTERP) == RUNNING, 20,
+            "the program running")
     c = mark()
     check(v.py("result = pulse(502, %d)" % COIL_POWER_ON) == [0, 0], "power_on pulse refused")
     wait_vm(lambda: len(sim_commands(after=c, name="power_on")) == 1, 10, "power_on at the robot")
@@ -715,18 +720,31 @@ install -m 0600 gateway.key /etc/jakagw/tls/
 """
 
 TLS_MASTER = r"""
-def tls_ir(port, address):
+def tls_requests(port, pdus):
+    # Modbus/TCP Security: MBAP frames inside TLS, with the operator's
+    # client certificate; the replies' PDUs, and the TLS version.
     ctx = ssl.create_default_context(cafile="/root/ca/ca.crt")
     ctx.load_cert_chain("/root/ca/operator.crt", "/root/ca/operator.key")
+    replies = []
     with socket.create_connection(("127.0.0.1", port), timeout=10) as raw:
         with ctx.wrap_socket(raw, server_hostname="127.0.0.1") as s:
-            s.sendall(struct.pack(">HHHBBHH", 7, 0, 6, 1, 4, address, 1))
-            data = b""
-            while len(data) < 11:
-                chunk = s.recv(11 - len(data))
-                assert chunk, "TLS connection closed"
-                data += chunk
-            return struct.unpack(">H", data[9:11])[0], s.version()
+            for tid, pdu in enumerate(pdus, 1):
+                s.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, 1) + pdu)
+                data = b""
+                while len(data) < 7 or len(data) < 6 + struct.unpack(">H", data[4:6])[0]:
+                    chunk = s.recv(260)
+                    assert chunk, "TLS connection closed"
+                    data += chunk
+                replies.append(data[7:])
+            return replies, s.version()
+
+def tls_ir(port, address):
+    replies, version = tls_requests(port, [struct.pack(">BHH", 4, address, 1)])
+    return struct.unpack(">H", replies[0][2:4])[0], version
+
+def tls_pulse(port, coil):
+    replies, _ = tls_requests(port, [struct.pack(">BHH", 5, coil, v) for v in (0, 0xFF00)])
+    return [r[1] if r[0] & 0x80 else 0 for r in replies]
 """
 
 
@@ -749,8 +767,7 @@ def case_credential():
     check(magic == MAGIC, "magic over TLS: %#x" % magic)
     logs = v.sh("journalctl --no-pager -o cat -u jakagw.service -n 200")
     check("mbaps: listening" in logs, "no mbaps listener line")
-    v.sh("rm -rf /etc/systemd/system/jakagw.service.d")
-    restore()
+    state["tls"] = True  # left configured for the journal case
     figure("credential: key 0600 root, read through LoadCredential=; TLS master (%s, client "
            "certificate with role operator) read the magic on port 802" % version)
 
@@ -842,11 +859,13 @@ def case_can():
 
 def case_journal():
     """A PLC command's audit fields in the journal: client, role, command,
-    result (journalctl -o json)."""
+    result (journalctl -o json), for a power_on written over TLS by the
+    credential case's master, whose certificate carries role operator."""
     v = vm()
+    check(state.get("tls"), "not run: the credential case did not set up TLS")
     wait_robot_link()
     c = mark()
-    check(v.py("result = pulse(502, %d)" % COIL_POWER_ON) == [0, 0], "power_on pulse")
+    check(v.py("result = tls_pulse(802, %d)" % COIL_POWER_ON) == [0, 0], "power_on pulse")
 
     def audit():
         return [e for e in journal("-u jakagw.service", c)
@@ -862,7 +881,11 @@ def case_journal():
     for key in ("JAKAGW_CLIENT", "JAKAGW_ROLE", "JAKAGW_COMMAND", "JAKAGW_RESULT"):
         check(e.get(key), "no %s: %s" % (key, e))
     check(e["JAKAGW_CLIENT"].startswith("127.0.0.1"), "client %s" % e["JAKAGW_CLIENT"])
+    check(e["JAKAGW_ROLE"] == "operator" and e["JAKAGW_RESULT"] == "done" and
+          e.get("JAKAGW_TRANSPORT") == "mbaps", "audit entry: %s" % e)
     check(len(sim_commands(after=c, name="power_on")) == 1, "power_on not delivered once")
+    v.sh("rm -rf /etc/systemd/system/jakagw.service.d")
+    restore()
     figure("journal: " + ", ".join("%s=%s" % (k, e[k]) for k in sorted(e)
                                    if k.startswith("JAKAGW_")))
 
@@ -947,7 +970,7 @@ def main():
 
 def run_all():
     cases = [case_boot, case_ready, case_reload, case_watchdog, case_socket, case_instances,
-             case_credential, case_rtu, case_can, case_journal, case_upgrade, case_seccomp]
+             case_credential, case_journal, case_rtu, case_can, case_upgrade, case_seccomp]
     only = os.environ.get("JAKAGW_SERVICE_CASES")
     if only:
         cases = [c for c in cases if c is case_boot or c.__name__[5:] in only.split()]
