@@ -884,7 +884,8 @@ def case_journal():
     check(e["JAKAGW_ROLE"] == "operator" and e["JAKAGW_RESULT"] == "done" and
           e.get("JAKAGW_TRANSPORT") == "mbaps", "audit entry: %s" % e)
     check(len(sim_commands(after=c, name="power_on")) == 1, "power_on not delivered once")
-    v.sh("rm -rf /etc/systemd/system/jakagw.service.d")
+    # The test's own files go (a purge keeps files the package never had).
+    v.sh("rm -rf /etc/systemd/system/jakagw.service.d /etc/jakagw/tls")
     restore()
     figure("journal: " + ", ".join("%s=%s" % (k, e[k]) for k in sorted(e)
                                    if k.startswith("JAKAGW_")))
