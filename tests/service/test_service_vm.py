@@ -368,10 +368,11 @@ def restart(unit="jakagw.service", daemon_reload=False):
         unit, vm().sh("systemctl status --no-pager -l %s" % unit, ok=None)))
 
 
-def restore():
-    """The packaged configuration back, and jakagw.service running on it."""
+def restore(daemon_reload=False):
+    """The packaged configuration back, and jakagw.service running on it
+    (daemon_reload: after a change of [rtu] or of a drop-in)."""
     set_conf({})
-    restart(daemon_reload=True)
+    restart(daemon_reload=daemon_reload)
 
 
 def wait_robot_link(port=502):
@@ -548,7 +549,8 @@ def case_reload():
     again = v.py("result = idle_closed(502, 3)")
     check(again is not None and again <= 2.5, "the bad file changed the running "
           "configuration: idle connection closed after %s" % again)
-    restore()
+    set_conf({})
+    reload_and_wait("changes applied")
     figure("reload: %.3f s from systemctl reload to the gateway's summary line; idle "
            "connection closed %.2f s after the reload set 500 ms, %.2f s after a refused one"
            % (took, closed, again))
@@ -832,7 +834,7 @@ def rtu_lines(v, before_score, rates):
         wait_robot_link()
         rtu_master(pty, c)
         rates.append(security())
-    restore()
+    restore(daemon_reload=True)
     figure("rtu: /dev/ttyS1 and %s (/dev/ttyUSB0) served a master on this machine: magic, "
            "power_on once each; systemd-analyze security jakagw.service: %.1f without "
            "[rtu], %.1f with it" % ("/dev/serial/by-id/" + byid[0], before_score, rates[-1]))
@@ -886,7 +888,7 @@ def case_journal():
     check(len(sim_commands(after=c, name="power_on")) == 1, "power_on not delivered once")
     # The test's own files go (a purge keeps files the package never had).
     v.sh("rm -rf /etc/systemd/system/jakagw.service.d /etc/jakagw/tls")
-    restore()
+    restore(daemon_reload=True)
     figure("journal: " + ", ".join("%s=%s" % (k, e[k]) for k in sorted(e)
                                    if k.startswith("JAKAGW_")))
 
