@@ -1,9 +1,13 @@
 #!/usr/bin/env python3
 # SPDX-License-Identifier: MIT
-"""make screenshot: docs/status-page.png, the status page of a running
-demo (scripts/demo.sh: jakasim running a program, jakagw with [http]
-enabled) as headless Chromium shows it on a phone-sized screen, after a PLC
-has connected, fed its heartbeat and sent a few commands."""
+"""make screenshot: the status page of a running demo (scripts/demo.sh:
+jakasim running a program, jakagw with [http] enabled) as headless
+Chromium shows it on a 390 px phone screen:
+  docs/status-page.png        after a PLC has connected, fed its heartbeat
+                              and sent a few commands;
+  docs/status-page-fault.png  once that PLC stopped its heartbeat while the
+                              program ran (fault 1 latched: the red header
+                              and its banner)."""
 import os
 import signal
 import subprocess
@@ -17,6 +21,7 @@ from harness import ModbusPlc, free_port, wait_until  # noqa: E402
 from test_http import COIL, Http, browser, close_browser  # noqa: E402
 
 OUT = os.path.join(ROOT, "docs", "status-page.png")
+OUT_FAULT = os.path.join(ROOT, "docs", "status-page-fault.png")
 
 
 def main():
@@ -45,13 +50,20 @@ def main():
         with lock:
             plc.coil(COIL["cabinet_do_1"], 1)
             plc.pulse(COIL["cmd_enable_robot"])
-        driver = browser(412, 915)
+        driver = browser(390, 844)
         try:
             driver.get("http://127.0.0.1:%s/" % ports["HTTP_PORT"])
             time.sleep(2)
             wait_until(lambda: "enable_robot" in driver.find_element("id", "commands").text,
                        10, "the commands on the page")
             driver.save_screenshot(OUT)
+            # The PLC goes silent while the program runs: fault 1.
+            stop.set()
+            beat.join(5)
+            wait_until(lambda: driver.find_element("id", "fault").is_displayed(), 15,
+                       "the fault banner")
+            time.sleep(1.5)
+            driver.save_screenshot(OUT_FAULT)
         finally:
             close_browser(driver)
             stop.set()
@@ -60,7 +72,7 @@ def main():
     finally:
         demo.send_signal(signal.SIGTERM)
         demo.wait(20)
-    print("wrote %s" % os.path.relpath(OUT, ROOT))
+    print("wrote %s and %s" % (os.path.relpath(OUT, ROOT), os.path.relpath(OUT_FAULT, ROOT)))
 
 
 def _answers(web):

@@ -14,6 +14,13 @@
  * error) at once, and, with --link-check-ms N, one silent for N ms (a link
  * check missed) as lost then. The handler belongs to the connection that
  * set it: a client that never set one loses nothing by leaving.
+ *
+ * Two signals make faults a test can start and end at a moment it chooses
+ * (the alert tests time both): SIGUSR1 toggles a silent status stream
+ * (connections stay open, nothing is pushed, as --silent-after-ms), SIGUSR2
+ * toggles the robot's protective stop, SIGRTMIN its emergency stop (the
+ * button pressed: the robot disabled, a running program stopped; released,
+ * the robot stays disabled until enable_robot).
  */
 #include "framer.h"
 #include "log.h"
@@ -96,7 +103,8 @@ struct sim {
     struct sim_robot robot;
     uv_tcp_t status_server, command_server;
     uv_timer_t tick, drop, split_timer;
-    uv_signal_t sigint, sigterm;
+    uv_signal_t sigint, sigterm, sigusr1, sigusr2, sigestop;
+    bool silenced; /* SIGUSR1 */
     struct peer *peers;
     struct pyjson doc;
     char *replay_doc;
@@ -462,8 +470,8 @@ static void on_tick(uv_timer_t *t)
     const struct sim_options *o = &sim->opt;
 
     sim_robot_tick(&sim->robot, o->period_ms / 1000.0);
-    if (o->silent_after_ms &&
-        uv_now(sim->loop) - sim->started_ms >= o->silent_after_ms)
+    if (sim->silenced || (o->silent_after_ms &&
+                          uv_now(sim->loop) - sim->started_ms >= o->silent_after_ms))
         return; /* stop pushing, keep the connections open */
     if (sim->replay_doc) {
         emit_document(sim, sim->replay_doc, sim->replay_size);
@@ -786,6 +794,31 @@ static void on_signal(uv_signal_t *s, int signum)
     uv_close((uv_handle_t *)&sim->split_timer, on_close_quiet);
     uv_close((uv_handle_t *)&sim->sigint, on_close_quiet);
     uv_close((uv_handle_t *)&sim->sigterm, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->sigusr1, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->sigusr2, on_close_quiet);
+    uv_close((uv_handle_t *)&sim->sigestop, on_close_quiet);
+}
+
+/* SIGUSR1, SIGUSR2 and SIGRTMIN: a fault toggled on or off (see the top). */
+static void on_fault_signal(uv_signal_t *s, int signum)
+{
+    struct sim *sim = s->data;
+
+    if (signum == SIGUSR1) {
+        sim->silenced = !sim->silenced;
+        log_notice("jakasim: status stream %s (SIGUSR1)",
+                   sim->silenced ? "silent, connections kept" : "pushing again");
+    } else if (signum != SIGUSR2) {
+        sim->robot.emergency_stop = !sim->robot.emergency_stop;
+        if (sim->robot.emergency_stop)
+            sim->robot.enabled = false; /* the next tick stops a program */
+        log_notice("jakasim: emergency stop %s (SIGRTMIN)",
+                   sim->robot.emergency_stop ? "pressed" : "released");
+    } else {
+        sim->robot.protective_stop = !sim->robot.protective_stop;
+        log_notice("jakasim: protective stop %s (SIGUSR2)",
+                   sim->robot.protective_stop ? "triggered" : "cleared");
+    }
 }
 
 static int load_replay(struct sim *sim, const char *path)
@@ -855,7 +888,9 @@ static void usage(FILE *out)
         "  --fail-message TEXT    the errorMsg of --fail-command's answer (any bytes)\n"
         "  --ignore-command NAME  never answer NAME (\"all\": any command)\n"
         "  --reply-delay-ms N     answer commands after N ms\n"
-        "  --delay-command NAME   delay only NAME's replies (with --reply-delay-ms)\n");
+        "  --delay-command NAME   delay only NAME's replies (with --reply-delay-ms)\n"
+        "\nSignals: SIGUSR1 toggles a silent status stream (connections kept),\n"
+        "SIGUSR2 toggles a protective stop, SIGRTMIN an emergency stop.\n");
 }
 
 static int parse_uint(const char *flag, const char *text, unsigned max, unsigned *out)
@@ -1048,6 +1083,13 @@ int main(int argc, char **argv)
     sim.sigint.data = sim.sigterm.data = &sim;
     uv_signal_start(&sim.sigint, on_signal, SIGINT);
     uv_signal_start(&sim.sigterm, on_signal, SIGTERM);
+    uv_signal_init(sim.loop, &sim.sigusr1);
+    uv_signal_init(sim.loop, &sim.sigusr2);
+    uv_signal_init(sim.loop, &sim.sigestop);
+    sim.sigusr1.data = sim.sigusr2.data = sim.sigestop.data = &sim;
+    uv_signal_start(&sim.sigusr1, on_fault_signal, SIGUSR1);
+    uv_signal_start(&sim.sigusr2, on_fault_signal, SIGUSR2);
+    uv_signal_start(&sim.sigestop, on_fault_signal, SIGRTMIN);
     sim.started_ms = uv_now(sim.loop);
     log_notice("jakasim: status port %s:%d, command port %s:%d, every %u ms, "
                "profile %s%s%s%s", sim.opt.bind, sim.opt.status_port, sim.opt.bind,

@@ -412,6 +412,8 @@ static bool cmd_enable(struct command_ctx *c)
 {
     if (!c->r->powered_on)
         return reply_refused(c, "robot is powered off");
+    if (c->r->emergency_stop)
+        return reply_refused(c, "emergency stop is triggered");
     c->r->enabled = true;
     return reply_in_order(c->w, (const char *const[]){"errorCode", "0", "enabled status",
                                                       "True", "cmdName", c->name,

@@ -86,6 +86,16 @@ for build in $BUILDS; do
             [ "$build" != "${BUILDS%% *}" ] &&
                 suite_args="test_command_into_dead_link_never_delivered test_reset_mid_stream"
         fi
+        # The alert rules in a real Prometheus server, every fault in
+        # parallel (about 2.5 minutes): whole with the first native build;
+        # the sanitizer build runs the gateway's own cases (the stall, the
+        # never-seen ages, the stale streak: 16 s) and the promtool
+        # replays; ARM builds do not run it.
+        if [ "$name" = alerts ]; then
+            [ -n "${JAKAGW_ARCH:-}" ] && continue
+            [ "$build" != "${BUILDS%% *}" ] &&
+                suite_args="test_stall_is_the_gateways_own_fault test_never_seen_ages_have_no_sample_and_heartbeat_reads_back test_stale_streak_survives_reconnects_that_bring_documents test_recorded_series_replay_with_promtool"
+        fi
         # jakasim's network-exception handling: its nine loss-and-action
         # combinations (17 s) run with the first native build; the others
         # (ARM, sanitizer) run the two-layer test and the handler's scope.

@@ -182,28 +182,129 @@ static void refused_writes_are_aggregated_and_counted(void **state)
 {
     (void)state;
     for (unsigned i = 0; i < 30; i++)
-        audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "coil 105", 1);
-    audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "holding register 0", 2);
+        audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "coil 105", 1, "motion is off");
+    audit_write_refused(&a, "modbus", "192.0.2.9", "", "", "holding register 0", 2,
+                        "no such address in the register map");
     assert_int_equal(emitted_count, 2);
     assert_string_equal(emitted[0].command, "write");
     assert_string_equal(emitted[0].what, "coil 105");
     assert_string_equal(emitted[0].result, "refused");
     assert_int_equal(emitted[0].error_code, 1);
+    assert_string_equal(emitted[0].reason, "motion is off");
     assert_string_equal(emitted[1].what, "holding register 0");
+    assert_string_equal(emitted[1].reason, "no such address in the register map");
     assert_int_equal(emitted[1].error_code, 2);
     /* A client writing all over the map: still one record per period. */
     char what[32];
     for (unsigned i = 0; i < 1000; i++) {
         snprintf(what, sizeof(what), "holding register %u", 1000 + i);
-        audit_write_refused(&a, "modbus", "192.0.2.9", "", "", what, 1);
+        audit_write_refused(&a, "modbus", "192.0.2.9", "", "", what, 1, "motion is off");
     }
     assert_int_equal(emitted_count, 2);
     audit_finish(&a);
     assert_int_equal(emitted_count, 3);
     assert_int_equal(emitted[2].count, 1029);
-    assert_string_equal(emitted[2].what, "(several)");
+    /* As many distinct addresses as fit, then how many more: never cut. */
+    assert_memory_equal(emitted[2].what, "coil 105, holding register 1000, holding register 1001",
+                        54);
+    const char *tail = strstr(emitted[2].what, " and ");
+    assert_non_null(tail);
+    unsigned listed = 1, more = 0;
+    for (const char *p = emitted[2].what; p < tail; p++)
+        listed += *p == ',';
+    assert_int_equal(sscanf(tail, " and %u more", &more), 1);
+    assert_int_equal(listed + more, 1001);
     assert_int_equal(a.refused_writes[1], 1030);
     assert_int_equal(a.refused_writes[2], 1);
+}
+
+/*
+ * The review's case: a resume, a joint_move and three outputs refused
+ * within one period, for one reason: the group names each of them; a
+ * group of one names its one.
+ */
+static void refused_groups_name_their_commands_and_addresses(void **state)
+{
+    (void)state;
+    const char *why = "network-exception fault 1 latched: reset it first";
+    audit_write_refused(&a, "modbus", "192.0.2.9:5020", "", "", "coil 109 resume_program", 1,
+                        why);
+    audit_write_refused(&a, "modbus", "192.0.2.9:5020", "", "", "coil 109 resume_program", 1,
+                        why);
+    audit_write_refused(&a, "modbus", "192.0.2.9:5020", "", "", "holding register 300 joint_move",
+                        1, why);
+    for (unsigned i = 0; i < 3; i++) {
+        char what[64];
+        snprintf(what, sizeof(what), "coil %u set_digital_output", 200 + i);
+        audit_write_refused(&a, "modbus", "192.0.2.9:5020", "", "", what, 1, why);
+    }
+    /* Another reason is another group: a group of one. */
+    audit_write_refused(&a, "modbus", "192.0.2.9:5020", "", "", "coil 107 play_program", 1,
+                        "motion enable is 0");
+    audit_write_refused(&a, "modbus", "192.0.2.9:5020", "", "", "coil 107 play_program", 1,
+                        "motion enable is 0");
+    assert_int_equal(emitted_count, 2);
+    audit_finish(&a);
+    assert_int_equal(emitted_count, 4);
+    const struct audit_record *g = &emitted[2], *one = &emitted[3];
+    if (strcmp(g->reason, why) != 0) {
+        g = &emitted[3];
+        one = &emitted[2];
+    }
+    assert_string_equal(g->reason, why);
+    assert_string_equal(g->who.client, "192.0.2.9:5020");
+    assert_int_equal(g->count, 5);
+    assert_string_equal(g->what, "coil 109 resume_program, holding register 300 joint_move, "
+                                 "coil 200 set_digital_output, coil 201 set_digital_output, "
+                                 "coil 202 set_digital_output");
+    assert_string_equal(one->reason, "motion enable is 0");
+    assert_int_equal(one->count, 1);
+    assert_string_equal(one->what, "coil 107 play_program");
+}
+
+/* A setpoint's value is part of its record; a fault reset is recorded
+ * with who reset it. */
+static void setpoint_values_and_fault_resets_are_recorded(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    audit_set_writer(&a, "modbus", "192.0.2.1:40000", "", "");
+    audit_command_sent_what(&a, &slot_output, "rapid_rate", "{\"rate_value\":0.5}", false, true);
+    audit_command_sent_what(&a, &slot_output, "rapid_rate", "{\"rate_value\":0.8}", false, true);
+    audit_command_sent_what(&a, &slot_output, "rapid_rate", "{\"rate_value\":0.8}", false, true);
+    audit_fault_reset(&a, "fault 1 (PLC heartbeat lost)");
+    audit_clear_writer(&a);
+    for (unsigned i = 0; i < 3; i++)
+        audit_command_done(&a, &slot_output, &done);
+    audit_finish(&a);
+    assert_int_equal(emitted_count, 3);
+    assert_string_equal(emitted[0].command, "fault_reset");
+    assert_string_equal(emitted[0].what, "fault 1 (PLC heartbeat lost)");
+    assert_string_equal(emitted[0].who.client, "192.0.2.1:40000");
+    assert_string_equal(emitted[0].result, "done");
+    assert_string_equal(emitted[1].what, "{\"rate_value\":0.5}");
+    assert_int_equal(emitted[2].count, 2);
+    assert_string_equal(emitted[2].what, "{\"rate_value\":0.8}");
+}
+
+/* The gateway's own commands are kept apart: they never push a PLC's out
+ * of the page's view. */
+static void own_commands_are_kept_apart_from_the_plcs(void **state)
+{
+    (void)state;
+    struct cmd_result done = result(CMD_DONE, 0, "");
+    audit_set_writer(&a, "modbus", "192.0.2.1:40000", "", "");
+    audit_command_sent(&a, &slot_play, "play_program", false, false);
+    audit_clear_writer(&a);
+    audit_command_done(&a, &slot_play, &done);
+    for (unsigned i = 0; i < 2 * AUDIT_LAST; i++) {
+        audit_command_sent(&a, &slot_power, "set_network_exception_handle", true, false);
+        audit_command_done(&a, &slot_power, &done);
+    }
+    assert_int_equal(audit_count(&a), 1);
+    assert_string_equal(audit_get(&a, 0)->command, "play_program");
+    assert_int_equal(audit_own_count(&a), AUDIT_LAST);
+    assert_string_equal(audit_own_get(&a, 0)->who.transport, "gateway");
 }
 
 static void counters_count_every_command_even_aggregated(void **state)
@@ -260,6 +361,7 @@ static void the_last_records_are_kept_oldest_first(void **state)
     (void)state;
     struct cmd_result done = result(CMD_DONE, 0, "");
     char name[32];
+    audit_set_writer(&a, "modbus", "192.0.2.1:40000", "", "");
     for (unsigned i = 0; i < AUDIT_LAST + 5; i++) {
         snprintf(name, sizeof(name), "command_%u", i);
         audit_command_sent(&a, &slot_play, name, false, false);
@@ -290,7 +392,8 @@ static void null_audit_is_harmless(void **state)
     audit_set_writer(NULL, "modbus", "x", NULL, NULL);
     audit_command_sent(NULL, &slot_play, "play_program", false, false);
     audit_command_done(NULL, &slot_play, &done);
-    audit_write_refused(NULL, "modbus", "x", NULL, NULL, "coil 1", 1);
+    audit_write_refused(NULL, "modbus", "x", NULL, NULL, "coil 1", 1, NULL);
+    audit_fault_reset(NULL, "fault 1");
     audit_flush(NULL);
     audit_finish(NULL);
 }
@@ -356,18 +459,46 @@ static void outside_text_cannot_forge_fields_of_the_line(void **state)
     assert_null(strstr(line, " role=\"admin"));
     assert_non_null(strstr(line, " transport=mbaps "));
     assert_non_null(strstr(line, " role=\"monitor\" "));
-    /* The quotes of what, result, subject, role and the command's. */
+    /* The quotes of what, result, reason, subject, role and the command's. */
     unsigned quotes = 0;
     for (const char *p = line; *p; p++)
         quotes += *p == '"';
-    assert_int_equal(quotes, 10);
+    assert_int_equal(quotes, 12);
     /* A plain command name stays as it was. */
     snprintf(r.command, sizeof(r.command), "power_on");
     snprintf(r.who.subject, sizeof(r.who.subject), "CN=plc-1");
     stderr_line(&r, line, sizeof(line));
     assert_non_null(strstr(line, "audit: command=power_on what=\"\" result=\"refused\" "
-                                 "transport=mbaps client=10.0.0.9 subject=\"CN=plc-1\" "
-                                 "role=\"monitor\" count=1 error_code=1 error_msg="));
+                                 "reason=\"\" transport=mbaps client=10.0.0.9 "
+                                 "subject=\"CN=plc-1\" role=\"monitor\" count=1 error_code=1 "
+                                 "error_msg="));
+}
+
+/*
+ * One escaping pass, as docs/metrics.md shows it: a quote is \x22 (not
+ * \\x22), a backslash \\, a control byte \xNN; the errorMsg too.
+ */
+static void the_line_is_escaped_once(void **state)
+{
+    (void)state;
+    struct audit_record r = {.count = 2, .error_code = 1};
+    snprintf(r.who.transport, sizeof(r.who.transport), "mbaps");
+    snprintf(r.who.client, sizeof(r.who.client), "10.0.0.9:40001");
+    snprintf(r.who.subject, sizeof(r.who.subject), "CN=a\"b\\c\001d");
+    snprintf(r.command, sizeof(r.command), "write");
+    snprintf(r.what, sizeof(r.what), "coil 107 play_program");
+    snprintf(r.result, sizeof(r.result), "refused");
+    snprintf(r.reason, sizeof(r.reason), "motion is off");
+    snprintf(r.error_msg, sizeof(r.error_msg), "bad \"x\" \\ \002");
+    char line[2048], formatted[2048];
+    stderr_line(&r, line, sizeof(line));
+    assert_string_equal(line,
+                        "<5>audit: command=write what=\"coil 107 play_program\" "
+                        "result=\"refused\" reason=\"motion is off\" transport=mbaps "
+                        "client=10.0.0.9:40001 subject=\"CN=a\\x22b\\\\c\\x01d\" role=\"\" "
+                        "count=2 error_code=1 error_msg=bad \"x\" \\\\ \\x02\n");
+    audit_format_line(&r, formatted, sizeof(formatted));
+    assert_memory_equal(line + 3, formatted, strlen(formatted));
 }
 
 int main(void)
@@ -379,6 +510,9 @@ int main(void)
         cmocka_unit_test_setup(frequent_commands_are_aggregated_per_client_and_period, setup),
         cmocka_unit_test_setup(a_failure_among_frequent_ones_is_its_own_record, setup),
         cmocka_unit_test_setup(refused_writes_are_aggregated_and_counted, setup),
+        cmocka_unit_test_setup(refused_groups_name_their_commands_and_addresses, setup),
+        cmocka_unit_test_setup(setpoint_values_and_fault_resets_are_recorded, setup),
+        cmocka_unit_test_setup(own_commands_are_kept_apart_from_the_plcs, setup),
         cmocka_unit_test_setup(counters_count_every_command_even_aggregated, setup),
         cmocka_unit_test_setup(counters_past_their_room_count_as_other, setup),
         cmocka_unit_test_setup(the_last_records_are_kept_oldest_first, setup),
@@ -386,6 +520,7 @@ int main(void)
         cmocka_unit_test_setup(null_audit_is_harmless, setup),
         cmocka_unit_test(journal_is_detected_from_journal_stream),
         cmocka_unit_test(outside_text_cannot_forge_fields_of_the_line),
+        cmocka_unit_test(the_line_is_escaped_once),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

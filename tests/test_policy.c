@@ -234,8 +234,9 @@ static void reset_clears_the_fault(void **state)
     policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
     policy_check(&p, T0 + LIMIT, MOVING);
     expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
-    /* The PLC is back: heartbeat, then reset. */
+    /* The PLC is back: heartbeat, then reset (the loop turned meanwhile). */
     uint64_t back = T0 + 3 * LIMIT;
+    check_span(T0 + LIMIT, back, MOVING);
     policy_heartbeat(&p, back, PLC_A, ADDR_A, 2);
     policy_reset(&p);
     assert_int_equal(p.fault, POLICY_FAULT_NONE);
@@ -867,6 +868,109 @@ static void sink_without_a_callback(void **state)
     assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
 }
 
+
+/* The stalls the sink was told of (sink.on_stall). */
+static uint64_t stall_gaps[4];
+static unsigned stall_calls;
+
+static void record_stall(void *user, uint64_t gap_ms)
+{
+    (void)user;
+    assert_true(stall_calls < 4);
+    stall_gaps[stall_calls++] = gap_ms;
+}
+
+static void start_with_stall_sink(enum policy_action action)
+{
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = action,
+                                .watch = POLICY_WATCH_BOTH, .single_owner = true};
+    struct policy_sink sink = {.send_action = record_action, .on_stall = record_stall,
+                               .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    stall_calls = 0;
+    policy_init(&p, &cfg, &sink);
+}
+
+/*
+ * The gateway's process stopped for 70 s with a program running (the
+ * review's SIGSTOP): when the loop turns again, the fault is the
+ * gateway's own (4), never "PLC heartbeat lost"; the configured action
+ * still goes out once; the stall is reported once, with its length.
+ */
+static void stall_is_the_gateways_fault_not_the_plcs(void **state)
+{
+    (void)state;
+    start_with_stall_sink(POLICY_STOP);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 500, MOVING);
+    expect_nothing();
+    /* Stopped at T0 + 500, resumed 70 s later: the first check. */
+    uint64_t resumed = T0 + 500 + 70000;
+    policy_check(&p, resumed, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_GATEWAY_STALL);
+    assert_string_equal(policy_fault_name(p.fault), "gateway loop stalled");
+    assert_int_equal(stall_calls, 1);
+    assert_int_equal(stall_gaps[0], 70000);
+    assert_int_equal(p.stalls, 1);
+    assert_int_equal(p.last_stall_ms, 70000);
+    /* The PLC's heartbeat was 500 ms old when the gateway stopped: it
+     * still is, and the PLC has its whole limit to be heard again. */
+    check_span(resumed, resumed + LIMIT - 510, MOVING);
+    for (uint64_t t = resumed + LIMIT - 500; t <= resumed + 3 * LIMIT; t += 500) {
+        policy_heartbeat(&p, t, PLC_A, ADDR_A, (double)t);
+        check_span(t, t + 490, MOVING);
+    }
+    assert_int_equal(sent.calls, 1);
+    assert_int_equal(p.fault, POLICY_FAULT_GATEWAY_STALL);
+    assert_int_equal(stall_calls, 1);
+    /* Commands are refused until the PLC resets it, stop excepted. */
+    assert_true(policy_blocks_commands(&p));
+    policy_reset(&p);
+    policy_check(&p, resumed + 3 * LIMIT + 490, MOVING);
+    assert_int_equal(p.fault, POLICY_FAULT_NONE);
+    assert_int_equal(sent.calls, 1);
+}
+
+/* A stall while the robot is idle is reported, and latches nothing; one
+ * just within the limit is no stall at all. */
+static void stall_while_idle_only_reported(void **state)
+{
+    (void)state;
+    start_with_stall_sink(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    policy_check(&p, T0 + LIMIT, IDLE); /* a gap of exactly the limit */
+    assert_int_equal(stall_calls, 0);
+    policy_heartbeat(&p, T0 + LIMIT, PLC_A, ADDR_A, 2);
+    policy_check(&p, T0 + 5 * LIMIT, IDLE);
+    assert_int_equal(stall_calls, 1);
+    assert_int_equal(stall_gaps[0], 4 * LIMIT);
+    expect_nothing();
+    /* Judged once: the robot moving afterwards is not a second stall. */
+    check_span(T0 + 5 * LIMIT, T0 + 5 * LIMIT + 500, MOVING);
+    expect_nothing();
+}
+
+/* A stall seen first by a write (the loop's I/O runs before its timers)
+ * shifts the PLC's clock before the write is judged: the heartbeat write
+ * waiting in the socket is not late, and a start waiting behind it is
+ * refused for the gateway's stall, not for the PLC's heartbeat. */
+static void stall_seen_by_a_write_first(void **state)
+{
+    (void)state;
+    start_with_stall_sink(POLICY_PAUSE);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 300, IDLE);
+    uint64_t resumed = T0 + 300 + 20000;
+    char why[96] = "";
+    int ex = policy_gate_command(&p, resumed, NULL, why, sizeof(why));
+    assert_int_equal(ex, MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_GATEWAY_STALL);
+    assert_non_null(strstr(why, "fault 4"));
+    assert_int_equal(stall_calls, 1);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -909,6 +1013,9 @@ int main(void)
         cmocka_unit_test(owner_released_on_expiry_while_latched),
         cmocka_unit_test(no_owner_without_single_owner),
         cmocka_unit_test(sink_without_a_callback),
+        cmocka_unit_test(stall_is_the_gateways_fault_not_the_plcs),
+        cmocka_unit_test(stall_while_idle_only_reported),
+        cmocka_unit_test(stall_seen_by_a_write_first),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

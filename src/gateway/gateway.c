@@ -10,17 +10,73 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define NEVER_MS 4294967295.0
+#define NEVER_MS GATEWAY_NEVER_MS
 
 static struct gateway *gateway_of_link(struct robot_link *link)
 {
     return link->user;
 }
 
+/* The state the event log follows (events.h): each change one event. */
+static void events_check(struct gateway *gw)
+{
+    bool fresh = gateway_status_fresh(gw);
+    struct events_state s = {
+        .status_link = gw->status_link.state == ROBOT_LINK_CONNECTED && !fresh
+                           ? 3
+                           : (int)gw->status_link.state,
+        .command_link = (int)command_port_state(&gw->command),
+        .fault = gw->policy.fault,
+        .handler = gw->commands.handle_state,
+        .motion_enabled = gw->policy.motion_enabled,
+    };
+    snprintf(s.owner, sizeof(s.owner), "%s", gw->policy.owner_address);
+    robot_view_of(gw->status, fresh, &s.robot);
+    events_update(&gw->events, &s);
+}
+
 static void notify_change(struct gateway *gw)
 {
+    events_check(gw);
     if (gw->on_change)
         gw->on_change(gw);
+}
+
+/*
+ * The stale streak, updated whenever the freshness is looked at (every
+ * check period, every refresh, every document). It starts when the status
+ * goes stale and ends only once it has been fresh, with no gap, for twice
+ * status_timeout_ms: a controller that hangs after one push per connection
+ * keeps it running through every reconnect, as a flapping status_fresh
+ * (or link_up) cannot.
+ */
+static void track_status_streak(struct gateway *gw, bool fresh)
+{
+    uint64_t now = uv_now(gw->loop);
+    uint64_t timeout = gw->cfg.status_timeout_ms;
+
+    if (!fresh) {
+        gw->status_fresh_since_ms = 0;
+        if (gw->status_stale_since_ms == 0) {
+            /* Stale from when the last document got too old, if that is
+             * what happened; else (the link lost) from now. */
+            uint64_t since = now;
+            if (gw->last_document_ms && gw->last_document_ms + timeout < now)
+                since = gw->last_document_ms + timeout;
+            gw->status_stale_since_ms = since ? since : 1;
+        }
+        return;
+    }
+    if (gw->status_fresh_since_ms == 0)
+        gw->status_fresh_since_ms = now;
+    if (gw->status_stale_since_ms && now - gw->status_fresh_since_ms >= 2 * timeout)
+        gw->status_stale_since_ms = 0;
+}
+
+uint64_t gateway_status_stale_ms(struct gateway *gw)
+{
+    track_status_streak(gw, gateway_status_fresh(gw));
+    return gw->status_stale_since_ms ? uv_now(gw->loop) - gw->status_stale_since_ms : 0;
 }
 
 static void on_status_document(struct robot_link *link, const char *json,
@@ -49,12 +105,19 @@ static void on_status_document(struct robot_link *link, const char *json,
     /* A fresh clock: the parse may have taken a while, and the age that
      * PLCs read must count from when the data became available. */
     uv_update_time(gw->loop);
+    /* A gap before this document belongs to the streak, even one no
+     * check saw (a reconnect between two check periods). */
+    if (!was_fresh)
+        track_status_streak(gw, false);
     gw->last_document_ms = uv_now(gw->loop);
     gw->last_document_bytes = size;
+    track_status_streak(gw, true);
     policy_status_document(&gw->policy, gw->last_document_ms);
     regmap_encode_status(&gw->image, gw->status);
     if (!was_fresh)
         notify_change(gw);
+    else
+        events_check(gw); /* the robot's state may have changed */
 }
 
 static void on_status_framing(struct robot_link *link, enum framer_event event,
@@ -244,6 +307,14 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_last_document_bytes] = (double)gw->last_document_bytes;
     v[GW_plc_heartbeat_age_ms] =
         age_ms(gw, gw->policy.heartbeat_armed ? gw->policy.heartbeat_ms : 0);
+    /* The value the PLC last wrote, as holding register plc_heartbeat
+     * shows it: without it, /status.json's counters said 0 forever. */
+    v[GW_plc_heartbeat] = gw->policy.heartbeat_value;
+    uint64_t stale = gateway_status_stale_ms(gw);
+    v[GW_status_stale_ms] = stale > NEVER_MS - 1 ? NEVER_MS - 1 : (double)stale;
+    v[GW_loop_stalls] = (double)gw->policy.stalls;
+    v[GW_loop_stall_last_ms] =
+        gw->policy.last_stall_ms > NEVER_MS - 1 ? NEVER_MS - 1 : (double)gw->policy.last_stall_ms;
     v[GW_can_state] = gw->can.state;
     v[GW_can_frames_sent] = (double)gw->can.stats.frames_sent;
     v[GW_can_frames_dropped] = (double)gw->can.stats.frames_dropped;
@@ -303,7 +374,9 @@ static void on_policy_timer(uv_timer_t *t)
 {
     struct gateway *gw = t->data;
     check_policy(gw);
+    track_status_streak(gw, gateway_status_fresh(gw));
     audit_flush(&gw->audit);
+    events_check(gw); /* a fault latched, the status gone stale */
 }
 
 /* The policy's action goes out as pause_program or stop_program. */
@@ -311,19 +384,30 @@ static bool send_policy_action(void *user, enum policy_action action,
                                enum policy_fault reason)
 {
     struct gateway *gw = user;
-    static const char *const reasons[] = {"", "PLC heartbeat lost", "no Modbus client",
-                                          "motion enable dropped"};
     const char *name = action == POLICY_STOP ? "stop_program" : "pause_program";
     int rc = plc_commands_send_now(&gw->commands, name);
     if (rc == 0)
         log_warn("network exception: %s while the robot may move: sent %s; "
                  "commands are refused until the PLC resets the fault",
-                 reasons[reason], name);
+                 policy_fault_name(reason), name);
     else if (!gw->policy.owed)
         log_err("network exception: %s while the robot may move: cannot send %s "
                 "(%s); trying again on every check until it goes out",
-                reasons[reason], name, strerror(-rc));
+                policy_fault_name(reason), name, strerror(-rc));
     return rc == 0;
+}
+
+/* The policy saw the loop stand still: logged once per stall, as the
+ * gateway's own fault, never the PLC's. */
+static void on_loop_stall(void *user, uint64_t gap_ms)
+{
+    struct gateway *gw = user;
+
+    log_warn("gateway loop stalled for %llu ms (longer than time_limit_ms %u): the "
+             "process was stopped or blocked; the PLC is not blamed (its heartbeat "
+             "clock moves on by the stall); network-exception fault 4 if the robot "
+             "may move",
+             (unsigned long long)gap_ms, (unsigned)gw->cfg.ne_time_limit_ms);
 }
 
 /* The policy's action went out, and its outcome is unknown: owed again. */
@@ -369,17 +453,19 @@ static void on_start_answered(void *user)
     policy_start_answered(&gw->policy, uv_now(gw->loop));
 }
 
-/* A refused write into the audit trail: who, where, the exception. */
-static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex)
+/* A refused write into the audit trail: who, where, the exception, why. */
+static void audit_refusal(struct gateway *gw, const struct mb_write *w, int ex, bool judged)
 {
-    static const char *const tables[] = {"coil", "discrete input", "input register",
-                                         "holding register"};
-    char what[48] = "a write too short to say where";
+    /* Refused before it was judged: the server's own checks. */
+    static const char *const unjudged[] = {"", "function not allowed on this table",
+                                           "no such address in the register map",
+                                           "invalid count or value"};
+    const char *why = judged ? gw->writes.why : ex >= 1 && ex <= 3 ? unjudged[ex] : "";
 
-    if (w->count > 0)
-        snprintf(what, sizeof(what), "%s %u%s%.0u", tables[w->table % 4], w->address,
-                 w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
-    audit_write_refused(&gw->audit, w->transport, w->client, w->subject, w->role, what, ex);
+    if (!judged)
+        plc_write_name_range(&gw->writes, w);
+    audit_write_refused(&gw->audit, w->transport, w->peer ? w->peer : w->client, w->subject,
+                        w->role, gw->writes.where, ex, why);
 }
 
 /* Every write judged; the commands it sends, and a refusal, audited. */
@@ -387,18 +473,21 @@ static int on_write(void *user, const struct mb_write *w)
 {
     struct gateway *gw = user;
 
-    audit_set_writer(&gw->audit, w->transport, w->client, w->subject, w->role);
+    audit_set_writer(&gw->audit, w->transport, w->peer ? w->peer : w->client, w->subject,
+                     w->role);
     int ex = plc_write_judge(&gw->writes, w);
     audit_clear_writer(&gw->audit);
     if (ex)
-        audit_refusal(gw, w, ex);
+        audit_refusal(gw, w, ex, true);
+    else
+        events_check(gw); /* a fault reset, a new write owner */
     return ex;
 }
 
 /* A write the map refused before it could be judged: audited the same. */
 static void on_write_refused(void *user, const struct mb_write *w, int ex)
 {
-    audit_refusal(user, w, ex);
+    audit_refusal(user, w, ex, false);
 }
 
 static void on_client(void *user, uint64_t client, bool open, unsigned clients)
@@ -564,7 +653,8 @@ static int start_policy(struct gateway *gw)
         .single_owner = cfg->ne_single_owner,
         .start_unshown_max_ms = cfg->status_timeout_ms,
     };
-    struct policy_sink sink = {.send_action = send_policy_action, .user = gw};
+    struct policy_sink sink = {
+        .send_action = send_policy_action, .on_stall = on_loop_stall, .user = gw};
 
     rows->fault = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault");
     rows->fault_age_ms = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault_age_ms");
@@ -702,6 +792,9 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
     gw->loop = loop;
     gw->cfg = *cfg;
     gw->started_ms = uv_now(loop);
+    /* No status yet: stale from the start, so that a robot never reached
+     * is an outage like any other. */
+    gw->status_stale_since_ms = gw->started_ms ? gw->started_ms : 1;
     gw->parse_log_limit.interval_ms = 5000;
     gw->command_log_limit.interval_ms = 5000;
     rc = regmap_init(&gw->map);

@@ -17,6 +17,7 @@
 #include "can_mirror.h"
 #include "command_port.h"
 #include "config.h"
+#include "events.h"
 #include "http_server.h"
 #include "log.h"
 #include "mb_rtu.h"
@@ -28,6 +29,10 @@
 #include "regmap.h"
 #include "robot_link.h"
 #include "status.h"
+
+/* An age never seen (no document, no heartbeat yet), as registers show it;
+ * /metrics leaves such a sample out. */
+#define GATEWAY_NEVER_MS 4294967295.0
 
 struct gateway_counters {
     uint64_t documents_parsed;
@@ -77,12 +82,17 @@ struct gateway {
     bool config_error;
     struct audit audit;    /* who commanded the robot (audit.h) */
     struct http_server http; /* running when [http] enabled (gw_http.h) */
+    struct events events;    /* the status page's event log (events.h) */
     struct gateway_counters counters;
     double gw_values[GW_VALUE_COUNT];
 
     uint64_t started_ms;
     uint64_t last_document_ms; /* 0: none yet */
     size_t last_document_bytes;
+    /* The status's stale streak (gateway_status_stale_ms): since when it
+     * has been stale, 0 healthy; since when it has been fresh again. */
+    uint64_t status_stale_since_ms;
+    uint64_t status_fresh_since_ms;
     struct policy policy;
     uv_timer_t policy_timer; /* re-evaluates the policy every check period */
     struct gateway_policy_rows policy_rows;
@@ -105,6 +115,14 @@ int gateway_start(uv_loop_t *loop, struct gateway *gw, const struct gw_config *c
 
 /* Is the status data live (a document within status_timeout_ms)? */
 bool gateway_status_fresh(const struct gateway *gw);
+
+/*
+ * How long the status has been stale, counting a reconnect that brings a
+ * document or two as part of the same outage: from when it went stale
+ * until documents have flowed with no gap for 2 x status_timeout_ms. 0
+ * while healthy. Unlike status_fresh, it cannot flap.
+ */
+uint64_t gateway_status_stale_ms(struct gateway *gw);
 
 /* Recomputes the gateway values (gw_values) and encodes them. */
 void gateway_refresh_values(struct gateway *gw);

@@ -21,6 +21,45 @@
     "connect-src 'self'; img-src data:; base-uri 'none'; form-action 'none'; "   \
     "frame-ancestors 'none'"
 
+/*
+ * /status.json, with and without the registers, kept between requests:
+ * rebuilt when a status document came, an audit record or an event was
+ * added, or the one kept is STATUS_KEPT_MS old, whichever is first. Any
+ * local process may fetch it back to back; built for each request it
+ * cost the loop 5-7 ms (the registers) that Modbus requests waited for.
+ */
+#define STATUS_KEPT_MS 100
+
+static struct status_kept {
+    char *body;
+    size_t size;
+    uint64_t built_ms, documents, audit_seq, events_seq;
+} kept[2];
+
+static const char *status_document(struct gateway *gw, bool with_registers, size_t *size)
+{
+    struct status_kept *k = &kept[with_registers];
+    uint64_t now = uv_now(gw->loop);
+
+    if (k->body && now - k->built_ms < STATUS_KEPT_MS &&
+        k->documents == gw->counters.documents_parsed && k->audit_seq == gw->audit.seq &&
+        k->events_seq == gw->events.seq) {
+        *size = k->size;
+        return k->body;
+    }
+    gateway_refresh_values(gw);
+    size_t n;
+    char *body = status_json_render(gw, with_registers, &n);
+    if (!body)
+        return NULL;
+    free(k->body);
+    *k = (struct status_kept){.body = body, .size = n, .built_ms = now,
+                              .documents = gw->counters.documents_parsed,
+                              .audit_seq = gw->audit.seq, .events_seq = gw->events.seq};
+    *size = n;
+    return body;
+}
+
 static void answer_new(struct gateway *gw, const struct http_request *req, bool with_registers,
                        struct http_response *resp);
 
@@ -30,11 +69,10 @@ static void answer(void *user, const struct http_request *req, struct http_respo
     const char *registers = http_request_arg(req, "registers");
     bool with_registers = registers && strcmp(registers, "1") == 0;
     /* The state cannot change within one turn of the server: what was
-     * built for one request of the turn is the answer to the others. */
-    const char *key = strcmp(req->path, "/metrics") == 0       ? "metrics"
-                      : strcmp(req->path, "/status.json") != 0 ? NULL
-                      : with_registers                         ? "status+registers"
-                                                               : "status";
+     * built for one request of the turn is the answer to the others.
+     * /status.json is kept longer, by status_document(): not copied for
+     * the turn as well. */
+    const char *key = strcmp(req->path, "/metrics") == 0 ? "metrics" : NULL;
 
     if (key && http_turn_cached(&gw->http, key, resp))
         return;
@@ -57,8 +95,10 @@ static void answer_new(struct gateway *gw, const struct http_request *req, bool 
         return;
     }
     if (strcmp(req->path, "/status.json") == 0) {
-        gateway_refresh_values(gw);
-        resp->body = status_json_render(gw, with_registers, &resp->size);
+        const char *doc = status_document(gw, with_registers, &resp->size);
+        resp->body = doc ? malloc(resp->size) : NULL;
+        if (resp->body)
+            memcpy(resp->body, doc, resp->size);
         resp->status = resp->body ? 200 : 0;
         resp->content_type = "application/json";
         return;

@@ -42,6 +42,15 @@ static void head(struct strbuf *out, const char *name, const char *type, const c
     strbuf_printf(out, "# HELP %s %s\n# TYPE %s %s\n", name, help, name, type);
 }
 
+/* An age in seconds, or no sample at all when never seen: a placeholder
+ * such as 4294967.295 s would wreck every graph and every comparison. */
+static void age(struct strbuf *out, const char *name, const char *help, double ms)
+{
+    head(out, name, "gauge", help);
+    if (ms < GATEWAY_NEVER_MS)
+        strbuf_printf(out, "%s %.15g\n", name, ms / MS);
+}
+
 /* A metric without labels. */
 static void plain(struct strbuf *out, const char *name, const char *type, const char *help,
                   double value)
@@ -152,6 +161,26 @@ static void command_metrics(const struct gateway *gw, struct strbuf *out)
                           (unsigned long long)a->refused_writes[code]);
 }
 
+/* The robot's own stops, from the last status document: a sample only for
+ * a flag the controller sent (the status alert covers a stale one). */
+static void robot_stop_metrics(const struct gateway *gw, struct strbuf *out)
+{
+    static const struct {
+        const char *kind;
+        enum status_field field;
+    } stops[] = {{"emergency", STATUS_F_emergency_stop}, {"protective", STATUS_F_protective_stop}};
+
+    head(out, "jakagw_robot_stop", "gauge",
+         "Whether the robot is in an emergency or a protective stop (discrete inputs "
+         "emergency_stop, protective_stop), as the last status document says.");
+    for (size_t i = 0; i < sizeof(stops) / sizeof(stops[0]); i++) {
+        const struct status_num *n = status_num_at(gw->status, stops[i].field, 0);
+        if (n && n->present)
+            strbuf_printf(out, "jakagw_robot_stop{kind=\"%s\"} %.0f\n", stops[i].kind,
+                          n->value != 0 ? 1.0 : 0.0);
+    }
+}
+
 void metrics_render(const struct gateway *gw, struct strbuf *out)
 {
     const double *v = gw->gw_values;
@@ -165,9 +194,12 @@ void metrics_render(const struct gateway *gw, struct strbuf *out)
     plain(out, "jakagw_status_fresh", "gauge",
           "Whether the status data is live (a document within status_timeout_ms).",
           v[GW_status_fresh]);
-    plain(out, "jakagw_status_age_seconds", "gauge",
-          "Time since the last status document (4294967.295: none yet).",
-          v[GW_status_age_ms] / MS);
+    age(out, "jakagw_status_age_seconds",
+        "Time since the last status document (no sample: none yet).", v[GW_status_age_ms]);
+    plain(out, "jakagw_status_stale_seconds", "gauge",
+          "How long the status has been stale, reconnects included: 0 once documents have "
+          "flowed with no gap for 2 x status_timeout_ms (input register status_stale_ms).",
+          v[GW_status_stale_ms] / MS);
     plain(out, "jakagw_uptime_seconds", "gauge", "Time since the gateway started.",
           v[GW_uptime_s]);
     plain(out, "jakagw_documents_parsed_total", "counter", "Status documents parsed.",
@@ -186,16 +218,26 @@ void metrics_render(const struct gateway *gw, struct strbuf *out)
     command_metrics(gw, out);
     plain(out, "jakagw_policy_fault", "gauge",
           "The latched network-exception fault: 0 none, 1 heartbeat lost, 2 no Modbus client, "
-          "3 motion enable dropped.",
+          "3 motion enable dropped, 4 the gateway's own loop stalled.",
           (double)gw->policy.fault);
+    plain(out, "jakagw_policy_time_limit_seconds", "gauge",
+          "The network-exception time limit (time_limit_ms): the PLC heartbeat's bound.",
+          gw->policy.cfg.time_limit_ms / MS);
+    plain(out, "jakagw_loop_stalls_total", "counter",
+          "Gateway loop stalls longer than time_limit_ms (input register loop_stalls).",
+          v[GW_loop_stalls]);
+    plain(out, "jakagw_loop_stall_last_seconds", "gauge",
+          "Length of the last loop stall (input register loop_stall_last_ms).",
+          v[GW_loop_stall_last_ms] / MS);
     plain(out, "jakagw_policy_faults_total", "counter", "Network-exception faults latched.",
           (double)gw->policy.faults);
     plain(out, "jakagw_write_owner_present", "gauge",
           "Whether a Modbus client owns the write side (single_owner).",
           gw->policy.owner_address[0] ? 1 : 0);
-    plain(out, "jakagw_plc_heartbeat_age_seconds", "gauge",
-          "Time since the PLC last changed plc_heartbeat (4294967.295: never).",
-          v[GW_plc_heartbeat_age_ms] / MS);
+    age(out, "jakagw_plc_heartbeat_age_seconds",
+        "Time since the PLC last changed plc_heartbeat (no sample: never).",
+        v[GW_plc_heartbeat_age_ms]);
+    robot_stop_metrics(gw, out);
     plain(out, "jakagw_robot_handler_state", "gauge",
           "The robot's network-exception handler: 0 not sent, 1 pending, 2 accepted, 3 failed.",
           (double)gw->commands.handle_state);

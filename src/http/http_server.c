@@ -42,11 +42,36 @@ static void turn_clear(struct http_server *srv)
     srv->turn_count = 0;
 }
 
+static void on_rest_over(uv_timer_t *t);
+
+/*
+ * After a turn that took 'spent_ns', HTTP rests: nothing of it runs for
+ * (100 - HTTP_LOOP_PERCENT) / HTTP_LOOP_PERCENT times as long, so that
+ * however many clients ask back to back, HTTP has at most that share of
+ * the loop and Modbus requests wait for one short turn at most. A turn
+ * shorter than HTTP_REST_AFTER_US (one request, even the registers
+ * document) rests not at all: a lone client is never slowed.
+ */
+static void rest_after(struct http_server *srv, uint64_t spent_ns)
+{
+    uint64_t rest_ms = spent_ns * (100 - HTTP_LOOP_PERCENT) / HTTP_LOOP_PERCENT / 1000000;
+
+    if (spent_ns < HTTP_REST_AFTER_US * 1000 || rest_ms == 0 || !srv->running)
+        return;
+    srv->resting = true;
+    srv->rests++;
+    uv_poll_stop(&srv->poll);
+    uv_poll_stop(&srv->listener);
+    uv_timer_start(&srv->timer, on_rest_over, rest_ms, 0);
+}
+
 /* One turn of libmicrohttpd: every connection ready, once. */
 static void run(struct http_server *srv)
 {
+    uint64_t t0 = uv_hrtime();
     MHD_run(srv->daemon);
     turn_clear(srv);
+    rest_after(srv, uv_hrtime() - t0);
 }
 
 bool http_turn_cached(struct http_server *srv, const char *key, struct http_response *resp)
@@ -356,13 +381,30 @@ static void on_timer(uv_timer_t *t)
     schedule(srv);
 }
 
+static void on_poll(uv_poll_t *p, int status, int events);
+static void on_listener(uv_poll_t *p, int status, int events);
+
+/* The rest is over: the polls watch again, and what waited runs. */
+static void on_rest_over(uv_timer_t *t)
+{
+    struct http_server *srv = t->data;
+
+    srv->resting = false;
+    if (!srv->running)
+        return;
+    uv_poll_start(&srv->poll, UV_READABLE, on_poll);
+    uv_poll_start(&srv->listener, UV_READABLE, on_listener);
+    run(srv);
+    schedule(srv);
+}
+
 /* libmicrohttpd's next timeout, as the timer's; none: stopped. */
 static void schedule(struct http_server *srv)
 {
     MHD_UNSIGNED_LONG_LONG ms;
 
-    if (!srv->running)
-        return;
+    if (!srv->running || srv->resting)
+        return; /* the rest's timer runs the next turn */
     /* Never 0: libuv before 1.45 runs a timer started at 0 from its own
      * callback again in the same pass over the timers, without polling in
      * between, and libmicrohttpd says 0 for as long as a connection has

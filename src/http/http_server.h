@@ -43,6 +43,10 @@
 #define HTTP_IDLE_TIMEOUT_S 10
 #define HTTP_HEAD_DEADLINE_MS 10000
 #define HTTP_RESPONSE_DEADLINE_MS 30000
+/* The most of the loop's time HTTP takes when clients ask back to back
+ * (http_server.c, rest_after). */
+#define HTTP_LOOP_PERCENT 20
+#define HTTP_REST_AFTER_US 500
 
 struct http_request {
     const char *path;  /* without the query */
@@ -106,6 +110,8 @@ struct http_server {
     uint64_t requests;       /* answered, any status */
     uint64_t closed_slow;    /* closed by a deadline */
     uint64_t refused;        /* closed at once: over the connection limit */
+    uint64_t rests;          /* turns long enough to rest after (HTTP_LOOP_PERCENT) */
+    bool resting;
     struct http_turn_entry turn[HTTP_TURN_KEPT];
     unsigned turn_count;
     struct log_ratelimit log_limit;

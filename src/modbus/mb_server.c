@@ -513,7 +513,7 @@ static void answer_request(struct mb_client *c, const uint8_t *req, size_t size)
     if (ex) {
         log_refused(c, req, size, ex);
         if (mb_request_is_write(pdu[0]) && srv->hooks.on_write_refused) {
-            struct mb_write w = {.client = c->host, .client_addr = c->addr,
+            struct mb_write w = {.client = c->host, .peer = c->peer, .client_addr = c->addr,
                                  .client_id = c->accept_seq, .rights = c->rights,
                                  .transport = c->transport->name, .subject = c->subject,
                                  .role = c->role};
@@ -543,7 +543,7 @@ static void answer_request(struct mb_client *c, const uint8_t *req, size_t size)
     if (mb_request_is_write(pdu[0]) && srv->hooks.on_write) {
         /* Act before answering, so that a write can be refused. */
         static uint16_t values[MODBUS_MAX_WRITE_BITS];
-        struct mb_write w = {.client = c->host, .client_addr = c->addr,
+        struct mb_write w = {.client = c->host, .peer = c->peer, .client_addr = c->addr,
                              .client_id = c->accept_seq, .values = values,
                              .rights = c->rights, .transport = c->transport->name,
                              .subject = c->subject, .role = c->role};

@@ -98,6 +98,7 @@ struct mb_write {
     unsigned count;
     const uint16_t *values; /* one per bit (0 or 1) or register */
     const char *client;     /* the client's IP address, as text (for logs) */
+    const char *peer;       /* address:port, or the line (the audit's client) */
     struct in6_addr client_addr; /* the same, IPv4 mapped (ip_allow.h) */
     uint64_t client_id;     /* unique for each connection */
     /* What the connection may write: a bit per enum regmap_write_class

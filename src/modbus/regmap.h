@@ -123,7 +123,10 @@ enum regmap_word_order {
     X(rtu_overruns)                                                            \
     X(rtu_gap_discards)                                                        \
     X(rtu_turnaround_us)                                                       \
-    X(rtu_turnaround_max_us)
+    X(rtu_turnaround_max_us)                                                   \
+    X(status_stale_ms)                                                         \
+    X(loop_stalls)                                                             \
+    X(loop_stall_last_ms)
 
 enum gw_value {
 #define GW_ENUM(name) GW_##name,

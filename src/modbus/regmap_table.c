@@ -330,7 +330,8 @@ const struct regmap_row regmap_table_rows[] = {
     /* ---- input registers: the network-exception policy ---- */
     P_ROW(REGMAP_INPUT_REGISTER, 60, 1, REGMAP_U16, 0, "", "fault", "fault",
           "Latched network-exception fault: 0 none, 1 PLC heartbeat lost, 2 no "
-          "Modbus client, 3 motion enable dropped; commands but stop are refused"),
+          "Modbus client, 3 motion enable dropped, 4 the gateway's own loop stalled; "
+          "commands but stop are refused"),
     P_ROW(REGMAP_INPUT_REGISTER, 61, 1, REGMAP_U32, 0, "ms", "fault_age_ms",
           "fault_age_ms", "Time since the fault latched; 0 when none"),
     P_ROW(REGMAP_INPUT_REGISTER, 63, 1, REGMAP_U16, 0, "", "faults", "faults",
@@ -374,6 +375,15 @@ const struct regmap_row regmap_table_rows[] = {
          "[robot] tls: the same for the command port"),
 
     /* ---- input registers: Modbus RTU on the serial line ([rtu]) ---- */
+    /* ---- input registers: the gateway's own health ---- */
+    G_IR(5520, status_stale_ms, REGMAP_U32, "ms",
+         "How long the status has been stale, reconnects included: from when it went "
+         "stale until documents have flowed with no gap for 2 x status_timeout_ms; "
+         "0 while healthy"),
+    G_IR(5522, loop_stalls, REGMAP_U32, "",
+         "Gateway loop stalls: a gap between loop turns longer than time_limit_ms "
+         "(network-exception fault 4 when the robot may move)"),
+    G_IR(5524, loop_stall_last_ms, REGMAP_U32, "ms", "Length of the last loop stall"),
     G_IR(5540, rtu_line_state, REGMAP_U16, "",
          "Serial line: 0 off ([rtu] enabled = false), 1 open, no request for this unit "
          "within time_limit_ms, 2 open and polled, 3 device absent or failed (opened "

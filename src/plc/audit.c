@@ -4,6 +4,7 @@
 
 #include "log.h"
 
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -11,6 +12,27 @@
 #include <systemd/sd-journal.h>
 #include <time.h>
 #include <unistd.h>
+
+/* A bounded line: what does not fit is dropped, the text stays ended. */
+struct strbuf_lite {
+    char *out;
+    size_t size, used;
+};
+
+static void lite_printf(struct strbuf_lite *b, const char *fmt, ...)
+    __attribute__((format(printf, 2, 3)));
+
+static void lite_printf(struct strbuf_lite *b, const char *fmt, ...)
+{
+    va_list ap;
+    if (b->used + 1 >= b->size)
+        return;
+    va_start(ap, fmt);
+    int n = vsnprintf(b->out + b->used, b->size - b->used, fmt, ap);
+    va_end(ap);
+    if (n > 0)
+        b->used = b->used + (size_t)n < b->size ? b->used + (size_t)n : b->size - 1;
+}
 
 static void copy(char *out, size_t size, const char *in)
 {
@@ -66,16 +88,17 @@ static void record(struct audit *a, struct audit_record *r)
     if (r->count == 0)
         r->count = 1;
     a->recorded++;
-    a->last[a->next] = *r;
-    a->next = (a->next + 1) % AUDIT_LAST;
-    if (a->count < AUDIT_LAST)
-        a->count++;
+    struct audit_ring *ring = strcmp(r->who.transport, "gateway") == 0 ? &a->own : &a->plc;
+    ring->last[ring->next] = *r;
+    ring->next = (ring->next + 1) % AUDIT_LAST;
+    if (ring->count < AUDIT_LAST)
+        ring->count++;
     a->sink.emit(a->sink.user, r);
 }
 
 /*
- * The same client, command and result (and, for a refusal, exception):
- * not the address, so that a client writing all over the map is still one
+ * The same client, command and result (and, for a refusal, exception and
+ * reason): not the address, so that a client writing all over the map is still one
  * record per period, not one per address.
  */
 static bool same_kind(const struct audit_record *x, const struct audit_record *y)
@@ -84,7 +107,7 @@ static bool same_kind(const struct audit_record *x, const struct audit_record *y
            strcmp(x->who.client, y->who.client) == 0 &&
            strcmp(x->who.subject, y->who.subject) == 0 &&
            strcmp(x->command, y->command) == 0 && strcmp(x->result, y->result) == 0 &&
-           x->error_code == y->error_code;
+           strcmp(x->reason, y->reason) == 0 && x->error_code == y->error_code;
 }
 
 /* Ends aggregate 'g': its count, if any after the first, as one record. */
@@ -93,13 +116,46 @@ static void end_aggregate(struct audit *a, struct audit_aggregate *g)
     if (g->more) {
         struct audit_record r = g->first;
         r.count = g->more;
-        if (g->several)
-            copy(r.what, sizeof(r.what), "(several)");
+        /* add_what() left room for the tail. */
+        int n = snprintf(r.what, sizeof(r.what), "%s", g->whats);
+        if (g->whats_left && n >= 0 && (size_t)n < sizeof(r.what))
+            snprintf(r.what + n, sizeof(r.what) - (size_t)n, " and %u more", g->whats_left);
         r.error_code = g->last_code;
         copy(r.error_msg, sizeof(r.error_msg), g->last_msg);
         record(a, &r);
     }
     g->used = false;
+}
+
+/* Is 'what' one of the ", "-separated items of 'list'? */
+static bool listed(const char *list, const char *what)
+{
+    size_t n = strlen(what);
+    for (const char *p = list; (p = strstr(p, what)) != NULL; p++)
+        if ((p == list || (p >= list + 2 && memcmp(p - 2, ", ", 2) == 0)) &&
+            (p[n] == '\0' || memcmp(p + n, ", ", 2) == 0))
+            return true;
+    return false;
+}
+
+/* Adds 'what' to the aggregate's distinct whats; "" adds nothing. A what
+ * that does not fit is counted, never cut: "and N more" says so. */
+static void add_what(struct audit_aggregate *g, const char *what)
+{
+    size_t used = strlen(g->whats), n = strlen(what);
+
+    if (!n || listed(g->whats, what))
+        return;
+    /* Room for ", ", the item, and a later " and N more". */
+    if (used + 2 + n + 22 >= sizeof(g->whats)) {
+        g->whats_left++;
+        return;
+    }
+    if (used) {
+        memcpy(g->whats + used, ", ", 2);
+        used += 2;
+    }
+    memcpy(g->whats + used, what, n + 1);
 }
 
 /*
@@ -121,8 +177,7 @@ static void aggregate(struct audit *a, struct audit_record *r)
             continue;
         }
         if (same_kind(&g->first, r)) {
-            if (strcmp(g->first.what, r->what) != 0)
-                g->several = true;
+            add_what(g, r->what);
             g->more++;
             g->last_code = r->error_code;
             copy(g->last_msg, sizeof(g->last_msg), r->error_msg);
@@ -139,7 +194,8 @@ static void aggregate(struct audit *a, struct audit_record *r)
     free_slot->used = true;
     free_slot->since_ms = now;
     free_slot->more = 0;
-    free_slot->several = false;
+    free_slot->whats[0] = '\0';
+    free_slot->whats_left = 0;
     record(a, r);
     free_slot->first = *r;
 }
@@ -168,6 +224,12 @@ void audit_finish(struct audit *a)
 void audit_command_sent(struct audit *a, const void *key, const char *command, bool own,
                         bool frequent)
 {
+    audit_command_sent_what(a, key, command, "", own, frequent);
+}
+
+void audit_command_sent_what(struct audit *a, const void *key, const char *command,
+                             const char *what, bool own, bool frequent)
+{
     struct audit_pending_cmd *slot = NULL;
 
     if (!a)
@@ -191,6 +253,7 @@ void audit_command_sent(struct audit *a, const void *key, const char *command, b
     slot->order = ++a->order;
     slot->frequent = frequent;
     copy(slot->command, sizeof(slot->command), command);
+    copy(slot->what, sizeof(slot->what), what);
     if (own || !a->have_writer)
         copy(slot->who.transport, sizeof(slot->who.transport), "gateway");
     else
@@ -234,6 +297,7 @@ void audit_command_done(struct audit *a, const void *key, const struct cmd_resul
         return; /* a command not sent through audit_command_sent */
     struct audit_record r = {.who = p->who, .error_code = res->error_code};
     copy(r.command, sizeof(r.command), p->command);
+    copy(r.what, sizeof(r.what), p->what);
     copy(r.result, sizeof(r.result), cmd_outcome_name(res->outcome));
     count_command(a, r.command, r.result);
     copy(r.error_msg, sizeof(r.error_msg), res->error_msg);
@@ -247,7 +311,7 @@ void audit_command_done(struct audit *a, const void *key, const struct cmd_resul
 
 void audit_write_refused(struct audit *a, const char *transport, const char *client,
                          const char *subject, const char *role, const char *what,
-                         int exception)
+                         int exception, const char *reason)
 {
     if (!a)
         return;
@@ -261,18 +325,49 @@ void audit_write_refused(struct audit *a, const char *transport, const char *cli
     copy(r.what, sizeof(r.what), what);
     copy(r.result, sizeof(r.result), "refused");
     snprintf(r.error_msg, sizeof(r.error_msg), "Modbus exception %02X", (unsigned)exception);
+    copy(r.reason, sizeof(r.reason), reason);
     aggregate(a, &r);
+}
+
+void audit_fault_reset(struct audit *a, const char *what)
+{
+    if (!a)
+        return;
+    struct audit_record r = {.count = 1};
+    if (a->have_writer)
+        r.who = a->writer;
+    else
+        copy(r.who.transport, sizeof(r.who.transport), "gateway");
+    copy(r.command, sizeof(r.command), "fault_reset");
+    copy(r.what, sizeof(r.what), what);
+    copy(r.result, sizeof(r.result), "done");
+    record(a, &r);
+}
+
+static const struct audit_record *ring_get(const struct audit_ring *ring, unsigned i)
+{
+    unsigned oldest = (ring->next + AUDIT_LAST - ring->count) % AUDIT_LAST;
+    return i < ring->count ? &ring->last[(oldest + i) % AUDIT_LAST] : NULL;
 }
 
 unsigned audit_count(const struct audit *a)
 {
-    return a->count;
+    return a->plc.count;
 }
 
 const struct audit_record *audit_get(const struct audit *a, unsigned i)
 {
-    unsigned oldest = (a->next + AUDIT_LAST - a->count) % AUDIT_LAST;
-    return i < a->count ? &a->last[(oldest + i) % AUDIT_LAST] : NULL;
+    return ring_get(&a->plc, i);
+}
+
+unsigned audit_own_count(const struct audit *a)
+{
+    return a->own.count;
+}
+
+const struct audit_record *audit_own_get(const struct audit *a, unsigned i)
+{
+    return ring_get(&a->own, i);
 }
 
 bool audit_stderr_is_journal(void)
@@ -288,33 +383,53 @@ bool audit_stderr_is_journal(void)
 }
 
 /*
- * 'in' as the value of a key=value field of the stderr line: as it is when
- * it is one plain word (printable ASCII, no space, quote or backslash) and
- * 'quote' is false, else in quotes with each quote in it as \x22. Outside
+ * 'in' as the value of a key=value field of the stderr line, escaped once,
+ * here, and printed as it is: as it is when it is one plain word
+ * (printable ASCII, no space, quote or backslash) and 'quote' is false;
+ * else in quotes, with each quote in it as \x22, a backslash as \\, a
+ * control byte or a byte that is not UTF-8 as \xNN (log_escape()). Outside
  * text (a certificate's subject, a PLC's JSON cmdName) thus never ends a
- * field or starts another; the logger escapes the rest.
+ * field or starts another.
  */
-static const char *field(char *out, size_t size, const char *in, bool quote)
+static void field(struct strbuf_lite *b, const char *key, const char *in, bool quote)
 {
-    size_t n = 0;
+    char esc[6 * 256 + 1];
     for (const char *p = in; *p && !quote; p++)
         quote = *p <= ' ' || *p >= 0x7F || *p == '"' || *p == '\\';
-    if (!quote) {
-        snprintf(out, size, "%s", in);
-        return out;
+    log_escape(esc, sizeof(esc), in, strlen(in));
+    lite_printf(b, " %s=", key);
+    if (quote)
+        lite_printf(b, "\"");
+    for (const char *p = esc; *p; p++) {
+        if (*p == '"')
+            lite_printf(b, "\\x22");
+        else
+            lite_printf(b, "%c", *p);
     }
-    out[n++] = '"';
-    for (const char *p = in; *p && n + 6 < size; p++) {
-        if (*p == '"') {
-            memcpy(out + n, "\\x22", 4);
-            n += 4;
-        } else {
-            out[n++] = *p;
-        }
-    }
-    out[n++] = '"';
-    out[n] = '\0';
-    return out;
+    if (quote)
+        lite_printf(b, "\"");
+}
+
+void audit_format_line(const struct audit_record *r, char *out, size_t size)
+{
+    struct strbuf_lite b = {out, size, 0};
+    char msg[6 * sizeof(r->error_msg)];
+
+    if (size)
+        out[0] = '\0';
+    lite_printf(&b, "audit:");
+    field(&b, "command", r->command, false);
+    field(&b, "what", r->what, true);
+    field(&b, "result", r->result, true);
+    field(&b, "reason", r->reason, true);
+    field(&b, "transport", r->who.transport, false);
+    field(&b, "client", r->who.client, false);
+    field(&b, "subject", r->who.subject, true);
+    field(&b, "role", r->who.role, true);
+    lite_printf(&b, " count=%u error_code=%ld", r->count, r->error_code);
+    /* The errorMsg last, unquoted, to the end of the line. */
+    log_escape(msg, sizeof(msg), r->error_msg, strlen(r->error_msg));
+    lite_printf(&b, " error_msg=%s", msg);
 }
 
 void audit_default_emit(void *user, const struct audit_record *r)
@@ -335,30 +450,21 @@ void audit_default_emit(void *user, const struct audit_record *r)
         journal = audit_stderr_is_journal();
     if (journal) {
         int rc = sd_journal_send(
-            "MESSAGE=audit: %s by %s %s: %s%s%s (x%u)", what, r->who.transport, client,
-            r->result, msg[0] ? ": " : "", msg, r->count, "PRIORITY=5",
-            "SYSLOG_IDENTIFIER=jakagw", "JAKAGW_TRANSPORT=%s", r->who.transport,
+            "MESSAGE=audit: %s by %s %s: %s%s%s%s%s (x%u)", what, r->who.transport, client,
+            r->result, r->reason[0] ? ": " : "", r->reason, msg[0] ? ": " : "", msg, r->count,
+            "PRIORITY=5", "SYSLOG_IDENTIFIER=jakagw", "JAKAGW_TRANSPORT=%s", r->who.transport,
             "JAKAGW_CLIENT=%s", client, "JAKAGW_SUBJECT=%s", subject, "JAKAGW_ROLE=%s", role,
             "JAKAGW_COMMAND=%s", r->command, "JAKAGW_WHAT=%s", r->what, "JAKAGW_RESULT=%s",
-            r->result, "JAKAGW_ERROR_CODE=%ld", r->error_code, "JAKAGW_ERROR_MSG=%s", msg,
-            "JAKAGW_COUNT=%u", r->count, NULL);
+            r->result, "JAKAGW_REASON=%s", r->reason, "JAKAGW_ERROR_CODE=%ld", r->error_code,
+            "JAKAGW_ERROR_MSG=%s", msg, "JAKAGW_COUNT=%u", r->count, NULL);
         if (rc == 0)
             return;
     }
-    /* The logger escapes the line as a whole: the raw values here, each
-     * kept to its field; the errorMsg last, to the end of the line. */
-    char f_command[4 * sizeof(r->command) + 3], f_what[4 * sizeof(r->what) + 3];
-    char f_result[4 * sizeof(r->result) + 3], f_transport[4 * sizeof(r->who.transport) + 3];
-    char f_client[4 * sizeof(r->who.client) + 3], f_subject[4 * sizeof(r->who.subject) + 3];
-    char f_role[4 * sizeof(r->who.role) + 3];
-    log_notice("audit: command=%s what=%s result=%s transport=%s client=%s subject=%s "
-               "role=%s count=%u error_code=%ld error_msg=%s",
-               field(f_command, sizeof(f_command), r->command, false),
-               field(f_what, sizeof(f_what), r->what, true),
-               field(f_result, sizeof(f_result), r->result, true),
-               field(f_transport, sizeof(f_transport), r->who.transport, false),
-               field(f_client, sizeof(f_client), r->who.client, false),
-               field(f_subject, sizeof(f_subject), r->who.subject, true),
-               field(f_role, sizeof(f_role), r->who.role, true), r->count, r->error_code,
-               r->error_msg);
+    if (!log_enabled(LOG_LEVEL_NOTICE))
+        return;
+    /* Escaped here, once: not through log_print, which would escape the
+     * escapes again (a quote would show as \\x22). */
+    char line[LOG_LINE_MAX * 6 + 4];
+    audit_format_line(r, line, sizeof(line));
+    fprintf(stderr, "<%d>%s\n", (int)LOG_LEVEL_NOTICE, line);
 }

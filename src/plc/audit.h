@@ -8,25 +8,35 @@
  * read-only get_* queries it makes to fill the information registers), and
  * every Modbus write it refuses, is recorded once:
  * - who: the transport ("modbus", "mbaps", or another transport's name),
- *   the client's address (or line), and on mbaps the certificate's subject
+ *   the client's address and port (or line), and on mbaps the certificate's subject
  *   and role; "gateway" for the gateway's own commands;
- * - what: the command's cmdName, or the refused write's table and address;
+ * - what: the command's cmdName and its parameters as sent (a setpoint's
+ *   value: {"rate_value":0.5}), or the refused write's table and address
+ *   with the command it would have sent ("coil 107 play_program");
  * - the outcome: the result (cmd_outcome_name(), or "refused" with the
- *   Modbus exception), the robot's errorCode and errorMsg.
+ *   Modbus exception), the robot's errorCode and errorMsg, and for a
+ *   refusal its reason as the PLC's result registers show it ("motion is
+ *   off: ...", "network-exception fault 1 latched: reset it first",
+ *   "outside role ...", "not the write owner ...", "busy: ...").
+ * A fault reset is recorded too (command "fault_reset", what the fault).
  * A command is recorded when its result is known (a reply, a timeout, the
  * link lost, or not sent at all).
  *
  * Where the records go (struct audit_sink): under journald, as structured
  * fields (JAKAGW_CLIENT=, JAKAGW_TRANSPORT=, JAKAGW_SUBJECT=, JAKAGW_ROLE=,
- * JAKAGW_COMMAND=, JAKAGW_RESULT=, JAKAGW_ERROR_CODE=, JAKAGW_ERROR_MSG=,
- * JAKAGW_COUNT=) through sd_journal_send, so that
+ * JAKAGW_COMMAND=, JAKAGW_WHAT=, JAKAGW_RESULT=, JAKAGW_REASON=,
+ * JAKAGW_ERROR_CODE=, JAKAGW_ERROR_MSG=, JAKAGW_COUNT=) through sd_journal_send, so that
  * "journalctl -u jakagw JAKAGW_COMMAND=play_program" finds them; elsewhere
  * as one "audit: ..." line on stderr. Frequent records (setpoints and
  * outputs, which send a command on every write, and refused writes) are
- * aggregated per client, command (or refusal and its exception) and
- * period, whatever the address: the first of a period is recorded at once, the others as one record with their count
- * (JAKAGW_COUNT=) when the period ends. The last AUDIT_LAST records are
- * kept for the status page.
+ * aggregated per client, command (or refusal, its exception and reason)
+ * and period, whatever the address: the first of a period is recorded at
+ * once, the others as one record with their count (JAKAGW_COUNT=) when
+ * the period ends, its 'what' the distinct whats they had ("coil 107
+ * play_program, coil 200 set_digital_output"; past the field's size,
+ * "and N more"). The last AUDIT_LAST records of the PLCs' and of the
+ * gateway's own are kept apart for the status page, so that the gateway's
+ * retries never push a PLC's command out of view.
  *
  * Time comes through 'struct audit_clock' and output through 'struct
  * audit_sink', so the rules are unit-tested without a loop or a journal.
@@ -48,7 +58,7 @@
 
 struct audit_who {
     char transport[16];
-    char client[64];
+    char client[72]; /* address:port */
     char subject[128];
     char role[64];
 };
@@ -58,10 +68,11 @@ struct audit_record {
     uint64_t wall_ms;  /* when recorded, ms since the Unix epoch */
     struct audit_who who;
     char command[48];  /* cmdName, or "write" for a refused write */
-    char what[48];     /* a refused write's "holding register 100+2"; "" */
+    char what[256];    /* parameters; a refused write's "holding register 100+2" */
     char result[24];   /* cmd_outcome_name(), or "refused" */
     long error_code;   /* the robot's errorCode; a refusal's exception */
     char error_msg[128];
+    char reason[128];  /* a refusal's; "" */
     unsigned count;    /* records it stands for (aggregated), >= 1 */
 };
 
@@ -82,6 +93,7 @@ struct audit_pending_cmd {
     uint64_t order;
     struct audit_who who;
     char command[48];
+    char what[256];
     bool frequent;
 };
 
@@ -90,7 +102,8 @@ struct audit_aggregate {
     uint64_t since_ms;   /* the period's start */
     struct audit_record first; /* identifies it: who, command, what, result */
     unsigned more;       /* after the first, in this period */
-    bool several;        /* they wrote other addresses than the first */
+    char whats[256];     /* their distinct whats, ", " between */
+    unsigned whats_left; /* distinct whats that found no room */
     long last_code;
     char last_msg[128];
 };
@@ -113,8 +126,10 @@ struct audit {
     struct audit_pending_cmd pending[AUDIT_PENDING];
     uint64_t order;
     struct audit_aggregate aggregates[AUDIT_AGGREGATES];
-    struct audit_record last[AUDIT_LAST]; /* a ring, [next] the oldest */
-    unsigned next, count;
+    struct audit_ring {
+        struct audit_record last[AUDIT_LAST]; /* [next] the oldest */
+        unsigned next, count;
+    } plc, own; /* the PLCs' records (commands, refusals) and the gateway's */
     uint64_t seq;
     uint64_t recorded; /* records emitted, aggregates counted once */
     /* Every command's result counted (never aggregated), and refused
@@ -143,22 +158,37 @@ void audit_clear_writer(struct audit *a);
  */
 void audit_command_sent(struct audit *a, const void *key, const char *command, bool own,
                         bool frequent);
+/* The same, with what the command carries ("" none). */
+void audit_command_sent_what(struct audit *a, const void *key, const char *command,
+                             const char *what, bool own, bool frequent);
 /* The result of the oldest command sent with 'key'. */
 void audit_command_done(struct audit *a, const void *key, const struct cmd_result *r);
 
-/* A write refused with Modbus exception 'exception'; 'what' names it. */
+/* A write refused with Modbus exception 'exception'; 'what' names it,
+ * 'reason' says why. */
 void audit_write_refused(struct audit *a, const char *transport, const char *client,
                          const char *subject, const char *role, const char *what,
-                         int exception);
+                         int exception, const char *reason);
+
+/* The writer (audit_set_writer) reset fault 'what' ("1 PLC heartbeat
+ * lost"). */
+void audit_fault_reset(struct audit *a, const char *what);
 
 /* Ends the aggregation periods that are over. Call every second or so. */
 void audit_flush(struct audit *a);
 /* Ends every aggregation period now (when stopping). */
 void audit_finish(struct audit *a);
 
-/* The last records, oldest first: 'i' from 0 to audit_count() - 1. */
+/* The last records of the PLCs, oldest first: 'i' from 0 to
+ * audit_count() - 1; and of the gateway's own commands. */
 unsigned audit_count(const struct audit *a);
 const struct audit_record *audit_get(const struct audit *a, unsigned i);
+unsigned audit_own_count(const struct audit *a);
+const struct audit_record *audit_own_get(const struct audit *a, unsigned i);
+
+/* One audit record as its stderr line, without the "<5>" prefix:
+ * "audit: command=... error_msg=..." (docs/metrics.md), escaped once. */
+void audit_format_line(const struct audit_record *r, char *out, size_t size);
 
 /* Is stderr journald's (JOURNAL_STREAM names it)? */
 bool audit_stderr_is_journal(void);

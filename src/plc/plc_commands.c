@@ -593,8 +593,11 @@ void plc_commands_discard(struct plc_commands *pc)
 }
 
 /* Refuses with 'ex', showing why in the slot's result registers. */
-static int refuse(struct plc_slot *slot, int ex, enum cmd_outcome outcome, const char *why)
+static int refuse(struct plc_commands *pc, struct plc_slot *slot, int ex,
+                  enum cmd_outcome outcome, const char *why)
 {
+    /* The same words for the audit trail (plc_commands_refusal). */
+    snprintf(pc->refusal, sizeof(pc->refusal), "%s", why);
     if (slot && slot->state && !slot->pending)
         set_result(slot, outcome, 0, why);
     return ex;
@@ -615,7 +618,7 @@ static int refuse_unknown_json_command(struct plc_commands *pc, const cJSON *cmd
                    "only [commands] motion = true lets other commands through "
                    "(%llu more refusals since the last such line)",
                    cJSON_IsString(name) ? name->valuestring : "", (unsigned long long)suppressed);
-    return refuse(&pc->json, EX_NOT_PERMITTED, CMD_REFUSED,
+    return refuse(pc, &pc->json, EX_NOT_PERMITTED, CMD_REFUSED,
                   "not in the command table: motion is off");
 }
 
@@ -627,31 +630,40 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
     unsigned flags = def ? def->flags : CMD_MOTION;
 
     if ((flags & CMD_MOTION) && !pc->cfg.motion)
-        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+        return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED,
                       "motion is off: [commands] motion = true enables it");
     if ((flags & CMD_SHUTDOWN) && !pc->cfg.allow_shutdown)
-        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+        return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED,
                       "shutdown is off: [commands] allow_shutdown = true enables it");
     if (!pc->queue->connected)
-        return refuse(slot, EX_LINK_DOWN, CMD_NOT_SENT, "not sent: the command link is down");
+        return refuse(pc, slot, EX_LINK_DOWN, CMD_NOT_SENT, "not sent: the command link is down");
     /* Pausing and stopping are never held back for want of the handler. */
     bool halts = flags & CMD_HALTS;
     if (pc->cfg.require_robot_handle && pc->cfg.robot_handle && !halts &&
         pc->handle_state != PLC_HANDLE_ACCEPTED)
-        return refuse(slot, EX_NOT_PERMITTED, CMD_REFUSED,
+        return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED,
                       "the robot has not accepted its network-exception handler");
     if (pc->cfg.gate) {
         char why[96] = "";
         int ex = pc->cfg.gate(pc->cfg.gate_user, def, why, sizeof(why));
         if (ex)
-            return refuse(slot, ex, CMD_REFUSED, why);
+            return refuse(pc, slot, ex, CMD_REFUSED, why);
     }
     /* A setpoint may queue behind itself; a command or mailbox may not. */
-    if (act != ACT_SETPOINT && slot->pending)
+    if (act != ACT_SETPOINT && slot->pending) {
+        snprintf(pc->refusal, sizeof(pc->refusal), "busy: the previous one is pending");
         return EX_BUSY;
-    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY)
+    }
+    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY) {
+        snprintf(pc->refusal, sizeof(pc->refusal), "busy: the command queue is full");
         return EX_BUSY;
+    }
     return 0;
+}
+
+const char *plc_commands_refusal(const struct plc_commands *pc)
+{
+    return pc->refusal;
 }
 
 int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
@@ -664,11 +676,12 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
 
     if (act == ACT_NONE)
         return 0;
+    pc->refusal[0] = '\0';
     cJSON *cmd = build(pc, act, w, &def, &built);
     if (!cmd)
         return built == BUILD_NO_MEMORY
-                   ? refuse(slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent")
-                   : refuse(slot, EX_INVALID, CMD_INVALID,
+                   ? refuse(pc, slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent")
+                   : refuse(pc, slot, EX_INVALID, CMD_INVALID,
                             act == ACT_MAILBOX && !def ? "unknown command code"
                             : act == ACT_JSON          ? "not a JSON command with a cmdName"
                                                        : "invalid parameters");
@@ -692,7 +705,7 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
     }
     cJSON_Delete(cmd);
     if (!json)
-        return refuse(slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent");
+        return refuse(pc, slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent");
     pc->staged_cmds[pc->staged].json = json;
     pc->staged_cmds[pc->staged].def = def;
     pc->staged++;
@@ -708,17 +721,25 @@ static void audit_sent(struct plc_commands *pc, struct plc_slot *slot, const cha
 {
     char name[48] = "";
 
+    char what[256] = "";
+
     if (!pc->cfg.audit)
         return;
-    if (def) {
+    /* What it carries, as sent without its name: a setpoint's value is
+     * part of the record. */
+    cJSON *doc = cJSON_Parse(json);
+    const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+    if (def)
         snprintf(name, sizeof(name), "%s", def->name);
-    } else {
-        cJSON *doc = cJSON_Parse(json);
-        const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+    else
         snprintf(name, sizeof(name), "%s", cJSON_IsString(n) ? n->valuestring : "?");
-        cJSON_Delete(doc);
-    }
-    audit_command_sent(pc->cfg.audit, slot, name, own, pc->sending_frequent);
+    cJSON_DeleteItemFromObjectCaseSensitive(doc, "cmdName");
+    char *params = doc && cJSON_GetArraySize(doc) > 0 ? cJSON_PrintUnformatted(doc) : NULL;
+    if (params)
+        snprintf(what, sizeof(what), "%s", params);
+    cJSON_free(params);
+    cJSON_Delete(doc);
+    audit_command_sent_what(pc->cfg.audit, slot, name, what, own, pc->sending_frequent);
 }
 
 static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *json,

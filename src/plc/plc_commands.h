@@ -123,6 +123,7 @@ struct plc_commands {
     unsigned staged, applied;
     bool sending_frequent; /* the command being sent is a setpoint's */
     struct log_ratelimit refuse_log_limit;
+    char refusal[96]; /* why the last plc_commands_check refused */
     const struct regmap_row *mailbox_ack, *mailbox_done, *mailbox_code,
         *mailbox_arg;
     const struct regmap_row *json_request, *json_reply, *json_truncated,
@@ -153,6 +154,9 @@ void plc_commands_begin(struct plc_commands *pc);
  * here, once, and kept for phase 2.
  */
 int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w);
+/* Why the last plc_commands_check() refused, in the words its result
+ * registers show ("" none said). */
+const char *plc_commands_refusal(const struct plc_commands *pc);
 /* Phase 2, once every element passed, for the same elements in the same
  * order: sends what phase 1 built. */
 void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w);

@@ -2,6 +2,7 @@
 /* plc_write.c - a PLC's write as one transaction (plc_write.h). */
 #include "plc_write.h"
 
+#include "audit.h"
 #include "log.h"
 
 #include <errno.h>
@@ -81,12 +82,68 @@ static const struct regmap_written *element_of(const struct plc_write *pw,
     return NULL;
 }
 
-/* The fault-reset coil written 1. */
+/* The fault-reset coil written 1: logged and audited when a fault was
+ * latched. */
 static void reset_fault(struct plc_write *pw)
 {
-    if (pw->policy->fault != POLICY_FAULT_NONE)
-        log_notice("network-exception fault %d reset by %s", pw->policy->fault, pw->w->client);
+    static const char *const names[] = {"none", "PLC heartbeat lost", "no Modbus client",
+                                        "motion enable dropped"};
+    enum policy_fault fault = pw->policy->fault;
+
+    if (fault != POLICY_FAULT_NONE) {
+        char what[64];
+        snprintf(what, sizeof(what), "fault %d (%s)", fault,
+                 (unsigned)fault < 4 ? names[fault] : "?");
+        log_notice("network-exception %s reset by %s", what, pw->w->client);
+        audit_fault_reset(pw->commands->cfg.audit, what);
+    }
     policy_reset(pw->policy);
+}
+
+static const char *const table_names[] = {"coil", "discrete input", "input register",
+                                          "holding register"};
+
+/* The command a row belongs to: "play_program" for its trigger,
+ * "joint_move" for "joint_move.jointPosition[*]"; "" for other rows. */
+static void command_of(const struct regmap_row *row, char *out, size_t size)
+{
+    const char *path = row->source == REGMAP_SRC_CMD || row->source == REGMAP_SRC_PATH
+                           ? row->path
+                           : NULL;
+    size_t n = path ? strcspn(path, ".[") : 0;
+    snprintf(out, size, "%.*s", (int)n, path ? path : "");
+}
+
+/* The write's range, as the audit names it. */
+void plc_write_name_range(struct plc_write *pw, const struct mb_write *w)
+{
+    if (w->count == 0)
+        snprintf(pw->where, sizeof(pw->where), "a write too short to say where");
+    else
+        snprintf(pw->where, sizeof(pw->where), "%s %u%s%.0u", table_names[w->table % 4],
+                 w->address, w->count > 1 ? "+" : "", w->count > 1 ? w->count : 0);
+}
+
+/* The element that refused the write, and its command. */
+static void name_element(struct plc_write *pw, const struct regmap_written *e)
+{
+    char command[48];
+    command_of(e->row, command, sizeof(command));
+    snprintf(pw->where, sizeof(pw->where), "%s %u%s%s", table_names[e->row->table % 4],
+             regmap_element_address(e->row, e->element), command[0] ? " " : "", command);
+}
+
+/* Step 1's refusal, in words. */
+static void why_unauthorized(struct plc_write *pw, const struct mb_write *w)
+{
+    if (pw->cfg.read_only)
+        snprintf(pw->why, sizeof(pw->why), "read only: [modbus] read_only = true");
+    else if (pw->cfg.write_allow.count > 0 && !ip_allow_contains(&pw->cfg.write_allow,
+                                                                 &w->client_addr))
+        snprintf(pw->why, sizeof(pw->why), "client not in [modbus] write_allow");
+    else
+        snprintf(pw->why, sizeof(pw->why), "not the write owner: %s feeds the heartbeat",
+                 pw->policy->owner_address);
 }
 
 /* Step 5 for one element; a motion-enable drop and the reset with it were
@@ -119,18 +176,28 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
 
     pw->awaiting_after = false;
     pw->element_count = 0;
-    if (ex == 0)
-        ex = plc_write_authorize(pw, w);
-    if (ex)
+    pw->why[0] = '\0';
+    plc_write_name_range(pw, w);
+    if (ex) {
+        snprintf(pw->why, sizeof(pw->why), "outside role \"%s\"", w->role ? w->role : "");
         return ex;
-    if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS)
+    }
+    ex = plc_write_authorize(pw, w);
+    if (ex) {
+        why_unauthorized(pw, w);
+        return ex;
+    }
+    if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS) {
+        snprintf(pw->why, sizeof(pw->why), "invalid count");
         return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+    }
     pw->w = w;
     regmap_save(img, w->table, w->address, w->count, pw->saved);
     regmap_load(img, w->table, w->address, w->count, w->values);
     ex = regmap_decode_write(img, w->table, w->address, w->count, w->values, pw->saved,
                              keep, pw);
     if (ex) {
+        snprintf(pw->why, sizeof(pw->why), "invalid value for the register map");
         regmap_load(img, w->table, w->address, w->count, pw->saved);
         pw->element_count = 0;
         pw->w = NULL;
@@ -154,8 +221,13 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
      * the fault as it was before the write (a reset in it starts nothing). */
     plc_commands_begin(pw->commands);
     for (unsigned i = 0; i < pw->element_count && ex == 0; i++)
-        if (is_command_row(pw->elements[i].row))
+        if (is_command_row(pw->elements[i].row)) {
             ex = plc_commands_check(pw->commands, &pw->elements[i]);
+            if (ex) {
+                name_element(pw, &pw->elements[i]);
+                snprintf(pw->why, sizeof(pw->why), "%s", plc_commands_refusal(pw->commands));
+            }
+        }
     if (ex) {
         regmap_load(img, w->table, w->address, w->count, pw->saved);
         if (drops_enable)

@@ -82,6 +82,10 @@ struct plc_write {
     struct regmap_written *elements;       /* decoded once */
     unsigned element_count;
     bool awaiting_after;
+    /* The last refusal: where ("coil 107 play_program", or the write's
+     * range) and why, as the PLC's result registers say it. */
+    char where[96];
+    char why[128];
 };
 
 /*
@@ -105,6 +109,10 @@ int plc_write_authorize(const struct plc_write *pw, const struct mb_write *w);
  * before, but for a motion-enable drop, and nothing was sent).
  */
 int plc_write_judge(struct plc_write *pw, const struct mb_write *w);
+
+/* Names the range of 'w' as the audit does ("holding register 100+2")
+ * in pw->where, for a write refused before it was judged. */
+void plc_write_name_range(struct plc_write *pw, const struct mb_write *w);
 
 /* Step 6, after a write plc_write_judge() accepted was applied. */
 void plc_write_after(struct plc_write *pw);

@@ -14,6 +14,37 @@ void policy_init(struct policy *p, const struct policy_config *cfg,
     p->sink = *sink;
 }
 
+const char *policy_fault_name(enum policy_fault reason)
+{
+    static const char *const names[] = {"none", "PLC heartbeat lost", "no Modbus client",
+                                        "motion enable dropped", "gateway loop stalled"};
+    return (unsigned)reason < sizeof(names) / sizeof(names[0]) ? names[reason] : "unknown";
+}
+
+/*
+ * Every entry point that is given the time passes it here first: a gap
+ * since the last longer than time_limit_ms is the gateway's stall. The
+ * PLC's clocks move on by the gap, so that what the PLC could not be heard
+ * saying meanwhile is not held against it.
+ */
+static void see_time(struct policy *p, uint64_t now_ms)
+{
+    uint64_t gap = p->last_seen_ms && now_ms > p->last_seen_ms ? now_ms - p->last_seen_ms : 0;
+
+    if (now_ms > p->last_seen_ms)
+        p->last_seen_ms = now_ms;
+    if (gap <= p->cfg.time_limit_ms)
+        return;
+    p->heartbeat_ms += gap;
+    p->no_client_since_ms += gap;
+    p->start_answered_ms += gap;
+    p->stalls++;
+    p->last_stall_ms = gap;
+    p->stall_pending = true;
+    if (p->sink.on_stall)
+        p->sink.on_stall(p->sink.user, gap);
+}
+
 static bool heartbeat_expired(const struct policy *p, uint64_t now_ms)
 {
     return p->heartbeat_armed && now_ms - p->heartbeat_ms >= p->cfg.time_limit_ms;
@@ -35,6 +66,7 @@ int policy_may_write(const struct policy *p, uint64_t client)
 void policy_heartbeat(struct policy *p, uint64_t now_ms, uint64_t client,
                       const char *address, double value)
 {
+    see_time(p, now_ms);
     /* Only a change counts: a PLC stuck writing the same value is silent. */
     if (!p->heartbeat_armed || value != p->heartbeat_value) {
         p->heartbeat_ms = now_ms;
@@ -49,7 +81,7 @@ void policy_heartbeat(struct policy *p, uint64_t now_ms, uint64_t client,
 
 void policy_client_opened(struct policy *p, uint64_t now_ms, unsigned clients)
 {
-    (void)now_ms;
+    see_time(p, now_ms);
     p->clients = clients;
     p->connection_armed = true;
 }
@@ -57,6 +89,7 @@ void policy_client_opened(struct policy *p, uint64_t now_ms, unsigned clients)
 void policy_client_closed(struct policy *p, uint64_t now_ms, uint64_t client,
                           unsigned clients)
 {
+    see_time(p, now_ms);
     p->clients = clients;
     if (clients == 0)
         p->no_client_since_ms = now_ms;
@@ -103,12 +136,13 @@ void policy_reset(struct policy *p)
 
 void policy_start_sent(struct policy *p, uint64_t now_ms)
 {
-    (void)now_ms;
+    see_time(p, now_ms);
     p->starts_unanswered++;
 }
 
 void policy_start_answered(struct policy *p, uint64_t now_ms)
 {
+    see_time(p, now_ms);
     if (p->starts_unanswered > 0)
         p->starts_unanswered--;
     if (p->starts_unanswered == 0) {
@@ -119,6 +153,7 @@ void policy_start_answered(struct policy *p, uint64_t now_ms)
 
 void policy_status_document(struct policy *p, uint64_t now_ms)
 {
+    see_time(p, now_ms);
     /* Only a document received well after the reply can show the start: a
      * controller answers before its next status push reflects the new
      * program state, and jakasim's 8 ms push is no promise for a real
@@ -165,6 +200,8 @@ static unsigned lost_signals(const struct policy *p, uint64_t now_ms)
         lost |= LOST(POLICY_FAULT_NO_CLIENT);
     if (p->cfg.motion_enable && p->motion_enable_armed && !p->motion_enabled)
         lost |= LOST(POLICY_FAULT_MOTION_ENABLE);
+    if (p->stall_pending)
+        lost |= LOST(POLICY_FAULT_GATEWAY_STALL);
     return lost;
 }
 
@@ -184,12 +221,14 @@ static void apply_rule(struct policy *p, uint64_t now_ms, bool running)
 {
     unsigned lost = lost_signals(p, now_ms);
 
+    /* A stall is an event, judged once: by the first rule that sees it. */
+    p->stall_pending = false;
     if (lost == 0 || !running)
         return;
     if (p->fault == POLICY_FAULT_NONE) {
         enum policy_fault first = POLICY_FAULT_NONE;
         enum policy_action action = POLICY_KEEP;
-        for (enum policy_fault r = POLICY_FAULT_HEARTBEAT; r <= POLICY_FAULT_MOTION_ENABLE;
+        for (enum policy_fault r = POLICY_FAULT_HEARTBEAT; r <= POLICY_FAULT_GATEWAY_STALL;
              r++) {
             if (!(lost & LOST(r)))
                 continue;
@@ -213,6 +252,7 @@ static void apply_rule(struct policy *p, uint64_t now_ms, bool running)
 void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
                           bool robot_moving)
 {
+    see_time(p, now_ms);
     p->motion_enabled = value;
     if (value) {
         p->motion_enable_armed = true;
@@ -227,6 +267,7 @@ void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
 
 void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving)
 {
+    see_time(p, now_ms);
     bool running = may_run(p, now_ms, robot_moving);
 
     /* An owner whose heartbeat expired gives the write side up. */
@@ -271,8 +312,9 @@ int policy_gate_command(struct policy *p, uint64_t now_ms, const struct cmd_def 
                         char *why, size_t size)
 {
     static const char *const names[] = {"", "the PLC heartbeat", "the Modbus connection",
-                                        "motion enable"};
+                                        "motion enable", "the gateway's own loop"};
 
+    see_time(p, now_ms);
     if (def && strcmp(def->name, "stop_program") == 0)
         return 0; /* stopping is never refused */
     if (p->fault != POLICY_FAULT_NONE) {
@@ -288,7 +330,7 @@ int policy_gate_command(struct policy *p, uint64_t now_ms, const struct cmd_def 
          * whether the start came before or after the loss. */
         apply_rule(p, now_ms, true);
         snprintf(why, size, "%s lost: fault %d latched",
-                 names[p->fault <= POLICY_FAULT_MOTION_ENABLE ? p->fault : 0], p->fault);
+                 names[p->fault <= POLICY_FAULT_GATEWAY_STALL ? p->fault : 0], p->fault);
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     }
     if (policy_blocks_commands(p)) {

@@ -37,6 +37,17 @@
  * connection lost before its reply: policy_action_unknown). Only an explicit reset by the PLC clears it. A loss
  * while the robot is idle sends nothing and latches nothing.
  *
+ * The gateway's own stall: the policy sees time only when the gateway's
+ * loop turns (the check period, every input). A gap between two calls
+ * longer than time_limit_ms means the gateway itself stood still (its
+ * process stopped, its host suspended, a blocking call): the PLC's signals
+ * could not be read meanwhile, so the gap is not counted against them (the
+ * heartbeat's and the connection's clocks move on by the gap) and the
+ * stall is its own fault, POLICY_FAULT_GATEWAY_STALL, judged by the same
+ * rule: while the robot runs or may run (a stalled gateway is blind, so
+ * usually it may) the action goes out and the fault latches; idle, it is
+ * only reported (sink.on_stall, once per stall, with its length).
+ *
  * Write ownership, when configured: the client that feeds the heartbeat
  * owns the write side; other clients' writes are refused (exception 01).
  * Ownership passes only when the owner disconnects or its heartbeat
@@ -73,7 +84,11 @@ enum policy_fault {
     POLICY_FAULT_HEARTBEAT = 1,     /* the heartbeat stopped */
     POLICY_FAULT_NO_CLIENT = 2,     /* no Modbus client connected */
     POLICY_FAULT_MOTION_ENABLE = 3, /* the motion-enable coil dropped */
+    POLICY_FAULT_GATEWAY_STALL = 4, /* the gateway's own loop stalled */
 };
+
+/* The reason's name, as the log, the page and the PLC guide say it. */
+const char *policy_fault_name(enum policy_fault reason);
 
 struct policy_config {
     uint32_t time_limit_ms;
@@ -99,6 +114,9 @@ struct policy_sink {
      */
     bool (*send_action)(void *user, enum policy_action action,
                         enum policy_fault reason);
+    /* A stall of 'gap_ms' seen (optional): once per stall, before it is
+     * judged. */
+    void (*on_stall)(void *user, uint64_t gap_ms);
     void *user;
 };
 
@@ -121,6 +139,11 @@ struct policy {
     unsigned starts_unanswered; /* sent or queued, no reply yet */
     bool start_unshown;         /* answered, no status document since */
     uint64_t start_answered_ms; /* the last reply */
+    /* The gateway's own loop: when the policy last saw the time. */
+    uint64_t last_seen_ms; /* 0: not yet */
+    bool stall_pending;    /* a stall seen, not judged yet */
+    uint64_t stalls;       /* seen, ever */
+    uint64_t last_stall_ms; /* the last one's length */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;

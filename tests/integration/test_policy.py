@@ -493,9 +493,14 @@ def test_play_and_motion_enable_drop_together():
             check(plc.ir(MOTION_ENABLED)[0] == 0, "%s: motion enable still shown" % what)
             if play_first:
                 check(replies == [0, 0], "%s: replies %s" % (what, replies))
-                check(count(sim, "play_program") == plays + 1, "%s: play_program" % what)
-                wait_until(lambda: plc.ir(INTERP_STATE)[0] == PAUSED, 5,
-                           "%s: the program paused" % what)
+                # Sent and then paused; or, when the queue was still busy
+                # (a link check in flight on a slow machine), displaced by
+                # the pause and never sent: either way it does not run.
+                sent = count(sim, "play_program") - plays
+                check(sent in (0, 1), "%s: play_program sent %d times" % (what, sent))
+                if sent:
+                    wait_until(lambda: plc.ir(INTERP_STATE)[0] == PAUSED, 5,
+                               "%s: the program paused" % what)
             else:
                 # Motion enable at 0 first: the start is refused, never sent.
                 check(replies == [0, EX_NOT_PERMITTED], "%s: replies %s" % (what, replies))
