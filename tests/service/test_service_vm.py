@@ -834,6 +834,10 @@ def rtu_lines(v, before_score, rates):
         wait_robot_link()
         rtu_master(pty, c)
         rates.append(security())
+    # systemd took every line of the generator's drop-ins.
+    warned = [e.get("MESSAGE") for e in journal("-b _PID=1")
+              if "50-jakagw-rtu.conf" in str(e.get("MESSAGE", ""))]
+    check(not warned, "systemd on the generator's drop-in: %s" % warned)
     restore(daemon_reload=True)
     figure("rtu: /dev/ttyS1 and %s (/dev/ttyUSB0) served a master on this machine: magic, "
            "power_on once each; systemd-analyze security jakagw.service: %.1f without "
