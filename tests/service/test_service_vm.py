@@ -915,6 +915,7 @@ def case_upgrade():
     handlers = len(sim_commands(name="set_network_exception_handle"))
     newer = v.sh("ls /root/debs/*+upgrade1.deb").strip()
     t0 = time.monotonic()
+    apt_at = mark()
     v.sh("DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends %s" % newer,
          timeout=300)
     took = time.monotonic() - t0
@@ -927,6 +928,10 @@ def case_upgrade():
               if e.get("_PID") == "1" and e.get("JOB_TYPE") == "start" and
               e.get("JOB_RESULT") == "done"]
     check(len(starts) == 1, "%d starts during the upgrade" % len(starts))
+    stops = [e for e in journal("-u jakagw.service", c) if e.get("_PID") == "1" and
+             e.get("JOB_TYPE") in ("stop", "restart") and e.get("JOB_RESULT") is None]
+    stopped_at = (int(stops[0]["__REALTIME_TIMESTAMP"]) - apt_at) / 1e6 if stops else -1
+    started_at = (int(starts[0]["__REALTIME_TIMESTAMP"]) - apt_at) / 1e6
     wait_vm(lambda: len(sim_commands(name="set_network_exception_handle")) > handlers, 30,
             "the upgraded gateway to reconnect")
     time.sleep(2)
@@ -944,8 +949,9 @@ def case_upgrade():
                  ok=None).strip()
     check(not owned, "files of a dynamic user: %s" % owned)
     check(v.rc("pgrep -x jakagw")[0] == 1, "jakagw still runs after purge")
-    figure("upgrade: apt install %s in %.1f s, one restart, edited file kept; commands "
-           "delivered %d, none again; purge left nothing" % (version, took, len(sent)))
+    figure("upgrade: apt install %s in %.1f s (the service stopping at %.1f s, started again "
+           "at %.1f s), one restart, edited file kept; commands delivered %d, none again; purge "
+           "left nothing" % (version, took, stopped_at, started_at, len(sent)))
 
 
 def case_seccomp():
