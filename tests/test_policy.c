@@ -971,6 +971,41 @@ static void stall_seen_by_a_write_first(void **state)
     assert_int_equal(stall_calls, 1);
 }
 
+/*
+ * A turn late by less than the limit (the review's SIGSTOP of 0.9 s with
+ * a PLC beating every 200 ms): libuv runs its timers before it polls, so
+ * the first check after it comes before the heartbeat waiting in the
+ * socket is read. It used to latch "PLC heartbeat lost" (fault 1) and
+ * pause a running program; the heartbeat's verdict now waits for that
+ * turn's input. A PLC really gone is still caught one check later:
+ * within the limit, the late turn and one check period.
+ */
+static void late_turn_waits_for_its_input(void **state)
+{
+    (void)state;
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = POLICY_PAUSE,
+                                .watch = POLICY_WATCH_BOTH, .check_period_ms = 100};
+    struct policy_sink sink = {.send_action = record_action, .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    policy_init(&p, &cfg, &sink);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 100, MOVING);
+    /* Stopped at T0 + 100, resumed at T0 + 1000: the timers first. */
+    policy_check(&p, T0 + 1000, MOVING);
+    expect_nothing();
+    /* Then the poll: the heartbeat written meanwhile. */
+    policy_heartbeat(&p, T0 + 1000, PLC_A, ADDR_A, 2);
+    check_span(T0 + 1010, T0 + 1900, MOVING);
+    expect_nothing();
+    /* The same late turn with the PLC gone: caught at the next check. */
+    policy_check(&p, T0 + 1900 + 900, MOVING);
+    expect_nothing();
+    policy_check(&p, T0 + 1900 + 1000, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1016,6 +1051,7 @@ int main(void)
         cmocka_unit_test(stall_is_the_gateways_fault_not_the_plcs),
         cmocka_unit_test(stall_while_idle_only_reported),
         cmocka_unit_test(stall_seen_by_a_write_first),
+        cmocka_unit_test(late_turn_waits_for_its_input),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

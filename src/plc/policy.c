@@ -33,8 +33,14 @@ static void see_time(struct policy *p, uint64_t now_ms)
 
     if (now_ms > p->last_seen_ms)
         p->last_seen_ms = now_ms;
-    if (gap <= p->cfg.time_limit_ms)
+    if (gap <= p->cfg.time_limit_ms) {
+        /* A late turn, no stall: libuv runs its timers before it polls,
+         * so the heartbeat sent meanwhile is still in the socket. The
+         * timed verdicts wait for a later call (heard_since_late_turn). */
+        if (p->cfg.check_period_ms && gap > 2 * (uint64_t)p->cfg.check_period_ms)
+            p->late_turn_ms = now_ms;
         return;
+    }
     p->heartbeat_ms += gap;
     p->no_client_since_ms += gap;
     p->start_answered_ms += gap;
@@ -45,9 +51,17 @@ static void see_time(struct policy *p, uint64_t now_ms)
         p->sink.on_stall(p->sink.user, gap);
 }
 
+/* Has the gateway read its input since its last late turn? Until then a
+ * heartbeat or a connection may be waiting in a socket: not lost yet. */
+static bool heard_since_late_turn(const struct policy *p, uint64_t now_ms)
+{
+    return p->late_turn_ms == 0 || now_ms > p->late_turn_ms;
+}
+
 static bool heartbeat_expired(const struct policy *p, uint64_t now_ms)
 {
-    return p->heartbeat_armed && now_ms - p->heartbeat_ms >= p->cfg.time_limit_ms;
+    return p->heartbeat_armed && now_ms - p->heartbeat_ms >= p->cfg.time_limit_ms &&
+           heard_since_late_turn(p, now_ms);
 }
 
 static void clear_owner(struct policy *p)
@@ -196,7 +210,8 @@ static unsigned lost_signals(const struct policy *p, uint64_t now_ms)
     if ((p->cfg.watch & POLICY_WATCH_HEARTBEAT) && heartbeat_expired(p, now_ms))
         lost |= LOST(POLICY_FAULT_HEARTBEAT);
     if ((p->cfg.watch & POLICY_WATCH_CONNECTION) && p->connection_armed &&
-        p->clients == 0 && now_ms - p->no_client_since_ms >= p->cfg.time_limit_ms)
+        p->clients == 0 && now_ms - p->no_client_since_ms >= p->cfg.time_limit_ms &&
+        heard_since_late_turn(p, now_ms))
         lost |= LOST(POLICY_FAULT_NO_CLIENT);
     if (p->cfg.motion_enable && p->motion_enable_armed && !p->motion_enabled)
         lost |= LOST(POLICY_FAULT_MOTION_ENABLE);

@@ -103,6 +103,13 @@ struct policy_config {
      * blind, the worst is assumed anyway.
      */
     uint32_t start_unshown_max_ms;
+    /*
+     * The caller's check period (0: none, every gap up to the limit
+     * counts). A turn later than twice this, but within the limit, is a
+     * late turn: the heartbeat and connection verdicts wait for a call at
+     * a later time, after the turn's input has been read (see see_time).
+     */
+    uint32_t check_period_ms;
 };
 
 struct policy_sink {
@@ -144,6 +151,7 @@ struct policy {
     bool stall_pending;    /* a stall seen, not judged yet */
     uint64_t stalls;       /* seen, ever */
     uint64_t last_stall_ms; /* the last one's length */
+    uint64_t late_turn_ms;  /* the last late turn (check_period_ms); 0: none */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;
