@@ -104,6 +104,7 @@ struct audit_aggregate {
     unsigned more;       /* after the first, in this period */
     char whats[256];     /* their distinct whats, ", " between */
     unsigned whats_left; /* distinct whats that found no room */
+    bool several_ports;  /* from several connections of one host */
     long last_code;
     char last_msg[128];
 };
