@@ -1006,6 +1006,28 @@ static void late_turn_waits_for_its_input(void **state)
     expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
 }
 
+/* A loop late on every turn (250 ms, the check period 100) still judges
+ * a PLC gone, one turn after its limit: never a deferral after another. */
+static void loop_late_on_every_turn_still_judges(void **state)
+{
+    (void)state;
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = POLICY_PAUSE,
+                                .watch = POLICY_WATCH_BOTH, .check_period_ms = 100};
+    struct policy_sink sink = {.send_action = record_action, .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    policy_init(&p, &cfg, &sink);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    uint64_t t = T0;
+    while (sent.calls == 0 && t < T0 + 10 * LIMIT) {
+        t += 250;
+        policy_check(&p, t, MOVING);
+    }
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    assert_true(t <= T0 + LIMIT + 250);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1052,6 +1074,7 @@ int main(void)
         cmocka_unit_test(stall_while_idle_only_reported),
         cmocka_unit_test(stall_seen_by_a_write_first),
         cmocka_unit_test(late_turn_waits_for_its_input),
+        cmocka_unit_test(loop_late_on_every_turn_still_judges),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

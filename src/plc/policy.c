@@ -37,8 +37,10 @@ static void see_time(struct policy *p, uint64_t now_ms)
         /* A late turn, no stall: libuv runs its timers before it polls,
          * so the heartbeat sent meanwhile is still in the socket. The
          * timed verdicts wait for a later call (heard_since_late_turn). */
-        if (p->cfg.check_period_ms && gap > 2 * (uint64_t)p->cfg.check_period_ms)
+        if (p->cfg.check_period_ms && gap > 2 * (uint64_t)p->cfg.check_period_ms) {
             p->late_turn_ms = now_ms;
+            p->late_turn_from_ms = now_ms - gap;
+        }
         return;
     }
     p->heartbeat_ms += gap;
@@ -51,17 +53,26 @@ static void see_time(struct policy *p, uint64_t now_ms)
         p->sink.on_stall(p->sink.user, gap);
 }
 
-/* Has the gateway read its input since its last late turn? Until then a
- * heartbeat or a connection may be waiting in a socket: not lost yet. */
-static bool heard_since_late_turn(const struct policy *p, uint64_t now_ms)
+/*
+ * Has the time limit passed since 'since_ms' (the heartbeat's last change,
+ * the last client's close)? In a late turn's own calls, only if it had
+ * passed already when the late gap began: what the PLC sent meanwhile is
+ * still in a socket, read after the turn's timers. A loop late on every
+ * turn is thus judged one turn late, never not at all.
+ */
+static bool limit_passed(const struct policy *p, uint64_t now_ms, uint64_t since_ms)
 {
-    return p->late_turn_ms == 0 || now_ms > p->late_turn_ms;
+    if (now_ms - since_ms < p->cfg.time_limit_ms)
+        return false;
+    if (p->late_turn_ms == 0 || now_ms > p->late_turn_ms)
+        return true;
+    return p->late_turn_from_ms >= since_ms &&
+           p->late_turn_from_ms - since_ms >= p->cfg.time_limit_ms;
 }
 
 static bool heartbeat_expired(const struct policy *p, uint64_t now_ms)
 {
-    return p->heartbeat_armed && now_ms - p->heartbeat_ms >= p->cfg.time_limit_ms &&
-           heard_since_late_turn(p, now_ms);
+    return p->heartbeat_armed && limit_passed(p, now_ms, p->heartbeat_ms);
 }
 
 static void clear_owner(struct policy *p)
@@ -210,8 +221,7 @@ static unsigned lost_signals(const struct policy *p, uint64_t now_ms)
     if ((p->cfg.watch & POLICY_WATCH_HEARTBEAT) && heartbeat_expired(p, now_ms))
         lost |= LOST(POLICY_FAULT_HEARTBEAT);
     if ((p->cfg.watch & POLICY_WATCH_CONNECTION) && p->connection_armed &&
-        p->clients == 0 && now_ms - p->no_client_since_ms >= p->cfg.time_limit_ms &&
-        heard_since_late_turn(p, now_ms))
+        p->clients == 0 && limit_passed(p, now_ms, p->no_client_since_ms))
         lost |= LOST(POLICY_FAULT_NO_CLIENT);
     if (p->cfg.motion_enable && p->motion_enable_armed && !p->motion_enabled)
         lost |= LOST(POLICY_FAULT_MOTION_ENABLE);

@@ -152,6 +152,7 @@ struct policy {
     uint64_t stalls;       /* seen, ever */
     uint64_t last_stall_ms; /* the last one's length */
     uint64_t late_turn_ms;  /* the last late turn (check_period_ms); 0: none */
+    uint64_t late_turn_from_ms; /* the call before it: when its gap began */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;
