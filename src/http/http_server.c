@@ -384,7 +384,13 @@ static void on_timer(uv_timer_t *t)
 static void on_poll(uv_poll_t *p, int status, int events);
 static void on_listener(uv_poll_t *p, int status, int events);
 
-/* The rest is over: the polls watch again, and what waited runs. */
+/*
+ * The rest is over: the polls watch again, and what waited runs, new
+ * connections first. Accepted here, not left to the listener's poll: a
+ * turn long enough to rest again stops that poll before the loop ever
+ * polls it, and with clients asking back to back every turn is, so a
+ * scraper's new connection waited in the backlog for seconds.
+ */
 static void on_rest_over(uv_timer_t *t)
 {
     struct http_server *srv = t->data;
@@ -394,8 +400,7 @@ static void on_rest_over(uv_timer_t *t)
         return;
     uv_poll_start(&srv->poll, UV_READABLE, on_poll);
     uv_poll_start(&srv->listener, UV_READABLE, on_listener);
-    run(srv);
-    schedule(srv);
+    on_listener(&srv->listener, 0, UV_READABLE); /* accepts, then runs a turn */
 }
 
 /* libmicrohttpd's next timeout, as the timer's; none: stopped. */
