@@ -438,6 +438,37 @@ static void on_poll(uv_poll_t *p, int status, int events)
  * (where a flood of idle connections would hold the page's visitors for
  * as long as it lasts). At most 64 per turn of the loop.
  */
+/*
+ * At the limit, a new connection takes the place of the one that has
+ * waited longest for a request head, if it has waited HTTP_EVICT_IDLE_MS:
+ * otherwise a local process holding the limit's worth of idle connections
+ * (and re-opening each one the head deadline closes) locked every scraper
+ * out, and Prometheus counted a healthy gateway down. A scraper's own
+ * connection sends its request at once and is read in the turn that
+ * accepts it, so it is never the idlest for that long. The one closed is
+ * counted as refused. True when there is room now.
+ */
+static bool make_room(struct http_server *srv)
+{
+    uint64_t now = uv_now(srv->loop);
+    struct http_conn *idlest = NULL;
+
+    for (struct http_conn *c = srv->conns; c; c = c->next)
+        if (!c->cut && c->fd >= 0 && !c->answering_since_ms &&
+            now - c->waiting_since_ms >= HTTP_EVICT_IDLE_MS &&
+            (!idlest || c->waiting_since_ms < idlest->waiting_since_ms))
+            idlest = c;
+    if (!idlest)
+        return false;
+    shutdown(idlest->fd, SHUT_RDWR);
+    idlest->cut = true;
+    srv->refused++;
+    /* libmicrohttpd closes it (and on_connection counts it out) in its
+     * next run; not run(), which would count as a turn and may rest. */
+    MHD_run(srv->daemon);
+    return srv->conn_count < HTTP_MAX_CONNECTIONS;
+}
+
 static void on_listener(uv_poll_t *p, int status, int events)
 {
     struct http_server *srv = p->data;
@@ -450,7 +481,7 @@ static void on_listener(uv_poll_t *p, int status, int events)
                          SOCK_NONBLOCK | SOCK_CLOEXEC);
         if (fd < 0)
             break; /* EAGAIN, or an error the next accept reports again */
-        if (srv->conn_count >= HTTP_MAX_CONNECTIONS) {
+        if (srv->conn_count >= HTTP_MAX_CONNECTIONS && !make_room(srv)) {
             close(fd);
             srv->refused++;
             continue;
