@@ -42,25 +42,6 @@ def cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / TICKS  # utime, stime
 
 
-def modbus_round(port, seconds):
-    """One run of the 32-client load; the sorted latencies and failures."""
-    stats = load.Stats()
-    faults, commands = [], [0]
-    ready = threading.Semaphore(0)
-    t0 = time.monotonic() + 0.5
-    t_end = t0 + seconds
-    threads = [threading.Thread(target=load.poller, args=(port, i, t0, t_end, stats, ready))
-               for i in range(load.CLIENTS)]
-    threads.append(threading.Thread(target=load.plc, args=(port, t_end, stats, faults, commands)))
-    for t in threads:
-        t.start()
-    for _ in range(load.CLIENTS):
-        ready.acquire()
-    for t in threads:
-        t.join(seconds + 30)
-    return stats.latencies, stats.failures
-
-
 class Scraper(threading.Thread):
     """GET /metrics every 100 ms on one keep-alive connection."""
 
@@ -140,7 +121,7 @@ def main():
                     scraper = Scraper(http_port)
                     scraper.start()
                 try:
-                    lat, fail = modbus_round(gw.modbus_port, SECONDS)
+                    lat, fail = load.load_round(gw.modbus_port, SECONDS)
                 finally:
                     if scraper:
                         scraper.stop.set()

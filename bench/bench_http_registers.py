@@ -30,7 +30,6 @@ import json
 import os
 import subprocess
 import sys
-import threading
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -67,25 +66,6 @@ while time.time() < t_end:
         conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
 print(json.dumps({"times": times, "errors": errors, "size": size}))
 """
-
-
-def modbus_round(port, seconds, start=None):
-    """The Modbus load from 'start' (time.time(); default: 0.5 s from now)."""
-    stats = load.Stats()
-    faults, commands = [], [0]
-    ready = threading.Semaphore(0)
-    t0 = time.monotonic() + (start - time.time() if start else 0.5)
-    t_end = t0 + seconds
-    threads = [threading.Thread(target=load.poller, args=(port, i, t0, t_end, stats, ready))
-               for i in range(load.CLIENTS)]
-    threads.append(threading.Thread(target=load.plc, args=(port, t_end, stats, faults, commands)))
-    for t in threads:
-        t.start()
-    for _ in range(load.CLIENTS):
-        ready.acquire()
-    for t in threads:
-        t.join(seconds + 30)
-    return stats.latencies, stats.failures
 
 
 def fetchers(http_port, start, seconds):
@@ -134,7 +114,7 @@ def main():
                 start = time.time() + 3
                 target = {"loaded": http_port, "control": control_port}.get(kind)
                 procs = fetchers(target, start, SECONDS) if target else []
-                lat, fail = modbus_round(gw.modbus_port, SECONDS, start)
+                lat, fail = load.load_round(gw.modbus_port, SECONDS, start)
                 if procs:
                     t, e, n = collect(procs)
                     if kind == "loaded":

@@ -153,6 +153,27 @@ def percentile(sorted_values, p):
     return sorted_values[min(len(sorted_values) - 1, int(p / 100.0 * len(sorted_values)))]
 
 
+def load_round(port, seconds, start=None):
+    """One run of the load from 'start' (time.time(); default: 0.5 s from
+    now) for 'seconds', for the benchmarks that set it beside something
+    else: the sorted latencies (s) and the failures."""
+    stats = Stats()
+    faults, commands = [], [0]
+    ready = threading.Semaphore(0)
+    t0 = time.monotonic() + (start - time.time() if start else 0.5)
+    t_end = t0 + seconds
+    threads = [threading.Thread(target=poller, args=(port, i, t0, t_end, stats, ready))
+               for i in range(CLIENTS)]
+    threads.append(threading.Thread(target=plc, args=(port, t_end, stats, faults, commands)))
+    for t in threads:
+        t.start()
+    for _ in range(CLIENTS):
+        ready.acquire()
+    for t in threads:
+        t.join(seconds + 30)
+    return stats.latencies, stats.failures
+
+
 def read_ir(sock, address, count=1):
     reply = request(sock, 1, struct.pack(">BHH", 4, address, count))
     return list(struct.unpack(">%dH" % count, reply[2:]))
