@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <sys/socket.h>
 
 static void start_connect(struct robot_link *link);
@@ -270,6 +271,16 @@ static void on_watchdog(uv_timer_t *t)
     if (silent < link->cfg.silence_timeout_ms) {
         uv_timer_start(&link->watchdog, on_watchdog,
                        link->cfg.silence_timeout_ms - silent, 0);
+        return;
+    }
+    /* Bytes waiting in the socket: the loop itself stood still (libuv
+     * runs its timers before it reads), not the robot. Read them first;
+     * judged again in a moment. Without this, every stall of the gateway
+     * longer than the timeout dropped a healthy connection. */
+    int fd = -1, waiting = 0;
+    if (uv_fileno((uv_handle_t *)&link->tcp, &fd) == 0 && ioctl(fd, FIONREAD, &waiting) == 0 &&
+        waiting > 0) {
+        uv_timer_start(&link->watchdog, on_watchdog, 10, 0);
         return;
     }
     snprintf(why, sizeof(why), "no complete document for %llu ms",
