@@ -44,9 +44,16 @@
  * could not be read meanwhile, so the gap is not counted against them (the
  * heartbeat's and the connection's clocks move on by the gap) and the
  * stall is its own fault, POLICY_FAULT_GATEWAY_STALL, judged by the same
- * rule: while the robot runs or may run (a stalled gateway is blind, so
- * usually it may) the action goes out and the fault latches; idle, it is
- * only reported (sink.on_stall, once per stall, with its length).
+ * rule: while the robot runs or may run the action goes out and the fault
+ * latches; idle, it is only reported (sink.on_stall, once per stall, with
+ * its length). With check_period_ms set, it is judged at the next tick of
+ * the check period, after the loop has read what waited in its sockets
+ * (the status documents saying whether the robot ran; until then the
+ * status looks stale), and a start command before then at once. A turn
+ * late by less than the limit (more than two check periods) likewise
+ * defers the heartbeat's and the connection's verdicts to that tick, for
+ * the heartbeat waiting in a socket, once: a loss already due when the
+ * late gap began is judged at once.
  *
  * Write ownership, when configured: the client that feeds the heartbeat
  * owns the write side; other clients' writes are refused (exception 01).
