@@ -27,6 +27,7 @@ struct http_conn {
     uint64_t waiting_since_ms; /* for a head: connect or last response */
     uint64_t answering_since_ms; /* 0: no response under way */
     bool cut;                  /* shut down by a deadline already */
+    bool evicted;              /* shut down to make room (make_room) */
 };
 
 /* Each request's own state (libmicrohttpd's per-request pointer). */
@@ -160,6 +161,8 @@ static void on_connection(void *cls, struct MHD_Connection *connection, void **s
     if (c->next)
         c->next->prev = c->prev;
     srv->conn_count--;
+    if (c->evicted)
+        srv->evicting--;
     free(c);
     *socket_context = NULL;
 }
@@ -446,7 +449,7 @@ static void on_poll(uv_poll_t *p, int status, int events)
  * out, and Prometheus counted a healthy gateway down. A scraper's own
  * connection sends its request at once and is read in the turn that
  * accepts it, so it is never the idlest for that long. The one closed is
- * counted as refused. True when there is room now.
+ * counted as refused. True when there is room (once it is closed).
  */
 static bool make_room(struct http_server *srv)
 {
@@ -460,13 +463,14 @@ static bool make_room(struct http_server *srv)
             idlest = c;
     if (!idlest)
         return false;
+    /* libmicrohttpd closes it (and on_connection counts it out) in its
+     * next run, at the end of this accept (its own limit leaves room). */
     shutdown(idlest->fd, SHUT_RDWR);
     idlest->cut = true;
+    idlest->evicted = true;
+    srv->evicting++;
     srv->refused++;
-    /* libmicrohttpd closes it (and on_connection counts it out) in its
-     * next run; not run(), which would count as a turn and may rest. */
-    MHD_run(srv->daemon);
-    return srv->conn_count < HTTP_MAX_CONNECTIONS;
+    return true;
 }
 
 static void on_listener(uv_poll_t *p, int status, int events)
@@ -481,7 +485,7 @@ static void on_listener(uv_poll_t *p, int status, int events)
                          SOCK_NONBLOCK | SOCK_CLOEXEC);
         if (fd < 0)
             break; /* EAGAIN, or an error the next accept reports again */
-        if (srv->conn_count >= HTTP_MAX_CONNECTIONS && !make_room(srv)) {
+        if (srv->conn_count - srv->evicting >= HTTP_MAX_CONNECTIONS && !make_room(srv)) {
             close(fd);
             srv->refused++;
             continue;
@@ -548,7 +552,8 @@ int http_server_start(uv_loop_t *loop, struct http_server *srv, const char *bind
     srv->daemon = MHD_start_daemon(
         flags, 0, NULL, NULL, on_request, srv,
         MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, srv,
-        MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_MAX_CONNECTIONS,
+        /* Room for the ones make_room() shut down until they close. */
+        MHD_OPTION_CONNECTION_LIMIT, (unsigned)(2 * HTTP_MAX_CONNECTIONS),
         MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_IDLE_TIMEOUT_S,
         /* The head and the response's own headers: a head past 8 KiB is
          * refused by the handler; one past the pool, by libmicrohttpd. */

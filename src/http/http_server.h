@@ -110,6 +110,7 @@ struct http_server {
     void *user;
     struct http_conn *conns; /* every open connection */
     unsigned conn_count;
+    unsigned evicting;       /* of them, shut down to make room, not closed yet */
     uint64_t requests;       /* answered, any status */
     uint64_t closed_slow;    /* closed by a deadline */
     uint64_t refused;        /* closed over the connection limit: new, or idlest */
