@@ -40,7 +40,9 @@
  * The gateway's own stall: the policy sees time only when the gateway's
  * loop turns (the check period, every input). A gap between two calls
  * longer than time_limit_ms means the gateway itself stood still (its
- * process stopped, its host suspended, a blocking call): the PLC's signals
+ * process stopped, starved of CPU, a blocking call; not a suspended host:
+ * the monotonic clock stands still with it, and the robot's own handler
+ * covers that): the PLC's signals
  * could not be read meanwhile, so the gap is not counted against them (the
  * heartbeat's and the connection's clocks move on by the gap) and the
  * stall is its own fault, POLICY_FAULT_GATEWAY_STALL, judged by the same
