@@ -19,6 +19,9 @@ MANDIR    ?= $(PREFIX)/share/man
 # other prefix keeps them under itself (/usr/local/lib/systemd/system is on
 # systemd's search path too).
 UNITDIR   ?= $(if $(filter /usr,$(PREFIX)),/lib/systemd/system,$(PREFIX)/lib/systemd/system)
+# The generator that gives the units the serial port of [rtu] device
+# (systemd/jakagw-generator.in), beside the units' directory.
+GENERATORDIR ?= $(patsubst %/system,%/system-generators,$(UNITDIR))
 DESTDIR   ?=
 
 # Cross builds for ARM boards (docs/arm.md): make ARCH=arm64 or
@@ -54,7 +57,7 @@ override PKG_CONFIG := PKG_CONFIG_SYSROOT_DIR=$(SYSROOT) \
 JAKAGW_RUNNER := $(CROSS_QEMU_$(ARCH)) -L $(SYSROOT)
 export JAKAGW_RUNNER
 # Goals that compile need the sysroot before pkg-config is asked.
-ifneq ($(filter-out deps demo test clean uninstall deb test-package,$(or $(MAKECMDGOALS),all)),)
+ifneq ($(filter-out deps demo test clean uninstall deb test-package test-service,$(or $(MAKECMDGOALS),all)),)
 ifneq ($(shell scripts/make-sysroot.sh $(ARCH) $(SYSROOT) >&2 || echo failed),)
 $(error could not make the $(ARCH) sysroot $(SYSROOT))
 endif
@@ -69,7 +72,7 @@ PKGS      := libuv libmodbus libcjson inih libsystemd openssl libmicrohttpd
 # deps, demo, test and clean work on a bare machine (demo and test install
 # the packages first); any other goal needs the compiler and the .pc files,
 # and says how to get them instead of failing with compiler errors.
-NO_PKG_GOALS := deps demo test clean uninstall deb test-package
+NO_PKG_GOALS := deps demo test clean uninstall deb test-package test-service
 ifneq ($(filter-out $(NO_PKG_GOALS),$(or $(MAKECMDGOALS),all)),)
 MISSING_PKGS := $(shell command -v $(CC) >/dev/null || echo $(CC); \
     for p in $(PKGS) $(if $(filter unit-tests san valgrind,$(MAKECMDGOALS)),cmocka); do \
@@ -102,7 +105,7 @@ UNIT_TESTS := $(patsubst tests/%.c,%,$(wildcard tests/test_*.c))
 LIB_OBJS  := $(LIB_SRCS:%.c=$(BUILD)/%.o) $(BUILD)/gen/status_page.o
 SIM_OBJS  := $(SIM_SRCS:%.c=$(BUILD)/%.o)
 
-.PHONY: screenshot bench-http bench-http-registers all deps demo test soak test-netem unit-tests check-docs docs man install uninstall deb test-package clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
+.PHONY: screenshot bench-http bench-http-registers all deps demo test soak test-netem unit-tests check-docs docs man install uninstall deb test-package test-service clean san valgrind bench fuzz fuzz-check fuzz-ci test-can test-load
 all: $(BUILD)/jakagw $(BUILD)/jakasim
 
 $(BUILD)/%.o: %.c
@@ -332,7 +335,7 @@ CONF  := $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
 # A configuration already there is the user's: it is never overwritten.
 install: all
 	install -d $(DESTDIR)$(SBINDIR) $(DESTDIR)$(BINDIR) $(DESTDIR)$(SYSCONFDIR)/jakagw \
-	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(DOCDIR)/docs $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
+	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(GENERATORDIR) $(DESTDIR)$(DOCDIR)/docs $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
 	install -m 0755 $(BUILD)/jakagw $(DESTDIR)$(SBINDIR)/
 	install -m 0755 $(BUILD)/jakasim $(DESTDIR)$(BINDIR)/
 	@if [ -e $(CONF) ]; then \
@@ -347,6 +350,9 @@ install: all
 	        systemd/$$unit.in > $(DESTDIR)$(UNITDIR)/$$unit && \
 	    chmod 0644 $(DESTDIR)$(UNITDIR)/$$unit || exit 1; \
 	done
+	sed 's|@SBINDIR@|$(SBINDIR)|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g' \
+	    systemd/jakagw-generator.in > $(DESTDIR)$(GENERATORDIR)/jakagw-generator
+	chmod 0755 $(DESTDIR)$(GENERATORDIR)/jakagw-generator
 	install -m 0644 man/jakagw.8 $(DESTDIR)$(MANDIR)/man8/
 	install -m 0644 man/jakasim.1 $(DESTDIR)$(MANDIR)/man1/
 	install -m 0644 README.md $(DESTDIR)$(DOCDIR)/
@@ -357,7 +363,7 @@ install: all
 # The configuration is left in place, as a package removal (not a purge) does.
 uninstall:
 	rm -f $(DESTDIR)$(SBINDIR)/jakagw $(DESTDIR)$(BINDIR)/jakagw $(DESTDIR)$(BINDIR)/jakasim \
-	    $(addprefix $(DESTDIR)$(UNITDIR)/,$(UNITS)) \
+	    $(addprefix $(DESTDIR)$(UNITDIR)/,$(UNITS)) $(DESTDIR)$(GENERATORDIR)/jakagw-generator \
 	    $(DESTDIR)$(MANDIR)/man8/jakagw.8 $(DESTDIR)$(MANDIR)/man1/jakasim.1
 	rm -rf $(DESTDIR)$(DOCDIR)
 	@echo "uninstall: $(DESTDIR)$(SYSCONFDIR)/jakagw is kept; remove it when its configuration is no longer wanted"
@@ -373,6 +379,15 @@ deb:
 # systemd-analyze verify and security, lintian. make test runs it.
 test-package:
 	@/usr/bin/python3 tests/package/test_package.py $(BUILD)
+
+# The installed package under systemd as PID 1, in a VM (docs/service.md,
+# "Tested under systemd"): make deb, a Debian 12 image with the package
+# installed by apt (cached in $(BUILD)/service-vm/ while its inputs are
+# unchanged), one qemu boot of this machine's kernel for every case
+# (ready, reload, watchdog, socket, instances, credential, rtu, can,
+# journal, upgrade, seccomp). make test runs it too, with the first build.
+test-service:
+	@/usr/bin/python3 tests/service/test_service_vm.py $(BUILD)
 
 clean:
 	rm -rf build build-san build-fuzz

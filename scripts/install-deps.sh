@@ -35,6 +35,8 @@ group can "to test the CAN mirror on a real kernel CAN stack, and netem on singl
     qemu-system-x86 linux-image-amd64 busybox-static can-utils iproute2 python3-venv
 group package "to build the Debian package and test it and the units (make deb, make test-package): debhelper, dpkg-dev, lintian, mmdebstrap for a fresh root filesystem to install it in, man-db and groff-base to check the man pages, procps for the kill the units' ExecReload runs (systemd-analyze verify looks for it)" \
     debhelper dpkg-dev lintian mmdebstrap man-db groff-base procps
+group service "to test the installed package under systemd in a VM (make test-service, tests/service): mmdebstrap for the Debian 12 image, mke2fs (e2fsprogs) to make it a disk without a loop device, qemu and Debian's kernel with its stock initrd to boot it, mbpoll as the RTU master on this machine's end of the VM's serial ports" \
+    mmdebstrap e2fsprogs qemu-system-x86 linux-image-amd64 mbpoll
 group cross "to build, package and test for ARM boards (make ARCH=arm64|armhf): Debian's cross compilers, and qemu-user to run their binaries (the sysroot comes from mmdebstrap, group package)" \
     gcc-aarch64-linux-gnu gcc-arm-linux-gnueabihf qemu-user
 group netfault "to inject network faults in the fault-injection suite (test_faults.py): nftables (silent pulls, resets, random loss), iproute2 (ip, ss) in a namespace made with unshare (util-linux, always installed)" \
@@ -46,7 +48,7 @@ group web "to test /metrics, the alert rules (promtool, and the prometheus serve
 group fuzz "to run the libFuzzer targets (make fuzz, make fuzz-ci): clang, and the libFuzzer and sanitizer runtimes it links, which Debian 12 ships apart in libclang-rt-14-dev" \
     clang libclang-rt-14-dev
 
-DEFAULT_GROUPS="build tests web can package cross netfault"
+DEFAULT_GROUPS="build tests web can package service cross netfault"
 # CI's make test also runs the fuzz targets (make fuzz-ci).
 [ "${CI:-}" = true ] && DEFAULT_GROUPS="$DEFAULT_GROUPS fuzz"
 

@@ -20,7 +20,8 @@
 # one runner prefix ("qemu-arm -L build-armhf/sysroot"). The package test
 # then checks the ARCH package (tests/package/test_package.py). The CAN VM
 # test boots an amd64 kernel, where ARM binaries cannot run: it runs with
-# the amd64 build only.
+# the amd64 build only, and so does the service VM test (the package under
+# systemd in qemu, tests/service/test_service_vm.py), after the package test.
 set -u
 cd "$(dirname "$0")/.."
 
@@ -152,6 +153,7 @@ fi
 if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; then
     build=${BUILDS%% *}
     echo "== tests/package/test_package.py ($build)"
+    package_mark=$(mktemp)
     "$PYTHON" tests/package/test_package.py "$build" 2>&1 | tee "$log"
     status=${PIPESTATUS[0]}
     line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
@@ -159,6 +161,26 @@ if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; t
     bad=${line#*, }
     bad=${bad%% failed}
     record "tests/package/test_package.py" "$status" "${ok:-0}" "${bad:-0}"
+
+    # The installed package under systemd in a VM (also make test-service):
+    # once, with the first native build, on the package the package test
+    # has just built (when it did; the VM test runs make deb otherwise).
+    if [ -z "${JAKAGW_ARCH:-}" ]; then
+        echo "== tests/service/test_service_vm.py ($build)"
+        deb=$(ls -t "$build"/deb/jakagw_*.deb 2>/dev/null | head -n 1)
+        if [ -n "$deb" ] && [ "$deb" -nt "$package_mark" ]; then
+            export JAKAGW_SERVICE_DEB=$deb
+        fi
+        "$PYTHON" tests/service/test_service_vm.py "$build" 2>&1 | tee "$log"
+        status=${PIPESTATUS[0]}
+        unset JAKAGW_SERVICE_DEB
+        line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
+        ok=${line%% passed*}
+        bad=${line#*, }
+        bad=${bad%% failed}
+        record "tests/service/test_service_vm.py" "$status" "${ok:-0}" "${bad:-0}"
+    fi
+    rm -f "$package_mark"
 fi
 
 echo

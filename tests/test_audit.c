@@ -501,6 +501,47 @@ static void the_line_is_escaped_once(void **state)
     assert_memory_equal(line + 3, formatted, strlen(formatted));
 }
 
+/*
+ * A PLC that opens a connection for each write (many PLC function blocks
+ * do) has a new port every time: its refusals are still one kind, so that
+ * hammering a refused write costs one record at once and one at the end of
+ * the period, not one a write (200 records in 20 s before: the client's
+ * port, added for the audit, made each connection a kind of its own). The
+ * group names the host without a port, since it spans several.
+ */
+static void refusals_from_new_ports_of_one_host_are_one_kind(void **state)
+{
+    (void)state;
+    char client[32];
+    for (unsigned i = 0; i < 200; i++) {
+        snprintf(client, sizeof(client), "192.0.2.9:%u", 40000 + i);
+        audit_write_refused(&a, "modbus", client, "", "", "coil 107 play_program", 1,
+                            "motion is off");
+        now += 100;
+    }
+    /* An IPv6 peer, "host:port" too, and another host: kinds of their own. */
+    audit_write_refused(&a, "modbus", "2001:db8::9:40000", "", "", "coil 107", 1, "x");
+    audit_write_refused(&a, "modbus", "2001:db8::9:40001", "", "", "coil 107", 1, "x");
+    audit_write_refused(&a, "modbus", "2001:db8::9:40002", "", "", "coil 107", 1, "x");
+    audit_write_refused(&a, "modbus", "192.0.2.10:40000", "", "", "coil 107", 1, "x");
+    audit_finish(&a);
+    /* 192.0.2.9: two periods of a first and a group; the IPv6 host a first
+     * and a group of two; 192.0.2.10 one. */
+    assert_int_equal(emitted_count, 7);
+    assert_string_equal(emitted[0].who.client, "192.0.2.9:40000");
+    assert_int_equal(emitted[0].count, 1);
+    unsigned total = 0;
+    for (unsigned i = 0; i < emitted_count; i++)
+        if (strncmp(emitted[i].who.client, "192.0.2.9", 9) == 0)
+            total += emitted[i].count;
+    assert_int_equal(total, 200);
+    assert_string_equal(emitted[1].who.client, "192.0.2.9");
+    assert_int_equal(emitted[1].count, 99);
+    assert_string_equal(emitted[3].who.client, "192.0.2.9");
+    assert_string_equal(emitted[6].who.client, "2001:db8::9");
+    assert_int_equal(emitted[6].count, 2);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -518,6 +559,7 @@ int main(void)
         cmocka_unit_test_setup(the_last_records_are_kept_oldest_first, setup),
         cmocka_unit_test_setup(more_pending_than_room_records_the_oldest_as_unknown, setup),
         cmocka_unit_test_setup(null_audit_is_harmless, setup),
+        cmocka_unit_test_setup(refusals_from_new_ports_of_one_host_are_one_kind, setup),
         cmocka_unit_test(journal_is_detected_from_journal_stream),
         cmocka_unit_test(outside_text_cannot_forge_fields_of_the_line),
         cmocka_unit_test(the_line_is_escaped_once),

@@ -971,6 +971,105 @@ static void stall_seen_by_a_write_first(void **state)
     assert_int_equal(stall_calls, 1);
 }
 
+/*
+ * A turn late by less than the limit (the review's SIGSTOP of 0.9 s with
+ * a PLC beating every 200 ms): libuv runs its timers before it polls, so
+ * the first check after it comes before the heartbeat waiting in the
+ * socket is read. It used to latch "PLC heartbeat lost" (fault 1) and
+ * pause a running program; the heartbeat's verdict now waits for that
+ * turn's input. A PLC really gone is still caught one check later:
+ * within the limit, the late turn and one check period.
+ */
+static void late_turn_waits_for_its_input(void **state)
+{
+    (void)state;
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = POLICY_PAUSE,
+                                .watch = POLICY_WATCH_BOTH, .check_period_ms = 100};
+    struct policy_sink sink = {.send_action = record_action, .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    policy_init(&p, &cfg, &sink);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 100, MOVING);
+    /* Stopped at T0 + 100, resumed at T0 + 1000: the timers first. */
+    policy_check(&p, T0 + 1000, MOVING);
+    expect_nothing();
+    /* Then the poll: the heartbeat written meanwhile. */
+    policy_heartbeat(&p, T0 + 1000, PLC_A, ADDR_A, 2);
+    check_span(T0 + 1010, T0 + 1900, MOVING);
+    expect_nothing();
+    /* The same late turn with the PLC gone: caught at the next check. */
+    policy_check(&p, T0 + 1900 + 900, MOVING);
+    expect_nothing();
+    policy_check(&p, T0 + 1900 + 1000, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+}
+
+/* A loop late on every turn (250 ms, the check period 100) still judges
+ * a PLC gone, one turn after its limit: never a deferral after another. */
+static void loop_late_on_every_turn_still_judges(void **state)
+{
+    (void)state;
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = POLICY_PAUSE,
+                                .watch = POLICY_WATCH_BOTH, .check_period_ms = 100};
+    struct policy_sink sink = {.send_action = record_action, .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    policy_init(&p, &cfg, &sink);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    uint64_t t = T0;
+    while (sent.calls == 0 && t < T0 + 10 * LIMIT) {
+        t += 250;
+        policy_check(&p, t, MOVING);
+    }
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    assert_true(t <= T0 + LIMIT + 250);
+}
+
+/*
+ * A stall of 1.5 s with the robot idle: at the first check after it the
+ * status looks stale (its documents are still in the socket), so the
+ * gateway passes "may move"; fault 4 latched and a pause went out for an
+ * idle robot (the review's SIGSTOP, jakasim idle: fault 4 every time). The
+ * stall is now judged by the next check, with the status read: idle, it
+ * is only reported. Running, it latches at the next tick of the check
+ * period, after a poll.
+ */
+static void stall_judged_with_the_status_read_after_it(void **state)
+{
+    (void)state;
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = POLICY_PAUSE,
+                                .watch = POLICY_WATCH_BOTH, .check_period_ms = 100};
+    struct policy_sink sink = {.send_action = record_action, .on_stall = record_stall,
+                               .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    stall_calls = 0;
+    policy_init(&p, &cfg, &sink);
+    policy_client_opened(&p, T0, 1);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    check_span(T0, T0 + 100, IDLE);
+    policy_check(&p, T0 + 1600, MOVING); /* blind: the status is stale */
+    assert_int_equal(stall_calls, 1);
+    expect_nothing();
+    policy_heartbeat(&p, T0 + 1600, PLC_A, ADDR_A, 2);
+    check_span(T0 + 1700, T0 + 2500, IDLE); /* the status read: idle */
+    expect_nothing();
+    assert_int_equal(p.stalls, 1);
+    policy_heartbeat(&p, T0 + 2500, PLC_A, ADDR_A, 3);
+    check_span(T0 + 2510, T0 + 2600, MOVING); /* judged once: no fault now */
+    expect_nothing();
+    /* The same stall with a program running: fault 4, one check later. */
+    policy_heartbeat(&p, T0 + 2600, PLC_A, ADDR_A, 4);
+    policy_check(&p, T0 + 4100, MOVING);
+    policy_check(&p, T0 + 4110, MOVING); /* a write read in that poll */
+    expect_nothing();
+    policy_check(&p, T0 + 4200, MOVING); /* the next tick */
+    expect_one(POLICY_PAUSE, POLICY_FAULT_GATEWAY_STALL);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1016,6 +1115,9 @@ int main(void)
         cmocka_unit_test(stall_is_the_gateways_fault_not_the_plcs),
         cmocka_unit_test(stall_while_idle_only_reported),
         cmocka_unit_test(stall_seen_by_a_write_first),
+        cmocka_unit_test(late_turn_waits_for_its_input),
+        cmocka_unit_test(loop_late_on_every_turn_still_judges),
+        cmocka_unit_test(stall_judged_with_the_status_read_after_it),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

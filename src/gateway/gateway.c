@@ -664,13 +664,14 @@ static int start_policy(struct gateway *gw)
     if (!rows->fault || !rows->fault_age_ms || !rows->faults || !rows->write_owner ||
         !rows->motion_enabled)
         return -EINVAL;
+    /* A tenth of the limit, 10..100 ms: reactions within limit + period. */
+    uint64_t period = cfg->ne_time_limit_ms / 10;
+    period = period < 10 ? 10 : period > 100 ? 100 : period;
+    pc.check_period_ms = (uint32_t)period;
     policy_init(&gw->policy, &pc, &sink);
     uv_timer_init(gw->loop, &gw->policy_timer);
     gw->policy_timer.data = gw;
     gw->parts |= GATEWAY_PART_POLICY;
-    /* A tenth of the limit, 10..100 ms: reactions within limit + period. */
-    uint64_t period = cfg->ne_time_limit_ms / 10;
-    period = period < 10 ? 10 : period > 100 ? 100 : period;
     uv_timer_start(&gw->policy_timer, on_policy_timer, period, period);
     return 0;
 }

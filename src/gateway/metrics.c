@@ -255,7 +255,7 @@ void metrics_render(const struct gateway *gw, struct strbuf *out)
     plain(out, "jakagw_http_requests_total", "counter", "HTTP requests answered.",
           (double)gw->http.requests);
     plain(out, "jakagw_http_connections_refused_total", "counter",
-          "HTTP connections closed at once: over the connection limit.",
+          "HTTP connections closed over the connection limit: the new one, or the idlest.",
           (double)gw->http.refused);
     plain(out, "jakagw_http_slow_closed_total", "counter",
           "HTTP connections closed for sending a request or reading an answer too slowly.",

@@ -27,6 +27,7 @@ struct http_conn {
     uint64_t waiting_since_ms; /* for a head: connect or last response */
     uint64_t answering_since_ms; /* 0: no response under way */
     bool cut;                  /* shut down by a deadline already */
+    bool evicted;              /* shut down to make room (make_room) */
 };
 
 /* Each request's own state (libmicrohttpd's per-request pointer). */
@@ -160,6 +161,8 @@ static void on_connection(void *cls, struct MHD_Connection *connection, void **s
     if (c->next)
         c->next->prev = c->prev;
     srv->conn_count--;
+    if (c->evicted)
+        srv->evicting--;
     free(c);
     *socket_context = NULL;
 }
@@ -384,7 +387,13 @@ static void on_timer(uv_timer_t *t)
 static void on_poll(uv_poll_t *p, int status, int events);
 static void on_listener(uv_poll_t *p, int status, int events);
 
-/* The rest is over: the polls watch again, and what waited runs. */
+/*
+ * The rest is over: the polls watch again, and what waited runs, new
+ * connections first. Accepted here, not left to the listener's poll: a
+ * turn long enough to rest again stops that poll before the loop ever
+ * polls it, and with clients asking back to back every turn is, so a
+ * scraper's new connection waited in the backlog for seconds.
+ */
 static void on_rest_over(uv_timer_t *t)
 {
     struct http_server *srv = t->data;
@@ -394,8 +403,7 @@ static void on_rest_over(uv_timer_t *t)
         return;
     uv_poll_start(&srv->poll, UV_READABLE, on_poll);
     uv_poll_start(&srv->listener, UV_READABLE, on_listener);
-    run(srv);
-    schedule(srv);
+    on_listener(&srv->listener, 0, UV_READABLE); /* accepts, then runs a turn */
 }
 
 /* libmicrohttpd's next timeout, as the timer's; none: stopped. */
@@ -433,6 +441,38 @@ static void on_poll(uv_poll_t *p, int status, int events)
  * (where a flood of idle connections would hold the page's visitors for
  * as long as it lasts). At most 64 per turn of the loop.
  */
+/*
+ * At the limit, a new connection takes the place of the one that has
+ * waited longest for a request head, if it has waited HTTP_EVICT_IDLE_MS:
+ * otherwise a local process holding the limit's worth of idle connections
+ * (and re-opening each one the head deadline closes) locked every scraper
+ * out, and Prometheus counted a healthy gateway down. A scraper's own
+ * connection sends its request at once and is read in the turn that
+ * accepts it, so it is never the idlest for that long. The one closed is
+ * counted as refused. True when there is room (once it is closed).
+ */
+static bool make_room(struct http_server *srv)
+{
+    uint64_t now = uv_now(srv->loop);
+    struct http_conn *idlest = NULL;
+
+    for (struct http_conn *c = srv->conns; c; c = c->next)
+        if (!c->cut && c->fd >= 0 && !c->answering_since_ms &&
+            now - c->waiting_since_ms >= HTTP_EVICT_IDLE_MS &&
+            (!idlest || c->waiting_since_ms < idlest->waiting_since_ms))
+            idlest = c;
+    if (!idlest)
+        return false;
+    /* libmicrohttpd closes it (and on_connection counts it out) in its
+     * next run, at the end of this accept (its own limit leaves room). */
+    shutdown(idlest->fd, SHUT_RDWR);
+    idlest->cut = true;
+    idlest->evicted = true;
+    srv->evicting++;
+    srv->refused++;
+    return true;
+}
+
 static void on_listener(uv_poll_t *p, int status, int events)
 {
     struct http_server *srv = p->data;
@@ -445,7 +485,7 @@ static void on_listener(uv_poll_t *p, int status, int events)
                          SOCK_NONBLOCK | SOCK_CLOEXEC);
         if (fd < 0)
             break; /* EAGAIN, or an error the next accept reports again */
-        if (srv->conn_count >= HTTP_MAX_CONNECTIONS) {
+        if (srv->conn_count - srv->evicting >= HTTP_MAX_CONNECTIONS && !make_room(srv)) {
             close(fd);
             srv->refused++;
             continue;
@@ -512,7 +552,8 @@ int http_server_start(uv_loop_t *loop, struct http_server *srv, const char *bind
     srv->daemon = MHD_start_daemon(
         flags, 0, NULL, NULL, on_request, srv,
         MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, srv,
-        MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_MAX_CONNECTIONS,
+        /* Room for the ones make_room() shut down until they close. */
+        MHD_OPTION_CONNECTION_LIMIT, (unsigned)(2 * HTTP_MAX_CONNECTIONS),
         MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_IDLE_TIMEOUT_S,
         /* The head and the response's own headers: a head past 8 KiB is
          * refused by the handler; one past the pool, by libmicrohttpd. */

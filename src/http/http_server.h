@@ -15,7 +15,9 @@
  * - the request line and headers at most HTTP_MAX_HEAD_BYTES (431 past it;
  *   libmicrohttpd answers 431 itself once its buffer is full, or 414 when
  *   the request line alone fills it);
- * - at most HTTP_MAX_CONNECTIONS at once (further ones are closed at once);
+ * - at most HTTP_MAX_CONNECTIONS at once: at the limit, a new connection
+ *   takes the place of the one that has waited longest for a request head
+ *   if that is HTTP_EVICT_IDLE_MS or more, else it is closed at once;
  * - a connection silent for HTTP_IDLE_TIMEOUT_S is closed, and so is one
  *   that has not sent a whole request head within HTTP_HEAD_DEADLINE_MS of
  *   connecting or of its last response (slowloris), or that has not read
@@ -40,6 +42,7 @@
 
 #define HTTP_MAX_HEAD_BYTES 8192
 #define HTTP_MAX_CONNECTIONS 32
+#define HTTP_EVICT_IDLE_MS 100
 #define HTTP_IDLE_TIMEOUT_S 10
 #define HTTP_HEAD_DEADLINE_MS 10000
 #define HTTP_RESPONSE_DEADLINE_MS 30000
@@ -107,9 +110,10 @@ struct http_server {
     void *user;
     struct http_conn *conns; /* every open connection */
     unsigned conn_count;
+    unsigned evicting;       /* of them, shut down to make room, not closed yet */
     uint64_t requests;       /* answered, any status */
     uint64_t closed_slow;    /* closed by a deadline */
-    uint64_t refused;        /* closed at once: over the connection limit */
+    uint64_t refused;        /* closed over the connection limit: new, or idlest */
     uint64_t rests;          /* turns long enough to rest after (HTTP_LOOP_PERCENT) */
     bool resting;
     struct http_turn_entry turn[HTTP_TURN_KEPT];

@@ -96,15 +96,34 @@ static void record(struct audit *a, struct audit_record *r)
     a->sink.emit(a->sink.user, r);
 }
 
+/* The length of a client's host: "192.0.2.9:40001" without ":40001". */
+static size_t host_length(const char *client)
+{
+    const char *colon = strrchr(client, ':');
+    size_t n = strlen(client);
+
+    if (!colon || colon == client || colon[1] == '\0' ||
+        strspn(colon + 1, "0123456789") != strlen(colon + 1))
+        return n;
+    return (size_t)(colon - client);
+}
+
+static bool same_host(const char *x, const char *y)
+{
+    size_t n = host_length(x);
+    return n == host_length(y) && memcmp(x, y, n) == 0;
+}
+
 /*
- * The same client, command and result (and, for a refusal, exception and
- * reason): not the address, so that a client writing all over the map is still one
- * record per period, not one per address.
+ * The same client host, command and result (and, for a refusal, exception
+ * and reason): not the address, so that a client writing all over the map
+ * is still one record per period, not one per address; and not the port,
+ * so that a PLC opening a connection for each write is too.
  */
 static bool same_kind(const struct audit_record *x, const struct audit_record *y)
 {
     return strcmp(x->who.transport, y->who.transport) == 0 &&
-           strcmp(x->who.client, y->who.client) == 0 &&
+           same_host(x->who.client, y->who.client) &&
            strcmp(x->who.subject, y->who.subject) == 0 &&
            strcmp(x->command, y->command) == 0 && strcmp(x->result, y->result) == 0 &&
            strcmp(x->reason, y->reason) == 0 && x->error_code == y->error_code;
@@ -116,6 +135,8 @@ static void end_aggregate(struct audit *a, struct audit_aggregate *g)
     if (g->more) {
         struct audit_record r = g->first;
         r.count = g->more;
+        if (g->several_ports)
+            r.who.client[host_length(r.who.client)] = '\0';
         /* add_what() left room for the tail. */
         int n = snprintf(r.what, sizeof(r.what), "%s", g->whats);
         if (g->whats_left && n >= 0 && (size_t)n < sizeof(r.what))
@@ -177,6 +198,9 @@ static void aggregate(struct audit *a, struct audit_record *r)
             continue;
         }
         if (same_kind(&g->first, r)) {
+            /* A group over several connections names their host only. */
+            if (strcmp(g->first.who.client, r->who.client) != 0)
+                g->several_ports = true;
             add_what(g, r->what);
             g->more++;
             g->last_code = r->error_code;
@@ -196,6 +220,7 @@ static void aggregate(struct audit *a, struct audit_record *r)
     free_slot->more = 0;
     free_slot->whats[0] = '\0';
     free_slot->whats_left = 0;
+    free_slot->several_ports = false;
     record(a, r);
     free_slot->first = *r;
 }

@@ -29,7 +29,7 @@
  * "journalctl -u jakagw JAKAGW_COMMAND=play_program" finds them; elsewhere
  * as one "audit: ..." line on stderr. Frequent records (setpoints and
  * outputs, which send a command on every write, and refused writes) are
- * aggregated per client, command (or refusal, its exception and reason)
+ * aggregated per client host (not port), command (or refusal, its exception and reason)
  * and period, whatever the address: the first of a period is recorded at
  * once, the others as one record with their count (JAKAGW_COUNT=) when
  * the period ends, its 'what' the distinct whats they had ("coil 107
@@ -104,6 +104,7 @@ struct audit_aggregate {
     unsigned more;       /* after the first, in this period */
     char whats[256];     /* their distinct whats, ", " between */
     unsigned whats_left; /* distinct whats that found no room */
+    bool several_ports;  /* from several connections of one host */
     long last_code;
     char last_msg[128];
 };

@@ -33,8 +33,24 @@ static void see_time(struct policy *p, uint64_t now_ms)
 
     if (now_ms > p->last_seen_ms)
         p->last_seen_ms = now_ms;
-    if (gap <= p->cfg.time_limit_ms)
+    if (gap <= p->cfg.time_limit_ms) {
+        /* A late turn, no stall: libuv runs its timers before it polls,
+         * so the heartbeat sent meanwhile is still in the socket. The
+         * timed verdicts wait for a later call (limit_passed). */
+        if (p->cfg.check_period_ms && gap > 2 * (uint64_t)p->cfg.check_period_ms) {
+            p->late_turn_ms = now_ms;
+            p->late_turn_from_ms = now_ms - gap;
+        }
         return;
+    }
+    /* A stall is a late turn too: the status documents that say whether
+     * the robot ran are in their socket, and the status looks stale until
+     * they are read, so the stall is judged by a later call (lost_signals):
+     * an idle robot is then seen idle, not assumed to move. */
+    if (p->cfg.check_period_ms) {
+        p->late_turn_ms = now_ms;
+        p->late_turn_from_ms = now_ms - gap;
+    }
     p->heartbeat_ms += gap;
     p->no_client_since_ms += gap;
     p->start_answered_ms += gap;
@@ -45,9 +61,37 @@ static void see_time(struct policy *p, uint64_t now_ms)
         p->sink.on_stall(p->sink.user, gap);
 }
 
+/*
+ * Has the loop read its input since its last late turn (or stall)? Its
+ * timers run first; the next check period's tick comes after a poll. The
+ * calls in between (a write read in that poll) may come before the input
+ * that matters (another client's heartbeat, the status documents).
+ */
+static bool heard_since_late_turn(const struct policy *p, uint64_t now_ms)
+{
+    return p->late_turn_ms == 0 || now_ms >= p->late_turn_ms + p->cfg.check_period_ms;
+}
+
+/*
+ * Has the time limit passed since 'since_ms' (the heartbeat's last change,
+ * the last client's close)? In a late turn's own calls, only if it had
+ * passed already when the late gap began: what the PLC sent meanwhile is
+ * still in a socket, read after the turn's timers. A loop late on every
+ * turn is thus judged one turn late, never not at all.
+ */
+static bool limit_passed(const struct policy *p, uint64_t now_ms, uint64_t since_ms)
+{
+    if (now_ms - since_ms < p->cfg.time_limit_ms)
+        return false;
+    if (heard_since_late_turn(p, now_ms))
+        return true;
+    return p->late_turn_from_ms >= since_ms &&
+           p->late_turn_from_ms - since_ms >= p->cfg.time_limit_ms;
+}
+
 static bool heartbeat_expired(const struct policy *p, uint64_t now_ms)
 {
-    return p->heartbeat_armed && now_ms - p->heartbeat_ms >= p->cfg.time_limit_ms;
+    return p->heartbeat_armed && limit_passed(p, now_ms, p->heartbeat_ms);
 }
 
 static void clear_owner(struct policy *p)
@@ -189,18 +233,18 @@ static bool may_run(const struct policy *p, uint64_t now_ms, bool robot_moving)
  * a first client, a first 1 on the motion-enable coil), and is judged as a
  * level, never as an edge.
  */
-static unsigned lost_signals(const struct policy *p, uint64_t now_ms)
+static unsigned lost_signals(const struct policy *p, uint64_t now_ms, bool stall_now)
 {
     unsigned lost = 0;
 
     if ((p->cfg.watch & POLICY_WATCH_HEARTBEAT) && heartbeat_expired(p, now_ms))
         lost |= LOST(POLICY_FAULT_HEARTBEAT);
     if ((p->cfg.watch & POLICY_WATCH_CONNECTION) && p->connection_armed &&
-        p->clients == 0 && now_ms - p->no_client_since_ms >= p->cfg.time_limit_ms)
+        p->clients == 0 && limit_passed(p, now_ms, p->no_client_since_ms))
         lost |= LOST(POLICY_FAULT_NO_CLIENT);
     if (p->cfg.motion_enable && p->motion_enable_armed && !p->motion_enabled)
         lost |= LOST(POLICY_FAULT_MOTION_ENABLE);
-    if (p->stall_pending)
+    if (p->stall_pending && (stall_now || heard_since_late_turn(p, now_ms)))
         lost |= LOST(POLICY_FAULT_GATEWAY_STALL);
     return lost;
 }
@@ -217,12 +261,13 @@ static enum policy_action action_for(const struct policy *p, enum policy_fault r
  * of their actions. Under a latched fault nothing is repeated, except
  * motion enable's pause, once per drop.
  */
-static void apply_rule(struct policy *p, uint64_t now_ms, bool running)
+static void apply_rule(struct policy *p, uint64_t now_ms, bool running, bool stall_now)
 {
-    unsigned lost = lost_signals(p, now_ms);
+    unsigned lost = lost_signals(p, now_ms, stall_now);
 
     /* A stall is an event, judged once: by the first rule that sees it. */
-    p->stall_pending = false;
+    if (lost & LOST(POLICY_FAULT_GATEWAY_STALL))
+        p->stall_pending = false;
     if (lost == 0 || !running)
         return;
     if (p->fault == POLICY_FAULT_NONE) {
@@ -262,7 +307,7 @@ void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
     /* Idle, nothing to pause: the coil at 0 already keeps programs and
      * motion from starting (policy_gate_command). Running or about to,
      * it pauses at once, whatever fault is latched already. */
-    apply_rule(p, now_ms, may_run(p, now_ms, robot_moving));
+    apply_rule(p, now_ms, may_run(p, now_ms, robot_moving), false);
 }
 
 void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving)
@@ -277,7 +322,7 @@ void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving)
      * robot may move. */
     if (p->fault != POLICY_FAULT_NONE && p->owed != POLICY_KEEP && running)
         act(p, p->owed, p->fault);
-    apply_rule(p, now_ms, running);
+    apply_rule(p, now_ms, running, false);
 }
 
 bool policy_blocks_commands(const struct policy *p)
@@ -323,12 +368,14 @@ int policy_gate_command(struct policy *p, uint64_t now_ms, const struct cmd_def 
     }
     if (!policy_command_starts_motion(def))
         return 0;
-    unsigned lost = lost_signals(p, now_ms);
+    /* A start right after a stall is judged with it at once: the PLC
+     * asks the robot to run before the gateway knows what it did. */
+    unsigned lost = lost_signals(p, now_ms, true);
     if (lost) {
         /* The PLC asks the robot to run without the signal: the rule as
          * if the start had gone out, so the outcome does not depend on
          * whether the start came before or after the loss. */
-        apply_rule(p, now_ms, true);
+        apply_rule(p, now_ms, true, true);
         snprintf(why, size, "%s lost: fault %d latched",
                  names[p->fault <= POLICY_FAULT_GATEWAY_STALL ? p->fault : 0], p->fault);
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;

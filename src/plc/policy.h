@@ -40,13 +40,22 @@
  * The gateway's own stall: the policy sees time only when the gateway's
  * loop turns (the check period, every input). A gap between two calls
  * longer than time_limit_ms means the gateway itself stood still (its
- * process stopped, its host suspended, a blocking call): the PLC's signals
+ * process stopped, starved of CPU, a blocking call; not a suspended host:
+ * the monotonic clock stands still with it, and the robot's own handler
+ * covers that): the PLC's signals
  * could not be read meanwhile, so the gap is not counted against them (the
  * heartbeat's and the connection's clocks move on by the gap) and the
  * stall is its own fault, POLICY_FAULT_GATEWAY_STALL, judged by the same
- * rule: while the robot runs or may run (a stalled gateway is blind, so
- * usually it may) the action goes out and the fault latches; idle, it is
- * only reported (sink.on_stall, once per stall, with its length).
+ * rule: while the robot runs or may run the action goes out and the fault
+ * latches; idle, it is only reported (sink.on_stall, once per stall, with
+ * its length). With check_period_ms set, it is judged at the next tick of
+ * the check period, after the loop has read what waited in its sockets
+ * (the status documents saying whether the robot ran; until then the
+ * status looks stale), and a start command before then at once. A turn
+ * late by less than the limit (more than two check periods) likewise
+ * defers the heartbeat's and the connection's verdicts to that tick, for
+ * the heartbeat waiting in a socket, once: a loss already due when the
+ * late gap began is judged at once.
  *
  * Write ownership, when configured: the client that feeds the heartbeat
  * owns the write side; other clients' writes are refused (exception 01).
@@ -103,6 +112,13 @@ struct policy_config {
      * blind, the worst is assumed anyway.
      */
     uint32_t start_unshown_max_ms;
+    /*
+     * The caller's check period (0: none, every gap up to the limit
+     * counts). A turn later than twice this, but within the limit, is a
+     * late turn: the heartbeat and connection verdicts wait for a call at
+     * a later time, after the turn's input has been read (see see_time).
+     */
+    uint32_t check_period_ms;
 };
 
 struct policy_sink {
@@ -144,6 +160,8 @@ struct policy {
     bool stall_pending;    /* a stall seen, not judged yet */
     uint64_t stalls;       /* seen, ever */
     uint64_t last_stall_ms; /* the last one's length */
+    uint64_t late_turn_ms;  /* the last late turn (check_period_ms); 0: none */
+    uint64_t late_turn_from_ms; /* the call before it: when its gap began */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;

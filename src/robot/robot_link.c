@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <sys/socket.h>
 
 static void start_connect(struct robot_link *link);
@@ -268,10 +269,24 @@ static void on_watchdog(uv_timer_t *t)
     char why[96];
 
     if (silent < link->cfg.silence_timeout_ms) {
+        link->watchdog_waited = false;
         uv_timer_start(&link->watchdog, on_watchdog,
                        link->cfg.silence_timeout_ms - silent, 0);
         return;
     }
+    /* Bytes waiting in the socket: the loop itself may have stood still
+     * (libuv runs its timers before it reads), not the robot. Read them
+     * first and judge again in a moment, once: a peer streaming bytes
+     * that make no document is still dropped. Without this, every stall
+     * of the gateway longer than the timeout dropped a healthy link. */
+    int fd = -1, waiting = 0;
+    if (!link->watchdog_waited && uv_fileno((uv_handle_t *)&link->tcp, &fd) == 0 &&
+        ioctl(fd, FIONREAD, &waiting) == 0 && waiting > 0) {
+        link->watchdog_waited = true;
+        uv_timer_start(&link->watchdog, on_watchdog, 10, 0);
+        return;
+    }
+    link->watchdog_waited = false;
     snprintf(why, sizeof(why), "no complete document for %llu ms",
              (unsigned long long)silent);
     robot_link_restart(link, why);
@@ -429,6 +444,7 @@ static void link_established(struct robot_link *link)
     link->connections++;
     link->last_error = 0;
     link->last_object_ms = uv_now(link->loop);
+    link->watchdog_waited = false;
     link->objects_on_connection = 0;
     if (link->unstable) {
         link->quiet_reconnects++;

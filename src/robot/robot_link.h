@@ -129,6 +129,7 @@ struct robot_link {
     struct log_ratelimit loss_log;
     uint64_t connections; /* successful connects, ever */
     uint64_t last_object_ms;
+    bool watchdog_waited; /* gave bytes waiting in the socket one more look */
 };
 
 /* Returns 0, or a negative errno (-EINVAL for a bad config, -ENOMEM). */

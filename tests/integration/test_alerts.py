@@ -687,6 +687,48 @@ def test_stall_is_the_gateways_own_fault():
             sim.stop()
 
 
+def test_stall_with_the_robot_idle_is_only_reported():
+    """jakagw SIGSTOPped for 1.5 s (longer than time_limit_ms and the
+    status link's silence timeout) with the robot idle, its PLC beating:
+    the stall is logged and counted, and that is all. The status documents
+    and the heartbeat sent meanwhile wait in their sockets, and libuv runs
+    its timers before it reads them: the status link's watchdog closed the
+    connection for "no complete document", and the stall, judged blind,
+    latched fault 4 and sent pause_program to an idle robot (every time)."""
+    sim = Sim("--log-commands")
+    gw = None
+    plc = None
+    try:
+        gw = Gateway(sim, "")
+        plc = HeartbeatPlc(gw.modbus_port)
+        probe = ModbusPlc(gw.modbus_port)
+        wait_until(lambda: probe.di(ROWS[("discrete_input", "status_fresh")])[0] == 1, 20,
+                   "live robot data")
+        probe.close()
+        time.sleep(1)  # the heartbeat armed
+        for _ in range(3):
+            gw.proc.send_signal(signal.SIGSTOP)
+            time.sleep(1.5)
+            gw.proc.send_signal(signal.SIGCONT)
+            time.sleep(1)
+        stalled = log_lines(gw, "gateway loop stalled for")
+        check(len(stalled) == 3, "three stall lines, got %s" % stalled)
+        check(plc.input_register(IR_FAULT) == 0, "fault %d after stalls with the robot idle; "
+              "log:\n%s" % (plc.input_register(IR_FAULT), gw.output()[-2000:]))
+        check(not log_lines(gw, "no complete document"), "the status link dropped: %s"
+              % log_lines(gw, "no complete document"))
+        check("pause_program" not in sim.output(), "a pause sent to an idle robot")
+        print("  3 stalls of 1.5 s, robot idle: logged, fault 0, status link kept")
+    finally:
+        if plc:
+            plc.close()
+        try:
+            if gw:
+                gw.stop()
+        finally:
+            sim.stop()
+
+
 def http_get(port, path):
     with urllib.request.urlopen("http://127.0.0.1:%d%s" % (port, path), timeout=5) as r:
         return r.read().decode()
@@ -773,6 +815,7 @@ TESTS = [
     test_never_seen_ages_have_no_sample_and_heartbeat_reads_back,
     test_stale_streak_survives_reconnects_that_bring_documents,
     test_stall_is_the_gateways_own_fault,
+    test_stall_with_the_robot_idle_is_only_reported,
     test_silent_status_stream,
     test_killed_simulator,
     test_heartbeat_stopped_robot_idle,

@@ -125,6 +125,7 @@ def test_package_contents():
             "/usr/share/man/man8/jakagw.8.gz", "/usr/share/man/man1/jakasim.1.gz",
             "/usr/share/doc/jakagw/copyright"]
     want += ["/lib/systemd/system/" + u for u in UNITS]
+    want.append("/lib/systemd/system-generators/jakagw-generator")
     for doc in ["README.md", "register-map.md", "register-map.csv", "plc-guide.md",
                 "jakagw.dbc"]:
         if doc == "README.md" or os.path.exists(os.path.join(ROOT, "docs", doc)):
@@ -296,6 +297,30 @@ def test_units_exposure():
     print("  systemd-analyze security: " + ", ".join(scores))
 
 
+def test_generator_follows_the_rtu_device():
+    """jakagw-generator, run as systemd runs it, writes a drop-in giving
+    jakagw@cell1 the one serial port its file's [rtu] device names (a by-id
+    name's ':' escaped for BindPaths=), and none for jakagw.service, whose
+    file leaves [rtu] disabled."""
+    device = "/dev/serial/by-id/usb-FTDI_FT232R_A1-0000:00:14.0-1-if00-port0"
+    conf = rootpath("/etc/jakagw/cell1.conf")
+    with open(conf, "w") as f:
+        f.write("[rtu]\nenabled = true\ndevice = %s\n" % device)
+    try:
+        in_root("/lib/systemd/system-generators/jakagw-generator", "/tmp/gen", "/tmp/gen.early",
+                "/tmp/gen.late")
+        made = sorted(os.listdir(rootpath("/tmp/gen")))
+        check(made == ["jakagw@cell1.service.d"], "drop-ins for %s" % made)
+        with open(rootpath("/tmp/gen/jakagw@cell1.service.d/50-jakagw-rtu.conf")) as f:
+            text = f.read()
+        for line in ("BindPaths=-" + device.replace(":", "\\:"), "DeviceAllow=%s rw" % device,
+                     "SupplementaryGroups=dialout", "After=dev-serial-by\\x2did-usb"):
+            check(line in text, "%r not in the drop-in:\n%s" % (line, text))
+    finally:
+        os.remove(conf)
+        shutil.rmtree(rootpath("/tmp/gen"), ignore_errors=True)
+
+
 def test_upgrades_keep_a_local_edit():
     """An edit survives an upgrade that ships the same configuration file
     silently; when the new version ships a changed one, dpkg asks (and, with
@@ -375,7 +400,8 @@ def main():
         run([test_make_deb_builds_the_package, test_package_contents,
              test_lintian_finds_no_error, test_installs_into_a_fresh_debian_12,
              test_installed_man_pages_render_without_warnings, test_units_verify,
-             test_units_exposure, test_upgrades_keep_a_local_edit,
+             test_units_exposure, test_generator_follows_the_rtu_device,
+             test_upgrades_keep_a_local_edit,
              test_remove_keeps_the_configuration_and_purge_removes_it])
     finally:
         cleanup()
