@@ -243,6 +243,9 @@ static void refresh_rtu_values(struct gateway *gw, double *v)
     v[GW_rtu_gap_discards] = (double)s->gap_discards;
     v[GW_rtu_turnaround_us] = s->turnaround_us;
     v[GW_rtu_turnaround_max_us] = s->turnaround_max_us;
+    v[GW_rtu_echoes] = (double)s->echoes;
+    v[GW_rtu_collisions] = (double)s->collisions;
+    v[GW_rtu_out_of_turn] = (double)s->out_of_turn;
 }
 
 static void refresh_tls_values(struct gateway *gw, double *v)

@@ -248,6 +248,24 @@ void metrics_render(const struct gateway *gw, struct strbuf *out)
     strbuf_printf(out, "jakagw_can_frames_total{result=\"dropped\"} %.15g\n",
                   v[GW_can_frames_dropped]);
     plain(out, "jakagw_can_errors_total", "counter", "CAN write errors.", v[GW_can_errors]);
+    plain(out, "jakagw_rtu_line_state", "gauge",
+          "The serial line (input register rtu_line_state): 0 off, 1 open and not polled, "
+          "2 polled, 3 device absent or failed.",
+          v[GW_rtu_line_state]);
+    head(out, "jakagw_rtu_frames_total", "counter",
+         "What the RTU line saw, by kind: good frames of every unit, CRC errors, other "
+         "units' frames, broadcasts, overruns, gaps inside frames, our replies read back "
+         "(echo), replies read back different (collision), frames out of turn.");
+    static const struct { const char *kind; enum gw_value value; } rtu_kinds[] = {
+        {"frame", GW_rtu_frames},          {"crc_error", GW_rtu_crc_errors},
+        {"foreign", GW_rtu_foreign_frames}, {"broadcast", GW_rtu_broadcasts},
+        {"overrun", GW_rtu_overruns},       {"gap", GW_rtu_gap_discards},
+        {"echo", GW_rtu_echoes},            {"collision", GW_rtu_collisions},
+        {"out_of_turn", GW_rtu_out_of_turn},
+    };
+    for (size_t i = 0; i < sizeof(rtu_kinds) / sizeof(rtu_kinds[0]); i++)
+        strbuf_printf(out, "jakagw_rtu_frames_total{kind=\"%s\"} %.15g\n", rtu_kinds[i].kind,
+                      v[rtu_kinds[i].value]);
     plain(out, "jakagw_tls_handshakes_total", "counter",
           "Modbus/TCP Security handshakes completed.", v[GW_tls_handshakes_ok]);
     plain(out, "jakagw_tls_failures_total", "counter",

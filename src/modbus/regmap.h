@@ -124,6 +124,9 @@ enum regmap_word_order {
     X(rtu_gap_discards)                                                        \
     X(rtu_turnaround_us)                                                       \
     X(rtu_turnaround_max_us)                                                   \
+    X(rtu_echoes)                                                              \
+    X(rtu_collisions)                                                          \
+    X(rtu_out_of_turn)                                                         \
     X(status_stale_ms)                                                         \
     X(loop_stalls)                                                             \
     X(loop_stall_last_ms)

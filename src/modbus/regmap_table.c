@@ -374,7 +374,6 @@ const struct regmap_row regmap_table_rows[] = {
     G_IR(97, command_link_tls_failure, REGMAP_U16, "",
          "[robot] tls: the same for the command port"),
 
-    /* ---- input registers: Modbus RTU on the serial line ([rtu]) ---- */
     /* ---- input registers: the gateway's own health ---- */
     G_IR(5520, status_stale_ms, REGMAP_U32, "ms",
          "How long the status has been stale, reconnects included: from when it went "
@@ -384,6 +383,7 @@ const struct regmap_row regmap_table_rows[] = {
          "Gateway loop stalls: a gap between loop turns longer than time_limit_ms "
          "(network-exception fault 4 when the robot may move)"),
     G_IR(5524, loop_stall_last_ms, REGMAP_U32, "ms", "Length of the last loop stall"),
+    /* ---- input registers: Modbus RTU on the serial line ([rtu]) ---- */
     G_IR(5540, rtu_line_state, REGMAP_U16, "",
          "Serial line: 0 off ([rtu] enabled = false), 1 open, no request for this unit "
          "within time_limit_ms, 2 open and polled, 3 device absent or failed (opened "
@@ -405,6 +405,15 @@ const struct regmap_row regmap_table_rows[] = {
          "the 3.5-character silence included"),
     G_IR(5556, rtu_turnaround_max_us, REGMAP_U32, "us",
          "The longest RTU turnaround since start or the last counter reset"),
+    G_IR(5558, rtu_echoes, REGMAP_U32, "",
+         "RTU replies of ours read back from the line and skipped: an adapter that echoes "
+         "(with local_echo = false, a hint to set local_echo = true is logged once)"),
+    G_IR(5560, rtu_collisions, REGMAP_U32, "",
+         "local_echo = true: a reply read back different from what was sent (another "
+         "sender on the line at the same time, or noise)"),
+    G_IR(5562, rtu_out_of_turn, REGMAP_U32, "",
+         "RTU frames that ended before our reply's wire time + t3.5: never executed (a "
+         "master that does not keep the 3.5-character silence, or an echo)"),
 
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",

@@ -56,6 +56,9 @@ def frame(unit, pdu):
     return body + crc16(body)
 
 
+IR_RTU_ECHOES = 5558  # input register rtu_echoes (u32)
+
+
 def read_ir_pdu(address, count):
     return struct.pack(">BHH", 4, address, count)
 
@@ -732,6 +735,10 @@ def test_echoing_line_acts_once():
                       frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)), "a read answered")
                 hints = log_lines(r.gw, "local_echo = true")
                 check(len(hints) == 1, "the hint once: %s" % r.gw.output())
+                # Input register rtu_echoes (5558) counts what was read back.
+                reply = em.request(frame(UNIT, read_ir_pdu(IR_RTU_ECHOES, 2)))
+                echoes = struct.unpack(">I", reply[3:7])[0] if reply else -1
+                check(echoes >= 1, "rtu_echoes reads %d: %r" % (echoes, reply))
             finally:
                 em.close()
     for reads_before in (0, 4):
