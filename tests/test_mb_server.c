@@ -136,7 +136,7 @@ static void write_all(int fd, const uint8_t *data, size_t size)
 /* Runs the loop until the server has no client left (at most 1 s). */
 static void pump_until_no_client(struct fixture *f)
 {
-    for (int i = 0; i < 1000 && f->srv.stats.clients; i++)
+    for (int i = 0; i < 5000 && f->srv.stats.clients; i++)
         uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
 }
 
@@ -333,7 +333,7 @@ static void a_client_without_a_socket_is_served_counted_and_released(void **stat
     /* At max_clients, a TCP newcomer is admitted; the line is not evicted. */
     f->srv.cfg.max_clients = 1;
     int fd = connect_client(f);
-    for (int i = 0; i < 200 && f->srv.stats.clients < 2; i++)
+    for (int i = 0; i < 5000 && f->srv.stats.clients < 2; i++)
         uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
     assert_int_equal(f->srv.stats.clients, 2);
     assert_int_equal(l.closes, 0);
@@ -341,7 +341,7 @@ static void a_client_without_a_socket_is_served_counted_and_released(void **stat
     close(fd);
 
     /* No request for its idle time: released, and its transport hears it. */
-    for (int i = 0; i < 1000 && l.closes == 0; i++)
+    for (int i = 0; i < 5000 && l.closes == 0; i++)
         uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
     assert_int_equal(l.closes, 1);
     assert_null(l.client);
@@ -368,7 +368,7 @@ static void a_line_at_max_clients_takes_no_slot_and_evicts_no_one(void **state)
     memset(&l, 0, sizeof(l));
     f->srv.cfg.max_clients = 1;
     int plc = connect_client(f);
-    for (int i = 0; i < 200 && f->srv.stats.clients < 1; i++)
+    for (int i = 0; i < 5000 && f->srv.stats.clients < 1; i++)
         uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
     assert_int_equal(f->srv.stats.clients, 1);
     for (int round = 0; round < 5; round++) {
@@ -378,7 +378,7 @@ static void a_line_at_max_clients_takes_no_slot_and_evicts_no_one(void **state)
         assert_int_equal(f->srv.stats.clients, 2);
         assert_int_equal(f->srv.stats.evictions, 0);
         /* Idle: released, to attach again. */
-        for (int i = 0; i < 1000 && l.client; i++)
+        for (int i = 0; i < 5000 && l.client; i++)
             uv_run(&f->loop, UV_RUN_NOWAIT), usleep(1000);
         assert_null(l.client);
     }
