@@ -310,7 +310,11 @@ def test_generator_follows_the_rtu_device():
         in_root("/lib/systemd/system-generators/jakagw-generator", "/tmp/gen", "/tmp/gen.early",
                 "/tmp/gen.late")
         made = sorted(os.listdir(rootpath("/tmp/gen")))
-        check(made == ["jakagw@cell1.service.d"], "drop-ins for %s" % made)
+        device_unit = sh(["systemd-escape", "--path", "--suffix=device", device]).stdout.strip()
+        check(made == sorted(["jakagw@cell1.service.d", device_unit + ".d"]),
+              "drop-ins for %s" % made)
+        with open(rootpath("/tmp/gen/%s.d/50-jakagw-rtu.conf" % device_unit)) as f:
+            check("JobRunningTimeoutSec=10s" in f.read(), "no bounded wait for the device")
         with open(rootpath("/tmp/gen/jakagw@cell1.service.d/50-jakagw-rtu.conf")) as f:
             text = f.read()
         for line in ("BindPaths=-" + device.replace(":", "\\:"), "DeviceAllow=%s rw" % device,
