@@ -72,10 +72,22 @@ def check(cond, what):
         raise TestFailure(what)
 
 
+_ports_given = set()
+
+
 def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A loopback port nobody listens on, never one this process was given
+    before: two calls before either port is bound could otherwise return
+    the same port (the kernel hands a closed ephemeral port out again), and
+    a gateway given it for two listeners refuses to start."""
+    for _ in range(100):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port not in _ports_given:
+            _ports_given.add(port)
+            return port
+    raise TestFailure("no free loopback port in 100 tries")
 
 
 def wait_until(cond, timeout, what, interval=0.02):
