@@ -290,7 +290,7 @@ valgrind: all unit-tests
 FUZZ_SECONDS ?= 60
 # make test under CI=true: each target from its seeds for this long (the
 # whole CI run has 20 minutes; make fuzz is for longer runs).
-CI_FUZZ_SECONDS ?= 15
+CI_FUZZ_SECONDS ?= 10
 FUZZ_BUILD ?= build-fuzz
 FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox fuzz_rtu
 FUZZ_MODULES := framer status json_arena regmap regmap_table mb_request log command plc_commands \
