@@ -59,6 +59,14 @@ RECORD = os.environ.get("JAKAGW_RECORD_ALERTS") == "1"
 PATIENCE = float(os.environ.get("JAKAGW_ALERT_PATIENCE", "0"))
 
 ROWS = {(r["table"], r["name"]): int(r["address"]) for r in map_rows()}
+
+
+def heartbeat_armed(probe):
+    """Waits until the gateway has seen the PLC's heartbeat change: its age
+    (input register plc_heartbeat_age_ms) reads less than a second, not
+    'never' (4294967295)."""
+    address = ROWS[("input_register", "plc_heartbeat_age_ms")]
+    wait_until(lambda: probe.u32(address) < 1000, 10, "the PLC heartbeat seen")
 IR_FAULT = ROWS[("input_register", "fault")]
 IR_LOOP_STALLS = ROWS.get(("input_register", "loop_stalls"))
 COIL_FAULT_RESET = ROWS[("coil", "fault_reset")]
@@ -650,8 +658,8 @@ def test_stall_is_the_gateways_own_fault():
         probe = ModbusPlc(gw.modbus_port)
         wait_until(lambda: probe.di(ROWS[("discrete_input", "status_fresh")])[0] == 1, 20,
                    "live robot data")
+        heartbeat_armed(probe)
         probe.close()
-        time.sleep(1)  # the heartbeat armed
         check(plc.input_register(IR_FAULT) == 0, "a fault before the stall")
         gw.proc.send_signal(signal.SIGSTOP)
         time.sleep(3)
@@ -704,8 +712,8 @@ def test_stall_with_the_robot_idle_is_only_reported():
         probe = ModbusPlc(gw.modbus_port)
         wait_until(lambda: probe.di(ROWS[("discrete_input", "status_fresh")])[0] == 1, 20,
                    "live robot data")
+        heartbeat_armed(probe)
         probe.close()
-        time.sleep(1)  # the heartbeat armed
         for _ in range(3):
             gw.proc.send_signal(signal.SIGSTOP)
             time.sleep(1.5)
