@@ -36,7 +36,7 @@ BUILD = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else
                         os.environ.get("JAKAGW_BIN_DIR", os.path.join(ROOT, "build")))
 os.environ.setdefault("JAKAGW_BIN_DIR", BUILD)
 sys.path.insert(0, os.path.join(ROOT, "tests", "integration"))
-from harness import TestFailure, check, run, SIM_COMMAND_MARK  # noqa: E402
+from harness import TestFailure, check, run, wait_until, SIM_COMMAND_MARK  # noqa: E402
 
 VMDIR = os.path.join(BUILD, "service-vm")
 MAGIC = 0x4A4B
@@ -317,13 +317,9 @@ def delivered(unit="robot", after=None):
 
 
 def wait_vm(cond, timeout, what, interval=0.2):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = cond()
-        if value:
-            return value
-        time.sleep(interval)
-    raise TestFailure("timed out after %.0f s waiting for %s" % (timeout, what))
+    """wait_until, polling the VM (each look is a round trip to its agent)
+    every 0.2 s."""
+    return wait_until(cond, timeout, what, interval)
 
 
 def active(unit):
