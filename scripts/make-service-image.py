@@ -9,7 +9,7 @@ plant installs it. Prints the image's path.
 
 What else is in it, and why:
   - the packages the cases use inside the VM: jakasim is in the package;
-    python3-pymodbus (the PLC), mbpoll, can-utils (candump), iproute2 (ip,
+    python3-pymodbus (the PLC), can-utils (candump), iproute2 (ip,
     ss), openssl (the TLS case's certificates), kmod, udev (the serial
     ports' /dev/serial/by-id names), dbus, libnss-systemd (dynamic users);
   - this machine's kernel modules (the kernel the VM boots is this
@@ -19,7 +19,10 @@ What else is in it, and why:
     host's commands and sends back what they printed over a virtio serial
     port; jakasim as the robot (robot.service);
   - a newer build of the same package (VERSION+upgrade1, repacked from the
-    .deb) in /root/debs for the upgrade case.
+    .deb) in /root/debs for the upgrade case;
+  - for speed under TCG (DPKG_OPTIONS, MASKED_UNITS, MASKED_GENERATORS):
+    dpkg without fsync and without other packages' translations and
+    documents, and no boot units or generators that no case uses.
 
 The image is an ext4 file made with mke2fs -d (no loop device, no mount:
 this works in CI's chroot), cached as OUTDIR/image-KEY.ext4, KEY a hash of
@@ -42,8 +45,38 @@ ROOT = os.path.abspath(os.path.join(HERE, ".."))
 AGENT = os.path.join(ROOT, "tests", "service", "agent.py")
 
 PACKAGES = ["systemd-sysv", "udev", "dbus", "libnss-systemd", "kmod", "iproute2", "can-utils",
-            "openssl", "python3", "python3-pymodbus", "python3-serial-asyncio", "mbpoll",
-            "procps"]
+            "openssl", "python3", "python3-pymodbus", "python3-serial-asyncio", "procps"]
+# dpkg's settings in the image (/etc/dpkg/dpkg.cfg.d/99mmdebstrap), for the
+# build and for the upgrade case's apt in the VM. No fsync per file: the VM
+# boots a throw-away snapshot. No translations, manuals or documents but
+# jakagw's own: fewer files to unpack, copy into the image, and walk in the
+# purge check's find over the whole disk (a third of its files were
+# translations).
+DPKG_OPTIONS = ["force-unsafe-io",
+                "path-exclude=/usr/share/locale/*", "path-include=/usr/share/locale/locale.alias",
+                "path-exclude=/usr/share/man/*", "path-include=/usr/share/man/man*/jaka*",
+                "path-exclude=/usr/share/doc/*", "path-include=/usr/share/doc/jakagw/*"]
+# What systemd starts at boot that no case uses, masked: under TCG each
+# costs the boot a fraction of a second, and the utmp records were on the
+# critical chain to multi-user.target. (The units of jakagw, udev, dbus,
+# journald and the generators a case relies on stay as Debian ships them.)
+MASKED_UNITS = ["systemd-update-utmp.service", "systemd-update-utmp-runlevel.service",
+                "systemd-logind.service", "modprobe@drm.service", "modprobe@efi_pstore.service",
+                "modprobe@fuse.service", "modprobe@loop.service", "modprobe@dm_mod.service",
+                "sys-kernel-debug.mount", "sys-kernel-tracing.mount", "dev-hugepages.mount",
+                "fstrim.timer", "dpkg-db-backup.timer", "systemd-tmpfiles-clean.timer",
+                "e2scrub_all.timer"]
+# Generators for what the VM does not have (encrypted or verity disks, a
+# GPT disk, hibernation, SysV scripts, rc.local, kernel command line units),
+# masked in /etc/systemd/system-generators (systemd.generator(7)): systemd
+# runs every generator at each daemon-reload, and the cases and the
+# package's maintainer scripts reload a dozen times. jakagw-generator,
+# fstab and getty stay.
+MASKED_GENERATORS = ["systemd-cryptsetup-generator", "systemd-debug-generator",
+                     "systemd-gpt-auto-generator", "systemd-hibernate-resume-generator",
+                     "systemd-integritysetup-generator", "systemd-rc-local-generator",
+                     "systemd-run-generator", "systemd-system-update-generator",
+                     "systemd-sysv-generator", "systemd-veritysetup-generator"]
 # Driver directories of this machine's kernel copied into the image (with
 # every module they need from elsewhere): USB host controllers and serial
 # adapters, serial ports, virtio (the agent's port), CAN and vcan.
@@ -121,7 +154,8 @@ def image_key(deb, version):
     h = hashlib.sha256()
     for path in [os.path.abspath(__file__), AGENT, deb] + apt_sources():
         h.update(file_hash(path).encode())
-    h.update(" ".join(PACKAGES + MODULE_DIRS + [version, str(IMAGE_MB)]).encode())
+    h.update(" ".join(PACKAGES + DPKG_OPTIONS + MASKED_UNITS + MASKED_GENERATORS + MODULE_DIRS +
+                      [version, str(IMAGE_MB)]).encode())
     return h.hexdigest()[:16]
 
 
@@ -180,7 +214,8 @@ def build(outdir, deb):
                os.path.join(debs, "jakagw_%s+upgrade1.deb" % deb_version))
         print("make-service-image: mmdebstrap (%s) with %s" % (", ".join(PACKAGES),
               os.path.basename(deb)), file=sys.stderr)
-        sh(["mmdebstrap", "--mode=root", "--variant=apt", "--include=" + ",".join(PACKAGES),
+        sh(["mmdebstrap", "--mode=root", "--variant=apt", "--include=" + ",".join(PACKAGES)] +
+           ["--dpkgopt=" + o for o in DPKG_OPTIONS] + [
             "--customize-hook=mkdir -p \"$1/root/debs\"",
             "--customize-hook=copy-in %s %s /root/debs" % (
                 os.path.join(debs, os.path.basename(deb)),
@@ -218,7 +253,14 @@ def build(outdir, deb):
         # No login prompt on the console; no network to wait for.
         sh(["chroot", root, "systemctl", "mask", "serial-getty@ttyS0.service",
             "getty@tty1.service", "systemd-networkd-wait-online.service",
-            "apt-daily.timer", "apt-daily-upgrade.timer", "e2scrub_reap.service"])
+            "apt-daily.timer", "apt-daily-upgrade.timer", "e2scrub_reap.service"] + MASKED_UNITS)
+        generators = os.path.join(root, "etc/systemd/system-generators")
+        os.makedirs(generators)
+        for name in MASKED_GENERATORS:
+            check_generator = os.path.join(root, "lib/systemd/system-generators", name)
+            if not os.path.exists(check_generator):
+                raise SystemExit("make-service-image: no generator %s to mask" % name)
+            os.symlink("/dev/null", os.path.join(generators, name))
         sh(["chroot", root, "passwd", "-d", "root"])
         tmp = image + ".tmp"
         sh(["mke2fs", "-q", "-t", "ext4", "-L", "jakagw-vm", "-d", root, tmp,
