@@ -139,7 +139,9 @@ if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
     # Latency, jitter, reordering, duplication and a rate limit (sch_netem),
     # in one more boot of the same kernel: about 2.5 minutes.
     echo "== tests/can/test_netem_vm.py ($build)"
-    # Its false-trip table with 2 trials per cell here (make test-netem: 5).
+    # Its 200 ms trials 10 times and its false-trip table with 2 trials per
+    # cell here (make test-netem: 20 and 5).
+    JAKAGW_NETEM_TRIALS=${JAKAGW_NETEM_TRIALS:-10} \
     JAKAGW_NETEM_TABLE_TRIALS=${JAKAGW_NETEM_TABLE_TRIALS:-2} JAKAGW_BIN_DIR="$build" \
         "$PYTHON" tests/can/test_netem_vm.py 2>&1 | tee "$log"
     status=${PIPESTATUS[0]}
