@@ -252,7 +252,7 @@ screenshot: all
 test-faults: all
 	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/integration/test_faults.py
 
-# docs/register-map.md is generated from the table in src/regmap_table.c.
+# docs/register-map.md is generated from the table in src/modbus/regmap_table.c.
 docs: $(BUILD)/jakagw man
 	$(BUILD)/jakagw --print-map md > docs/register-map.md
 	$(BUILD)/jakagw --print-map csv > docs/register-map.csv

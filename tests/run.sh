@@ -22,6 +22,8 @@
 # test boots an amd64 kernel, where ARM binaries cannot run: it runs with
 # the amd64 build only, and so does the service VM test (the package under
 # systemd in qemu, tests/service/test_service_vm.py), after the package test.
+# The alert suite (tests/integration/test_alerts.py, mostly waiting on
+# Prometheus) runs beside those two when they run, its output after theirs.
 set -u
 cd "$(dirname "$0")/.."
 
@@ -40,7 +42,9 @@ passed=0
 failed=0
 failures=""
 log=$(mktemp)
-trap 'rm -f "$log"' EXIT
+alerts_beside="" alerts_pid="" alerts_log=""
+# A suite still running beside the others is stopped with the run.
+trap '[ -n "$alerts_pid" ] && kill "$alerts_pid" 2>/dev/null; rm -f "$log" "$alerts_log"' EXIT
 
 # Adds a suite's cases to the totals; a suite that exits non-zero without
 # reporting a failed case (a crash, a sanitizer abort) counts one failure.
@@ -51,6 +55,16 @@ record() { # name exit-status passed-cases failed-cases
         failures="$failures $1"
         [ "$4" -eq 0 ] && failed=$((failed + 1))
     fi
+}
+
+# record() for a suite that printed "N passed, N failed" into a file.
+record_summary() { # name exit-status file
+    local line ok bad
+    line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$3" | tail -1)
+    ok=${line%% passed*}
+    bad=${line#*, }
+    bad=${bad%% failed}
+    record "$1" "$2" "${ok:-0}" "${bad:-0}"
 }
 
 for build in $BUILDS; do
@@ -87,12 +101,18 @@ for build in $BUILDS; do
                 suite_args="test_command_into_dead_link_never_delivered test_reset_mid_stream"
         fi
         # The alert rules in a real Prometheus server, every fault in
-        # parallel (about 2.5 minutes): whole with the first native build;
+        # parallel (about 2.5 minutes, nearly all of it waiting for
+        # Prometheus's "for" durations): whole with the first native build,
+        # beside the package and service VM tests when those run (below);
         # the sanitizer build runs the gateway's own cases (the stall, the
         # never-seen ages, the stale streak: 16 s) and the promtool
         # replays; ARM builds do not run it.
         if [ "$name" = alerts ]; then
             [ -n "${JAKAGW_ARCH:-}" ] && continue
+            if [ "$build" = "${BUILDS%% *}" ] && [ "$what" = all ] && [ -z "$SUITES" ]; then
+                alerts_beside=$build
+                continue
+            fi
             [ "$build" != "${BUILDS%% *}" ] &&
                 suite_args="test_stall_is_the_gateways_own_fault test_never_seen_ages_have_no_sample_and_heartbeat_reads_back test_stale_streak_survives_reconnects_that_bring_documents test_recorded_series_replay_with_promtool"
         fi
@@ -116,11 +136,7 @@ for build in $BUILDS; do
         LOAD_SECONDS=$load_seconds JAKAGW_BROWSER_TESTS=$browser_tests JAKAGW_BIN_DIR="$build" \
             "$PYTHON" "$t" $suite_args 2>&1 | tee "$log"
         status=${PIPESTATUS[0]}
-        line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
-        ok=${line%% passed*}
-        bad=${line#*, }
-        bad=${bad%% failed}
-        record "$t($build)" "$status" "${ok:-0}" "${bad:-0}"
+        record_summary "$t($build)" "$status" "$log"
     done
 done
 
@@ -131,23 +147,17 @@ if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
     echo "== tests/can/test_can_vm.py ($build)"
     JAKAGW_BIN_DIR="$build" "$PYTHON" tests/can/test_can_vm.py 2>&1 | tee "$log"
     status=${PIPESTATUS[0]}
-    line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
-    ok=${line%% passed*}
-    bad=${line#*, }
-    bad=${bad%% failed}
-    record "tests/can/test_can_vm.py($build)" "$status" "${ok:-0}" "${bad:-0}"
+    record_summary "tests/can/test_can_vm.py($build)" "$status" "$log"
     # Latency, jitter, reordering, duplication and a rate limit (sch_netem),
     # in one more boot of the same kernel: about 2.5 minutes.
     echo "== tests/can/test_netem_vm.py ($build)"
-    # Its false-trip table with 2 trials per cell here (make test-netem: 5).
+    # Its 200 ms trials 10 times and its false-trip table with 2 trials per
+    # cell here (make test-netem: 20 and 5).
+    JAKAGW_NETEM_TRIALS=${JAKAGW_NETEM_TRIALS:-10} \
     JAKAGW_NETEM_TABLE_TRIALS=${JAKAGW_NETEM_TABLE_TRIALS:-2} JAKAGW_BIN_DIR="$build" \
         "$PYTHON" tests/can/test_netem_vm.py 2>&1 | tee "$log"
     status=${PIPESTATUS[0]}
-    line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
-    ok=${line%% passed*}
-    bad=${line#*, }
-    bad=${bad%% failed}
-    record "tests/can/test_netem_vm.py($build)" "$status" "${ok:-0}" "${bad:-0}"
+    record_summary "tests/can/test_netem_vm.py($build)" "$status" "$log"
 fi
 
 # The Debian package, built and installed into a fresh Debian 12 root file
@@ -156,15 +166,21 @@ fi
 # it out unless WITH_PACKAGE=1.
 if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; then
     build=${BUILDS%% *}
+    # The alert suite waits on Prometheus most of its 2.5 minutes and uses
+    # little CPU: it runs beside the package and service VM tests, which
+    # build, install and boot, and its output follows theirs.
+    if [ -n "$alerts_beside" ]; then
+        echo "== tests/integration/test_alerts.py ($alerts_beside) started beside the package tests; its output follows them"
+        alerts_log=$(mktemp)
+        JAKAGW_BIN_DIR="$alerts_beside" "$PYTHON" tests/integration/test_alerts.py \
+            >"$alerts_log" 2>&1 &
+        alerts_pid=$!
+    fi
     echo "== tests/package/test_package.py ($build)"
     package_mark=$(mktemp)
     "$PYTHON" tests/package/test_package.py "$build" 2>&1 | tee "$log"
     status=${PIPESTATUS[0]}
-    line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
-    ok=${line%% passed*}
-    bad=${line#*, }
-    bad=${bad%% failed}
-    record "tests/package/test_package.py" "$status" "${ok:-0}" "${bad:-0}"
+    record_summary "tests/package/test_package.py" "$status" "$log"
 
     # The installed package under systemd in a VM (also make test-service):
     # once, with the first native build, on the package the package test
@@ -178,13 +194,17 @@ if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; t
         "$PYTHON" tests/service/test_service_vm.py "$build" 2>&1 | tee "$log"
         status=${PIPESTATUS[0]}
         unset JAKAGW_SERVICE_DEB
-        line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$log" | tail -1)
-        ok=${line%% passed*}
-        bad=${line#*, }
-        bad=${bad%% failed}
-        record "tests/service/test_service_vm.py" "$status" "${ok:-0}" "${bad:-0}"
+        record_summary "tests/service/test_service_vm.py" "$status" "$log"
     fi
     rm -f "$package_mark"
+    if [ -n "$alerts_pid" ]; then
+        wait "$alerts_pid"
+        status=$?
+        alerts_pid=""
+        echo "== tests/integration/test_alerts.py ($alerts_beside)"
+        cat "$alerts_log"
+        record_summary "tests/integration/test_alerts.py($alerts_beside)" "$status" "$alerts_log"
+    fi
 fi
 
 echo

@@ -163,7 +163,8 @@ static void unlatch(struct plc *p)
  * policy only while the robot runs a program. */
 static int ensure_running(struct plc *p)
 {
-    for (int i = 0; i < 30; i++) {
+    /* 6 s: a TCG guest on a busy host took more than 3 s once. */
+    for (int i = 0; i < 60; i++) {
         if (read_ir(p->monitor, IR_INTERP_STATE) == INTERP_RUNNING)
             return 1;
         if (i % 10 == 0)

@@ -12,6 +12,7 @@ import csv
 import io
 import json
 import os
+import random
 import shlex
 import shutil
 import signal
@@ -75,14 +76,25 @@ def check(cond, what):
 _ports_given = set()
 
 
+# The ARM runs go side by side in CI (.ci/run), each its own process tree:
+# each takes its ports from a range of its own, below the kernel's
+# ephemeral range (32768 and up), so that neither run nor an outgoing
+# connection can be handed a port the other was just given.
+_PORT_RANGES = {"armhf": (20000, 26000), "arm64": (26000, 32000)}
+
+
 def free_port():
     """A loopback port nobody listens on, never one this process was given
     before: two calls before either port is bound could otherwise return
     the same port (the kernel hands a closed ephemeral port out again), and
     a gateway given it for two listeners refuses to start."""
+    span = _PORT_RANGES.get(os.environ.get("JAKAGW_ARCH", ""))
     for _ in range(100):
         with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
+            try:
+                s.bind(("127.0.0.1", random.randrange(*span) if span else 0))
+            except OSError:
+                continue  # in use: another one
             port = s.getsockname()[1]
         if port not in _ports_given:
             _ports_given.add(port)

@@ -15,6 +15,7 @@ import time
 
 from pymodbus.client import ModbusTcpClient
 
+import harness
 from harness import (ModbusPlc, TestFailure, check, mbap, raw_client, read_bits,
                      read_input_registers, recv_adu, run, running, wait_until)
 
@@ -375,11 +376,20 @@ def test_reserved_function_codes_close_the_connection():
             check("reserved for exception responses" in gw.output(), "no log line")
 
 
+# How far from the 1 s deadline the test's early and late requests go. The
+# gateway's clock for a frame starts when its loop reads the first bytes;
+# under qemu-user on a busy machine that read can come 100 ms or more
+# after the client sent them (1 of 6 "late" requests was answered at
+# 1.1 s client time), so emulated runs judge the deadline at +-0.3 s.
+MARGIN = 0.3 if harness.RUNNER else 0.1
+
+
 def timed_completions(port, first, second, answers_first):
     """Twelve connections, started 20 ms apart: each sends 'first' (and
-    reads its answer if 'answers_first'), then 'second' 0.9 s (even ones)
-    or 1.1 s (odd ones) later. Returns (late and answered, on time and
-    refused, on time but this client was itself late), as gaps in s."""
+    reads its answer if 'answers_first'), then 'second' 1 s - MARGIN (even
+    ones) or 1 s + MARGIN (odd ones) later. Returns (late and answered, on
+    time and refused, on time but this client was itself late), as gaps
+    in s."""
     socks = [raw_client(port) for _ in range(12)]
     events = [(time.monotonic() + 0.02 * i, "first", i) for i in range(12)]
     started, gaps = {}, {}
@@ -389,7 +399,7 @@ def timed_completions(port, first, second, answers_first):
         pause = when - time.monotonic()
         if pause > 0:
             time.sleep(pause)  # the test is about time: act at the moment
-        delay = 1.1 if i % 2 else 0.9
+        delay = 1 + MARGIN if i % 2 else 1 - MARGIN
         if kind == "first":
             started[i] = time.monotonic()
             socks[i].sendall(first)
@@ -413,7 +423,7 @@ def timed_completions(port, first, second, answers_first):
         if i % 2 and answered:
             late_answered.append(round(gaps[i], 3))
         elif not i % 2 and not answered:
-            if gaps[i] > 0.97:
+            if gaps[i] > 1 - MARGIN + 0.07:
                 client_late += 1
             else:
                 on_time_refused.append(round(gaps[i], 3))
@@ -422,8 +432,9 @@ def timed_completions(port, first, second, answers_first):
 
 def check_timed_completions(what, result):
     late_answered, on_time_refused, client_late = result
-    print("  %s: after 1.1 s answered %d of 6; after 0.9 s refused %d of 6 (%d sent late)"
-          % (what, len(late_answered), len(on_time_refused), client_late))
+    print("  %s: after %.1f s answered %d of 6; after %.1f s refused %d of 6 (%d sent late)"
+          % (what, 1 + MARGIN, len(late_answered), 1 - MARGIN, len(on_time_refused),
+             client_late))
     check(not late_answered, "%s: answered after %s s" % (what, late_answered))
     check(not on_time_refused, "%s: refused after %s s" % (what, on_time_refused))
     check(client_late < 3, "%s: the test client itself was late %d times" % (what, client_late))
@@ -432,7 +443,7 @@ def check_timed_completions(what, result):
 def test_frame_deadline_is_precise():
     """frame_timeout_ms = 1000: a request completed 1.1 s after its first
     byte is refused (connection closed, no answer), one completed after
-    0.9 s is answered."""
+    0.9 s is answered (1.3 and 0.7 s under qemu-user: MARGIN)."""
     with start("[modbus]\nframe_timeout_ms = 1000\n") as (sim, gw):
         request = mbap(2, struct.pack(">BHH", 4, 0, 1))
         check_timed_completions("request completed",
@@ -442,7 +453,8 @@ def test_frame_deadline_is_precise():
 
 def test_idle_timeout_is_precise():
     """idle_timeout_ms = 1000: a client that polls again 1.1 s after its
-    last request has been closed; one that polls after 0.9 s is answered."""
+    last request has been closed; one that polls after 0.9 s is answered
+    (1.3 and 0.7 s under qemu-user: MARGIN)."""
     with start("[modbus]\nidle_timeout_ms = 1000\n") as (sim, gw):
         check_timed_completions("next request",
                                 timed_completions(gw.modbus_port,
