@@ -79,7 +79,7 @@ struct rig {
     size_t executed;
     uint8_t exec[MAX_EXEC][RTU_MAX_ADU];
     size_t exec_size[MAX_EXEC];
-    unsigned events[3];
+    unsigned events[RTU_EVENT_COUNT];
     bool answer;          /* send a reply when a request is executed */
     uint64_t turnaround;  /* from the request's hand-on to the reply */
     uint64_t reply_at;    /* when the last reply started, 0 none */

@@ -408,37 +408,26 @@ static void on_request(void *user, const uint8_t *frame, size_t size)
     mb_client_received(rtu->client, MBAP_SIZE + pdu_size);
 }
 
-/* What the line noticed about our own transmissions: each said once. */
+/* What the line noticed about our own transmissions, said once each. */
+static const char *const event_text[RTU_EVENT_COUNT] = {
+    [RTU_EVENT_ECHO] = "a reply came back as it was sent (the adapter echoes): skipped; "
+                       "set [rtu] local_echo = true for this adapter",
+    [RTU_EVENT_COLLISION] = "a reply came back different from what was sent: another "
+                            "transmitter on the line at the same time (collision); counted",
+    [RTU_EVENT_NO_ECHO] = "local_echo = true, but a reply did not come back: does this "
+                          "adapter echo?",
+};
+
 static void on_event(void *user, enum rtu_event event)
 {
     struct mb_rtu *rtu = user;
 
-    switch (event) {
-    case RTU_EVENT_ECHO:
-        if (rtu->cfg.local_echo || rtu->echo_logged)
-            return;
-        rtu->echo_logged = true;
-        log_warn("rtu: %s: a reply came back as it was sent (the adapter echoes): skipped; "
-                 "set [rtu] local_echo = true for this adapter",
-                 rtu->device);
+    /* With local_echo the echo is expected: nothing to say. */
+    if (event >= RTU_EVENT_COUNT || rtu->event_logged[event] ||
+        (event == RTU_EVENT_ECHO && rtu->cfg.local_echo))
         return;
-    case RTU_EVENT_COLLISION:
-        if (rtu->collision_logged)
-            return;
-        rtu->collision_logged = true;
-        log_warn("rtu: %s: a reply came back different from what was sent: another "
-                 "transmitter on the line at the same time (collision); counted",
-                 rtu->device);
-        return;
-    case RTU_EVENT_NO_ECHO:
-        if (rtu->no_echo_logged)
-            return;
-        rtu->no_echo_logged = true;
-        log_warn("rtu: %s: local_echo = true, but a reply did not come back: does this "
-                 "adapter echo?",
-                 rtu->device);
-        return;
-    }
+    rtu->event_logged[event] = true;
+    log_warn("rtu: %s: %s", rtu->device, event_text[event]);
 }
 
 static struct rtu_line_hooks line_hooks_of(struct mb_rtu *rtu)

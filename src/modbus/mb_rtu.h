@@ -141,7 +141,7 @@ struct mb_rtu {
     } tx[MB_RTU_TX_FRAMES];  /* tx[0] goes first */
     size_t tx_count;
     bool tx_waiting;         /* polling for writable */
-    bool echo_logged, collision_logged, no_echo_logged; /* each said once */
+    bool event_logged[RTU_EVENT_COUNT]; /* each said once */
     uint16_t transaction;
     struct mb_rtu_stats stats;
     struct log_ratelimit log_limit;

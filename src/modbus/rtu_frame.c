@@ -593,8 +593,14 @@ static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
     } else if (in_our_turn(line)) {
         /* Begun in our turn: no master may speak before t3.5 after our
          * frame. Our frame heard back, or a collision. */
-        if (line->rx_used == line->sent_size &&
-            memcmp(line->rx, line->sent, line->sent_size) == 0) {
+        if (line->echo_broken) {
+            /* local_echo: what came back in our own turn differs from
+             * our frame: another transmitter spoke over it. */
+            line->stats.collisions++;
+            emit(hooks, RTU_EVENT_COLLISION);
+            line->conv = RTU_CONV_UNSYNCED;
+        } else if (line->rx_used == line->sent_size &&
+                   memcmp(line->rx, line->sent, line->sent_size) == 0) {
             line->stats.echoes++;
             emit(hooks, RTU_EVENT_ECHO);
         } else {

@@ -182,6 +182,7 @@ enum rtu_event {
     RTU_EVENT_ECHO,      /* our frame heard back in our turn (count in stats) */
     RTU_EVENT_COLLISION, /* local echo differed from what we sent */
     RTU_EVENT_NO_ECHO,   /* local echo: nothing of our frame came back */
+    RTU_EVENT_COUNT      /* how many there are; not an event */
 };
 
 struct rtu_line_hooks {

@@ -299,9 +299,32 @@ def test_readme_is_an_entrance():
     check(not lost, "former README sections no longer one link away: %s" % lost)
 
 
+def unrun_tests(text):
+    """The test_* and case_* functions a suite defines but never names
+    again: its run list (or its case table) would not run them."""
+    names = re.findall(r"^def ((?:test|case)_\w+)\(", text, re.M)
+    return [n for n in names if len(re.findall(r"\b%s\b" % n, text)) < 2]
+
+
+def test_every_test_function_is_run():
+    """A test written and left out of its suite's run list passes for ever
+    without running: every test_*/case_* function of every suite is named
+    somewhere besides its definition."""
+    sample = "def test_a():\n    pass\n\n\ndef test_b():\n    pass\n\n\nrun([test_a])\n"
+    check(unrun_tests(sample) == ["test_b"], "the finder misses test_b: %s" % unrun_tests(sample))
+    unrun = {}
+    for path in sorted(glob.glob(os.path.join(ROOT, "tests", "*", "test_*.py"))):
+        with open(path) as f:
+            left = unrun_tests(f.read())
+        if left:
+            unrun[os.path.relpath(path, ROOT)] = left
+    check(not unrun, "defined but never run: %s" % unrun)
+
+
 if __name__ == "__main__":
     run([test_every_folder_has_a_layer_and_headers_sit_beside_sources,
          test_includes_point_only_down, test_circle_detection_finds_a_circle,
          test_no_include_circle, test_only_the_wiring_includes_gateway_h,
          test_every_docs_link_resolves, test_every_docs_path_named_elsewhere_exists,
-         test_every_make_target_the_docs_name_exists, test_readme_is_an_entrance])
+         test_every_make_target_the_docs_name_exists, test_readme_is_an_entrance,
+         test_every_test_function_is_run])

@@ -57,6 +57,7 @@ def frame(unit, pdu):
 
 
 IR_RTU_ECHOES = 5558  # input register rtu_echoes (u32)
+IR_RTU_COLLISIONS = 5560  # input register rtu_collisions (u32)
 
 
 def read_ir_pdu(address, count):
@@ -634,11 +635,14 @@ class EchoingMaster:
     gives back what the gateway sends (a passive RS-232/485 converter, an
     echo jumper): a thread reads the pty and, once echo is on, writes every
     reply back to the gateway 'echo_delay' seconds later. It keeps all it
-    read, so a test counts the replies, however many an echo loop draws."""
+    read, so a test counts the replies, however many an echo loop draws.
+    With 'garble' the echo comes back with its last byte changed, as when a
+    second transmitter talks at the same time."""
 
     def __init__(self, path, t35, echo_delay=0.0):
         self.master = RawMaster(path, t35)
         self.echo = False
+        self.garble = False
         self.echo_delay = echo_delay
         self.lock = threading.Lock()
         self.buf = b""
@@ -662,6 +666,8 @@ class EchoingMaster:
             if self.echo:
                 if self.echo_delay:
                     time.sleep(self.echo_delay)
+                if self.garble:
+                    data = data[:-1] + bytes([data[-1] ^ 0xFF])
                 os.write(fd, data)
 
     def replies(self):
@@ -760,6 +766,40 @@ def test_echoing_line_acts_once():
                       frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC)), "a read answered")
             finally:
                 em.close()
+
+
+def test_local_echo_faults_are_counted_and_logged_once():
+    """local_echo = true on an adapter that gives nothing back: reads are
+    answered and "did not come back" is logged once; then an echo that
+    differs from the reply (another transmitter at the same time): each is
+    a collision, counted in rtu_collisions (5560), logged once."""
+    read = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
+    answer = frame(UNIT, struct.pack(">BBH", 4, 2, MAGIC))
+    with rig(local_echo="true") as r:
+        em = EchoingMaster(r.line.master, r.t35())
+        try:
+            for i in range(3):
+                check(em.request(read) == answer, "read %d answered without an echo" % i)
+            wait_until(lambda: log_lines(r.gw, "did not come back"), 5, "the missing echo logged")
+            em.echo = em.garble = True
+            answered = 0
+            for i in range(3):
+                before = u32(r.plc, IR_RTU_COLLISIONS)
+                answered += em.request(read) == answer
+                wait_until(lambda: u32(r.plc, IR_RTU_COLLISIONS) > before, 5,
+                           "collision %d counted" % (i + 1))
+            collisions = u32(r.plc, IR_RTU_COLLISIONS)
+            missing = log_lines(r.gw, "did not come back")
+            garbled = log_lines(r.gw, "collision")
+            print("    no echo: logged %d time(s); garbled echo: %d collisions counted, %d reads "
+                  "answered, logged %d time(s)" % (len(missing), collisions, answered,
+                                                   len(garbled)))
+            check(answered == 3, "%d of 3 reads answered with a garbled echo" % answered)
+            check(collisions == 3, "rtu_collisions %d after 3 garbled echoes" % collisions)
+            check(len(missing) == 1 and len(garbled) == 1,
+                  "each logged once: %s" % r.gw.output())
+        finally:
+            em.close()
 
 
 def test_echo_judged_when_it_arrived():
@@ -905,7 +945,8 @@ if __name__ == "__main__":
          test_device_back_but_refusing_rs485_is_logged,
          test_write_pending_at_stop_is_never_acted_on_unanswered, test_rtu_and_tcp_at_once,
          test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence,
-         test_echoing_line_acts_once, test_echo_judged_when_it_arrived,
+         test_echoing_line_acts_once, test_local_echo_faults_are_counted_and_logged_once,
+         test_echo_judged_when_it_arrived,
          test_frame_hidden_in_a_foreign_response_is_never_acted_on,
          test_repeated_write_is_answered_and_acted_on_each_time,
          test_line_never_takes_a_slot_nor_evicts])
