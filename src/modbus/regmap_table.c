@@ -88,7 +88,12 @@
           cmd ": the robot's errorCode of the last reply"),                    \
     P_ROW(REGMAP_INPUT_REGISTER, (base) + 3, 1, REGMAP_STR, 20, "",           \
           "result_" cmd "_error_msg", "result." cmd ".error_msg",             \
-          cmd ": the robot's errorMsg, or the gateway's reason")
+          cmd ": the robot's errorMsg, or the gateway's reason"),              \
+    P_ROW(REGMAP_INPUT_REGISTER, (base) + 23, 1, REGMAP_U16, 0, "",           \
+          "result_" cmd "_count", "result." cmd ".count",                     \
+          cmd ": triggers handled, whatever their outcome (sent, refused or "  \
+          "invalid); wraps at 65535. A PLC reads it before its trigger and "   \
+          "waits for it to change")
 
 /* Bounds for float parameters: any finite value a controller could take. */
 #define FMAX 1e9
@@ -344,6 +349,23 @@ const struct regmap_row regmap_table_rows[] = {
           "motion_enabled", "The motion-enable coil as the policy sees it"),
     P_ROW(REGMAP_INPUT_REGISTER, 66, 1, REGMAP_STR, 24, "", "write_owner",
           "write_owner", "Address of the client that owns the write side; empty: none"),
+
+    /* ---- input registers: motion and the policy's reaction ---- */
+    P_ROW(REGMAP_INPUT_REGISTER, 5600, 1, REGMAP_U16, 0, "", "motion_state",
+          "motion.state", "Last motion command: 0 none yet, 1 moving (from its reply on), "
+          "2 arrived (a later status shows it in position at its target), 3 stopped "
+          "before arriving (stop, fault, e-stop, robot error), 4 not arrived in time"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5601, 1, REGMAP_U16, 0, "", "motion_count",
+          "motion.count", "Motion commands sent (joint_move, end_move, moveL, from a "
+          "trigger or a mailbox); wraps at 65535"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5602, 1, REGMAP_U16, 0, "", "fault_reaction",
+          "network_exception.reaction", "What the robot did about the latched fault: "
+          "0 nothing due (no fault, or idle), 1 flag only (action keep), 2 action sent, "
+          "awaiting the status, 3 paused, 4 stopped, 5 still moving: stop sent, "
+          "6 still moving after the stop (see the page)"),
+    P_ROW(REGMAP_INPUT_REGISTER, 5603, 1, REGMAP_U16, 0, "", "plc_heartbeat_state",
+          "plc_heartbeat_state", "The PLC heartbeat: 0 never seen changing (motion "
+          "refused with require_heartbeat), 1 running, 2 lost"),
 
     /* ---- input registers: Modbus/TCP Security (mbaps, [tls]) ---- */
     G_IR(90, tls_clients, REGMAP_U16, "", "Modbus/TCP Security clients connected now"),
@@ -617,6 +639,9 @@ const struct regmap_row regmap_table_rows[] = {
           "mailbox.error_code", "Exactly-once mailbox: the robot's errorCode"),
     P_ROW(REGMAP_INPUT_REGISTER, 4605, 1, REGMAP_STR, 20, "", "mailbox_error_msg",
           "mailbox.error_msg", "Exactly-once mailbox: errorMsg or the gateway's reason"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4625, 1, REGMAP_U16, 0, "", "mailbox_count",
+          "mailbox.count", "Exactly-once mailbox: writes of a sequence number handled, "
+          "whatever their outcome; wraps at 65535"),
     P_ROW(REGMAP_INPUT_REGISTER, 4650, 1, REGMAP_U16, 0, "", "json_state",
           "json.state", "JSON mailbox: state, as result_*_state"),
     P_ROW(REGMAP_INPUT_REGISTER, 4651, 1, REGMAP_I32, 0, "", "json_error_code",
@@ -627,6 +652,9 @@ const struct regmap_row regmap_table_rows[] = {
           "json.reply_truncated", "JSON mailbox: 1 when the reply is longer than json_reply"),
     P_ROW(REGMAP_INPUT_REGISTER, 4674, 1, REGMAP_U32, 0, "bytes", "json_reply_length",
           "json.reply_length", "JSON mailbox: the whole reply's length"),
+    P_ROW(REGMAP_INPUT_REGISTER, 4676, 1, REGMAP_U16, 0, "", "json_count",
+          "json.count", "JSON mailbox: triggers handled, whatever their outcome; "
+          "wraps at 65535"),
     P_ROW(REGMAP_INPUT_REGISTER, 4700, 1, REGMAP_STR, 256, "", "json_reply",
           "json.reply", "JSON mailbox: the reply, UTF-8 text (its first 512 bytes)"),
     /* ---- input registers: robot information from the command port ---- */
