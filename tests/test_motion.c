@@ -75,6 +75,15 @@ static void only_the_three_moves_count(void **state)
                                     "[0,0,10,0,0,0],\"speed\":20,\"relFlag\":1}"));
     assert_int_equal(m.count, 3);
     assert_int_equal(m.state, MOTION_MOVING);
+    /* A member given twice counts with its last value, as the robot reads
+     * it: the target is the far one, never the arm's own position. */
+    motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[0,90,90,0,90,0],"
+                        "\"jointPosition\":[45,90,90,0,90,0],\"speed\":20}");
+    assert_true(m.target_known && m.target[0] == 45);
+    motion_answered(&m, T0 + 1, "joint_move", true, false);
+    feed(T0 + 20, HOME, HOME_TCP, 1);
+    feed(T0 + 40, HOME, HOME_TCP, 1);
+    assert_int_equal(m.state, MOTION_MOVING);
     /* It wraps as a u16 register does. */
     m.count = 65535;
     motion_sent(&m, T0, "{\"cmdName\":\"moveL\",\"cartPosition\":[0,0,1,0,0,0],\"speed\":1}");
