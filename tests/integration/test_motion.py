@@ -55,6 +55,7 @@ I_MOTION_STATE, I_MOTION_COUNT = addr("input_register", "motion_state"), \
     addr("input_register", "motion_count")
 I_REACTION, I_FAULT = addr("input_register", "fault_reaction"), addr("input_register", "fault")
 D_INPOS = addr("discrete_input", "inpos")
+I_ROBOT_HANDLE, HANDLE_ACCEPTED = addr("input_register", "robot_handle"), 2
 
 IDLE, MOVING, ARRIVED, STOPPED, TIMED_OUT = 0, 1, 2, 3, 4
 R_PAUSED, R_STOPPED, R_ESCALATED, R_STILL_MOVING = 3, 4, 5, 6
@@ -117,8 +118,9 @@ class Plc(ModbusPlc):
 
     def ready(self, motion_enable=True):
         """Powered, enabled, the heartbeat running, motion enable held."""
-        for _ in range(3):
-            self.feed()
+        # Commands wait for the robot to accept its network-exception handler.
+        wait_until(lambda: self.feed() or self.ir(I_ROBOT_HANDLE)[0] == HANDLE_ACCEPTED, 10,
+                   "the robot's handler accepted")
         if motion_enable:
             check(self.coil(C_MOTION_ENABLE, 1) == 0, "motion enable refused")
         for coil in (C_POWER_ON, C_ENABLE):
