@@ -174,9 +174,9 @@ def move_then_fault(fault, name):
         fault(plc)
         travel, settled_ms = watch_travel(plc, 0, at_fault, fault_at)
         end = plc.joints()[0]
-        print("  %s: joint 1 %.1f -> %.1f deg (travel %.1f deg, still %.0f ms after the "
-              "fault; before the fix the move ran on at %.0f deg/s)"
-              % (name, at_fault, end, travel, settled_ms, SPEED))
+        print("  %s during a %.0f deg/s joint_move: joint 1 %.1f -> %.1f deg in the 1.5 s "
+              "after (%.1f deg; its last change %.0f ms after the fault)"
+              % (name, SPEED, at_fault, end, travel, settled_ms))
         # Detection (the heartbeat: the limit) plus the reaction, at 20 deg/s.
         detect_s = LIMIT_MS / 1000 if name == "heartbeat lost" else 0
         bound = SPEED * (detect_s + SIM_PERIOD_MS / 1000 + LIMIT_MS / 10000 + SLACK_S)
