@@ -304,6 +304,13 @@ static void what_the_arm_does(void **state)
     v.interp_state = 2;
     motion_document(&m, T0 + 80, &v);
     assert_int_equal(motion_robot(&m, true), POLICY_ROBOT_PAUSED);
+    v.inpos = 0; /* a move paused by the robot's handler: not in position, held */
+    motion_document(&m, T0 + 90, &v);
+    assert_int_equal(motion_robot(&m, true), POLICY_ROBOT_PAUSED);
+    v.joints[0] += 1;
+    motion_document(&m, T0 + 95, &v);
+    assert_int_equal(motion_robot(&m, true), POLICY_ROBOT_MOVING);
+    v.inpos = 1;
     v.interp_state = 0;
     motion_document(&m, T0 + 100, &v);
     assert_int_equal(motion_robot(&m, true), POLICY_ROBOT_STILL);

@@ -340,10 +340,14 @@ enum policy_robot motion_robot(const struct motion *m, bool fresh)
     if (!fresh || !m->have_last)
         return POLICY_ROBOT_UNKNOWN;
     const struct motion_view *v = &m->last;
+    bool unchanged = m->have_previous && joints_still(&m->previous, v);
     if (v->interp_state == 1 || v->interp_state == 3)
         return POLICY_ROBOT_PROGRAM;
+    /* Paused: a paused move is not in position, yet its arm holds. */
+    if (v->interp_state == 2)
+        return unchanged ? POLICY_ROBOT_PAUSED : POLICY_ROBOT_MOVING;
     /* In position and unchanged since the document before: still. */
-    if (v->inpos != 0 && m->have_previous && joints_still(&m->previous, v))
-        return v->interp_state == 2 ? POLICY_ROBOT_PAUSED : POLICY_ROBOT_STILL;
+    if (v->inpos != 0 && unchanged)
+        return POLICY_ROBOT_STILL;
     return POLICY_ROBOT_MOVING;
 }
