@@ -168,9 +168,12 @@ def test_moves_as_the_manual_says():
             a, b = docs.next(), docs.next()
             check(a["joint_actual_position"] == b["joint_actual_position"] and b["inpos"],
                   "%s: the arm still moves" % what)
-            sim.proc.send_signal(sig)  # cleared, released
             if sig == signal.SIGRTMIN:
                 check(not b["enabled"], "an emergency stop leaves the robot enabled")
+            sim.proc.send_signal(sig)  # cleared, released
+            key = "protective_stop" if sig == signal.SIGUSR2 else "emergency_stop"
+            while docs.next()[key]:
+                pass
         r.close()
         docs.close()
     finally:
