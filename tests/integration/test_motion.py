@@ -325,7 +325,10 @@ def escalation(fail_times):
         def settled():
             seen.add(plc.ir(I_REACTION)[0])
             return want in seen
-        wait_until(settled, 3, "reaction %d; seen %s" % (want, seen))
+        try:
+            wait_until(settled, 3, "reaction %d" % want)
+        except Exception as e:
+            raise type(e)("%s; IR 5602 read %s" % (e, sorted(seen)))
         check(R_ESCALATED in seen or len(sim_commands(sim, "stop_program")) == 2,
               "no escalation seen: %s" % seen)
         check(len(sim_commands(sim, "stop_program")) == 2,
