@@ -47,7 +47,6 @@ C_STOP, C_MOTION_ENABLE = addr("coil", "cmd_stop_program"), addr("coil", "motion
 C_JSON_TRIGGER = addr("coil", "json_trigger")
 H_HEARTBEAT = addr("holding_register", "plc_heartbeat")
 H_JOINT_MOVE, H_END_MOVE, H_MOVEL = 300, 320, 340
-H_MOVEL_REL = 356
 H_MAILBOX, H_JSON = addr("holding_register", "mailbox_code"), addr("holding_register",
                                                                     "json_request")
 I_JOINTS, I_TCP = 200, 212
@@ -237,8 +236,10 @@ def test_motion_state_first_reading_and_arrival():
         check(plc.di(D_INPOS)[0] == 1, "state 2 while not in position")
         # moveL relative: +30 mm in z from where the TCP is.
         before = plc.tcp()
-        check(plc.regs(H_MOVEL, f32_regs([0, 0, 30, 0, 0, 0, 100, 100])) == 0, "moveL params")
-        check(plc.reg(H_MOVEL_REL, 1) == 0, "moveL relFlag")
+        # The whole block in one write, as the guide says: target, speed,
+        # accel, relFlag, the unassigned register 357, tol.
+        check(plc.regs(H_MOVEL, f32_regs([0, 0, 30, 0, 0, 0, 100, 100]) + [1, 0]
+                       + f32_regs([0])) == 0, "moveL block")
         check(plc.pulse(C_MOVEL) == 0, "moveL refused")
         check(plc.state() == [MOVING, 2], "moveL: not moving, count 2 at once")
         wait_until(lambda: plc.state()[0] != MOVING, 5, "moveL to end")
