@@ -252,10 +252,12 @@ screenshot: all
 test-faults: all
 	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/integration/test_faults.py
 
-# docs/register-map.md is generated from the table in src/modbus/regmap_table.c.
+# docs/register-map.md is generated from the table in src/modbus/regmap_table.c,
+# and so are the PLC library's constants (plc/jaka_map.st).
 docs: $(BUILD)/jakagw man
 	$(BUILD)/jakagw --print-map md > docs/register-map.md
 	$(BUILD)/jakagw --print-map csv > docs/register-map.csv
+	$(BUILD)/jakagw --print-map st > plc/jaka_map.st
 	$(BUILD)/jakagw -c config/jakagw.conf --print-dbc > docs/jakagw.dbc
 
 # The CAN mirror on a real kernel CAN stack: boots Debian's kernel in qemu
