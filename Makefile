@@ -220,6 +220,16 @@ else
 	@BUILDS=$(BUILD) JAKAGW_ARCH=$(ARCH) tests/run.sh
 endif
 
+# The PLC library (plc/) run as a PLC: builds matiec from its source
+# tarball outside this tree (MATIEC_TARBALL, default
+# ../shared/tools/matiec/matiec-*.tar.gz; cached in $(BUILD)/matiec-HASH),
+# compiles every .st file of plc/ with iec2c, runs the blocks' unit tests
+# and the end-to-end cases against jakagw and jakasim (tests/plc/test_plc.py,
+# docs/plc-library.md). make test runs it too (tests/run.sh).
+.PHONY: test-plc
+test-plc: all
+	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/plc/test_plc.py
+
 # 32 Modbus clients at 1000 requests/s in total for LOAD_SECONDS, with
 # commands, the heartbeat and the status at 125 Hz; make test runs it too
 # (tests/run.sh runs every integration test).

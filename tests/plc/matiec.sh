@@ -9,8 +9,9 @@
 # The tarball is outside this repository (MATIEC_TARBALL, default
 # ../shared/tools/matiec/matiec-*.tar.gz from the repository's root): matiec
 # is a test tool (GPL-3.0, its runtime headers LGPL), never shipped or
-# copied into the project. The build goes to BUILD_DIR/matiec-HASH, HASH
-# the tarball's SHA-256, and is reused while that directory holds iec2c.
+# copied into the project. The build goes to BUILD_DIR/matiec-HASH (or
+# MATIEC_CACHE/matiec-HASH: CI keeps it across runs there), HASH the
+# tarball's SHA-256, and is reused while that directory holds iec2c.
 #
 # Exit status: 0 built (or cached); 1 the build failed; 77 no tarball (the
 # caller decides: make test-plc fails under CI=true, skips otherwise).
@@ -30,7 +31,7 @@ if [ ! -f "$tarball" ]; then
 fi
 
 hash=$(sha256sum "$tarball" | cut -c1-12)
-dir=$(realpath -m "$build/matiec-$hash")
+dir=$(realpath -m "${MATIEC_CACHE:-$build}/matiec-$hash")
 if [ -x "$dir/iec2c" ] && [ -f "$dir/lib/C/iec_std_lib.h" ]; then
     echo "$dir"
     exit 0
