@@ -5,7 +5,10 @@
  * recorded by a fake sink: the heartbeat watch, the connection watch, both,
  * the motion-enable coil (a level), starts the status cannot show yet, the
  * command gate, the latch and its reset, the write owner and the fault's
- * age.
+ * age; the action chosen for what the arm does (a move outside a program
+ * is stopped, never paused), the check of the action against the status
+ * after its reply and its one escalation, and a property test over
+ * generated faults (POLICY_PROPERTY_SEED replays a run).
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -14,7 +17,11 @@
 #include <cmocka.h>
 
 #include <modbus.h>
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
+#include <time.h>
+#include <unistd.h>
 
 #include "policy.h"
 
@@ -1070,10 +1077,338 @@ static void stall_judged_with_the_status_read_after_it(void **state)
     expect_one(POLICY_PAUSE, POLICY_FAULT_GATEWAY_STALL);
 }
 
+/* ---- what the action is, and whether the robot did it ---- */
+
+static enum policy_robot robot_now;
+static enum policy_reaction reactions[16];
+static unsigned reaction_calls;
+
+static enum policy_robot fake_robot(void *user)
+{
+    (void)user;
+    return robot_now;
+}
+
+static void record_reaction(void *user, enum policy_reaction reaction, enum policy_action sent_,
+                            uint64_t after_ms)
+{
+    (void)user, (void)sent_, (void)after_ms;
+    if (reaction_calls < 16)
+        reactions[reaction_calls] = reaction;
+    reaction_calls++;
+}
+
+#define PERIOD 20 /* the status period of these tests */
+#define CHECK 10  /* their check period */
+
+static void start_with_robot(enum policy_action action, bool motion_enable,
+                             enum policy_robot robot)
+{
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = action,
+                                .watch = POLICY_WATCH_HEARTBEAT,
+                                .motion_enable = motion_enable, .check_period_ms = CHECK};
+    struct policy_sink sink = {.send_action = record_action, .robot = fake_robot,
+                               .on_reaction = record_reaction, .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    reaction_calls = 0;
+    robot_now = robot;
+    policy_init(&p, &cfg, &sink);
+    /* Documents every PERIOD ms up to T0: the period is known. */
+    for (uint64_t t = T0 - 10 * PERIOD; t <= T0; t += PERIOD)
+        policy_status_document(&p, t);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+}
+
+/* Time passes from 'from' to 'to': a document every PERIOD ms, a check
+ * every CHECK ms, the robot as robot_now says. */
+static void run_span(uint64_t from, uint64_t to, bool moving)
+{
+    for (uint64_t t = from; t <= to; t += CHECK) {
+        if ((t - T0) % PERIOD == 0)
+            policy_status_document(&p, t);
+        policy_check(&p, t, moving);
+    }
+}
+
+static void heartbeat_lost_at(uint64_t t, bool moving)
+{
+    run_span(T0, t, moving);
+}
+
+static void pause_becomes_stop_for_a_move_outside_a_program(void **state)
+{
+    (void)state;
+    /* The issue: pause_program answered "no program is running" and the
+     * move went on. Moving with no program: stop_program. */
+    start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_MOVING);
+    heartbeat_lost_at(T0 + LIMIT, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
+    assert_int_equal(p.reaction, POLICY_REACTION_SENT);
+    /* Motion enable's own action likewise. */
+    start_with_robot(POLICY_PAUSE, true, POLICY_ROBOT_MOVING);
+    policy_motion_enable(&p, T0, true, MOVING);
+    policy_motion_enable(&p, T0 + 5, false, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_MOTION_ENABLE);
+}
+
+static void pause_stays_pause_for_a_program(void **state)
+{
+    (void)state;
+    start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_PROGRAM);
+    heartbeat_lost_at(T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    start_with_robot(POLICY_PAUSE, true, POLICY_ROBOT_PROGRAM);
+    policy_motion_enable(&p, T0, true, MOVING);
+    policy_motion_enable(&p, T0 + 5, false, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+    /* stop configured: stop, whatever runs. */
+    start_with_robot(POLICY_STOP, false, POLICY_ROBOT_PROGRAM);
+    heartbeat_lost_at(T0 + LIMIT, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
+}
+
+static void move_not_shown_yet_is_stopped(void **state)
+{
+    (void)state;
+    /* A joint_move answered, the status still shows the arm in position
+     * where it was (the controller's lag): the drop stops it. */
+    start_with_robot(POLICY_PAUSE, true, POLICY_ROBOT_STILL);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_start_sent(&p, T0 + 1);
+    policy_start_kind(&p, true);
+    policy_start_answered(&p, T0 + 3);
+    policy_motion_enable(&p, T0 + 30, false, IDLE);
+    expect_one(POLICY_STOP, POLICY_FAULT_MOTION_ENABLE);
+    /* The same with play_program: a program, paused. */
+    start_with_robot(POLICY_PAUSE, true, POLICY_ROBOT_STILL);
+    policy_motion_enable(&p, T0, true, IDLE);
+    policy_start_sent(&p, T0 + 1);
+    policy_start_kind(&p, false);
+    policy_start_answered(&p, T0 + 3);
+    policy_motion_enable(&p, T0 + 30, false, IDLE);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+}
+
+static void blind_after_a_move_stops(void **state)
+{
+    (void)state;
+    start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_UNKNOWN);
+    policy_start_sent(&p, T0 + 1);
+    policy_start_kind(&p, true);
+    policy_start_answered(&p, T0 + 3);
+    check_span(T0 + 10, T0 + LIMIT, MOVING); /* stale: no documents */
+    expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
+    /* Blind after a program's start: the configured pause. */
+    start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_UNKNOWN);
+    policy_start_sent(&p, T0 + 1);
+    policy_start_kind(&p, false);
+    policy_start_answered(&p, T0 + 3);
+    check_span(T0 + 10, T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+}
+
+static void keep_is_flag_only(void **state)
+{
+    (void)state;
+    start_with_robot(POLICY_KEEP, false, POLICY_ROBOT_MOVING);
+    heartbeat_lost_at(T0 + LIMIT + 100, MOVING);
+    assert_int_equal(sent.calls, 0);
+    assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
+    assert_int_equal(p.reaction, POLICY_REACTION_FLAG_ONLY);
+    policy_reset(&p);
+    assert_int_equal(p.reaction, POLICY_REACTION_NONE);
+}
+
+static void reaction_follows_the_status_after_the_reply(void **state)
+{
+    (void)state;
+    start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_MOVING);
+    heartbeat_lost_at(T0 + LIMIT, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
+    /* Stopped before the reply: not judged until a document after it. */
+    robot_now = POLICY_ROBOT_STILL;
+    policy_check(&p, T0 + LIMIT + 5, MOVING);
+    assert_int_equal(p.reaction, POLICY_REACTION_SENT);
+    policy_action_answered(&p, T0 + LIMIT + 6);
+    policy_check(&p, T0 + LIMIT + 7, MOVING);
+    assert_int_equal(p.reaction, POLICY_REACTION_SENT);
+    run_span(T0 + LIMIT + 10, T0 + LIMIT + 20, MOVING); /* a document at +20 */
+    assert_int_equal(p.reaction, POLICY_REACTION_STOPPED);
+    assert_int_equal(sent.calls, 1);
+    run_span(T0 + LIMIT + 30, T0 + LIMIT + 500, IDLE);
+    assert_int_equal(sent.calls, 1);
+    assert_int_equal(p.reaction, POLICY_REACTION_STOPPED);
+    /* A program paused reads paused. */
+    start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_PROGRAM);
+    heartbeat_lost_at(T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    policy_action_answered(&p, T0 + LIMIT + 2);
+    robot_now = POLICY_ROBOT_PAUSED;
+    run_span(T0 + LIMIT + 10, T0 + LIMIT + 20, IDLE);
+    assert_int_equal(p.reaction, POLICY_REACTION_PAUSED);
+    assert_int_equal(sent.calls, 1);
+}
+
+static void still_moving_is_escalated_once(void **state)
+{
+    (void)state;
+    /* A robot that answers but does not stop. */
+    start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_MOVING);
+    heartbeat_lost_at(T0 + LIMIT, MOVING);
+    expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
+    uint64_t answered = T0 + LIMIT + 4;
+    policy_action_answered(&p, answered);
+    run_span(T0 + LIMIT + 10, answered + PERIOD - 1, MOVING);
+    assert_int_equal(sent.calls, 1); /* within one period after the reply */
+    run_span(answered + PERIOD - 1 + CHECK, answered + PERIOD + CHECK, MOVING);
+    assert_int_equal(sent.calls, 2);
+    assert_int_equal(sent.action[1], POLICY_STOP);
+    assert_int_equal(p.reaction, POLICY_REACTION_ESCALATED);
+    /* The second stop answered, still moving: final, never a third. */
+    policy_action_answered(&p, answered + 40);
+    run_span(answered + 50, answered + 2000, MOVING);
+    assert_int_equal(sent.calls, 2);
+    assert_int_equal(p.reaction, POLICY_REACTION_STILL_MOVING);
+    assert_int_equal(reactions[reaction_calls - 1], POLICY_REACTION_STILL_MOVING);
+    policy_reset(&p);
+    assert_int_equal(p.reaction, POLICY_REACTION_NONE);
+}
+
+static void escalated_stop_that_works_reads_stopped(void **state)
+{
+    (void)state;
+    start_with_robot(POLICY_STOP, false, POLICY_ROBOT_MOVING);
+    heartbeat_lost_at(T0 + LIMIT, MOVING);
+    policy_action_answered(&p, T0 + LIMIT + 2);
+    run_span(T0 + LIMIT + 10, T0 + LIMIT + 60, MOVING);
+    assert_int_equal(sent.calls, 2);
+    assert_int_equal(p.reaction, POLICY_REACTION_ESCALATED);
+    policy_action_answered(&p, T0 + LIMIT + 62);
+    robot_now = POLICY_ROBOT_STILL;
+    run_span(T0 + LIMIT + 70, T0 + LIMIT + 200, IDLE);
+    assert_int_equal(p.reaction, POLICY_REACTION_STOPPED);
+    assert_int_equal(sent.calls, 2);
+}
+
+/*
+ * The property: whatever runs, whatever is lost and when, whatever the
+ * robot does after the action, (1) a move outside a program that may run
+ * is never answered with pause_program alone: the first action is
+ * stop_program; (2) an answered action whose status shows the arm still
+ * moving one period and a check after the reply is followed by exactly
+ * one stop_program more, and the reaction ends still moving, never a
+ * third; (3) an arm shown still after the reply ends paused or stopped
+ * with nothing more sent.
+ */
+static uint64_t rng;
+
+static unsigned next_random(unsigned n)
+{
+    rng ^= rng << 13;
+    rng ^= rng >> 7;
+    rng ^= rng << 17;
+    return (unsigned)(rng % n);
+}
+
+static void generated_faults_stop_what_moves(void **state)
+{
+    (void)state;
+    const char *seed_env = getenv("POLICY_PROPERTY_SEED");
+    uint64_t seed = seed_env ? strtoull(seed_env, NULL, 0)
+                             : (uint64_t)time(NULL) * 2654435761u ^ (uint64_t)getpid() << 32;
+    unsigned runs = 20000;
+    if (!seed)
+        seed = 1;
+    printf("policy property: %u runs, POLICY_PROPERTY_SEED=0x%llx\n", runs,
+           (unsigned long long)seed);
+    fflush(stdout);
+    rng = seed;
+    for (unsigned run = 0; run < runs; run++) {
+        enum policy_action configured = (enum policy_action)next_random(3);
+        bool by_motion_enable = next_random(2);
+        enum policy_robot robot = (enum policy_robot)next_random(5);
+        bool started = next_random(2), start_is_move = next_random(2);
+        unsigned start_at = next_random(LIMIT); /* ms after T0 */
+        unsigned after = next_random(3); /* 0 stops, 1 keeps moving, 2 stops after escalation */
+
+        start_with_robot(configured, by_motion_enable, robot);
+        if (by_motion_enable)
+            policy_motion_enable(&p, T0, true, robot != POLICY_ROBOT_STILL);
+        uint64_t t = T0;
+        if (started) {
+            run_span(T0, T0 + start_at, robot == POLICY_ROBOT_MOVING);
+            policy_start_sent(&p, T0 + start_at + 1);
+            policy_start_kind(&p, start_is_move);
+            policy_start_answered(&p, T0 + start_at + 2);
+            t = T0 + start_at + 2;
+        }
+        bool moving = robot == POLICY_ROBOT_MOVING || robot == POLICY_ROBOT_PROGRAM ||
+                      robot == POLICY_ROBOT_UNKNOWN;
+        bool unshown = policy_start_unshown(&p, t + 1);
+        if (by_motion_enable)
+            policy_motion_enable(&p, t + 1, false, moving);
+        else
+            check_span(t + 1, T0 + start_at + LIMIT + 20, moving);
+        bool may_run = moving || unshown;
+        bool acts = may_run && (by_motion_enable || configured != POLICY_KEEP);
+        if (!acts) {
+            if (!may_run)
+                assert_int_equal(p.fault, POLICY_FAULT_NONE);
+            assert_int_equal(sent.calls, 0);
+            continue;
+        }
+        assert_int_equal(sent.calls, 1);
+        bool move_may_run = robot == POLICY_ROBOT_MOVING ||
+                            (start_is_move && started &&
+                             (robot == POLICY_ROBOT_UNKNOWN ||
+                              (robot == POLICY_ROBOT_STILL && unshown) ||
+                              (robot == POLICY_ROBOT_PAUSED && unshown)));
+        if (move_may_run)
+            assert_int_equal(sent.action[0], POLICY_STOP); /* (1) */
+        /* What the robot does after the action. */
+        uint64_t now = p.last_seen_ms;
+        robot_now = after == 1 || after == 2 ? POLICY_ROBOT_MOVING
+                    : robot == POLICY_ROBOT_PROGRAM && sent.action[0] == POLICY_PAUSE
+                        ? POLICY_ROBOT_PAUSED
+                        : POLICY_ROBOT_STILL;
+        policy_action_answered(&p, now + 1);
+        for (uint64_t u = now + 2; u <= now + 2 + 3 * PERIOD + 2 * CHECK; u += 1) {
+            if (u % PERIOD == 0)
+                policy_status_document(&p, u);
+            policy_check(&p, u, true);
+            if (sent.calls == 2 && p.reaction_answered == false) {
+                if (after == 2)
+                    robot_now = POLICY_ROBOT_STILL;
+                policy_action_answered(&p, u);
+            }
+        }
+        if (after == 0) { /* (3) */
+            assert_int_equal(sent.calls, 1);
+            assert_true(p.reaction == POLICY_REACTION_STOPPED ||
+                        p.reaction == POLICY_REACTION_PAUSED);
+        } else { /* (2) */
+            assert_int_equal(sent.calls, 2);
+            assert_int_equal(sent.action[1], POLICY_STOP);
+            assert_int_equal(p.reaction, after == 1 ? POLICY_REACTION_STILL_MOVING
+                                                    : POLICY_REACTION_STOPPED);
+        }
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(heartbeat_not_armed_before_a_first_change),
+        cmocka_unit_test(pause_becomes_stop_for_a_move_outside_a_program),
+        cmocka_unit_test(pause_stays_pause_for_a_program),
+        cmocka_unit_test(move_not_shown_yet_is_stopped),
+        cmocka_unit_test(blind_after_a_move_stops),
+        cmocka_unit_test(keep_is_flag_only),
+        cmocka_unit_test(reaction_follows_the_status_after_the_reply),
+        cmocka_unit_test(still_moving_is_escalated_once),
+        cmocka_unit_test(escalated_stop_that_works_reads_stopped),
+        cmocka_unit_test(generated_faults_stop_what_moves),
         cmocka_unit_test(robot_may_move_assumes_the_worst_when_blind),
         cmocka_unit_test(gate_refuses_under_a_fault_and_without_motion_enable),
         cmocka_unit_test(heartbeat_armed_on_first_write),

@@ -112,6 +112,9 @@ static void on_status_document(struct robot_link *link, const char *json,
     gw->last_document_ms = uv_now(gw->loop);
     gw->last_document_bytes = size;
     track_status_streak(gw, true);
+    struct motion_view view;
+    motion_view_of(gw->status, &view);
+    motion_document(&gw->motion, gw->last_document_ms, &view);
     policy_status_document(&gw->policy, gw->last_document_ms);
     regmap_encode_status(&gw->image, gw->status);
     if (!was_fresh)
@@ -225,6 +228,26 @@ static void show_policy(struct gateway *gw)
     regmap_set_number(img, rows->faults, 0, (double)(p->faults & 0xFFFF), true);
     regmap_set_number(img, rows->motion_enabled, 0, p->motion_enabled, true);
     regmap_set_text(img, rows->write_owner, 0, p->owner_address);
+    regmap_set_number(img, rows->reaction, 0, p->reaction, true);
+}
+
+/* The last move's state: its time bound judged now, an end logged once. */
+static void show_motion(struct gateway *gw)
+{
+    struct motion *m = &gw->motion;
+    const struct gateway_policy_rows *rows = &gw->policy_rows;
+
+    motion_check(m, uv_now(gw->loop));
+    if (m->state != gw->motion_logged) {
+        if (m->state == MOTION_STOPPED || m->state == MOTION_TIMED_OUT)
+            log_notice("motion: %s (move %u) %s: %s", m->name, (unsigned)m->count,
+                       motion_state_name(m->state), m->why);
+        gw->motion_logged = m->state;
+    }
+    if (!rows->motion_state)
+        return;
+    regmap_set_number(&gw->image, rows->motion_state, 0, m->state, true);
+    regmap_set_number(&gw->image, rows->motion_count, 0, m->count, true);
 }
 
 /* The serial line's state and counters. */
@@ -326,6 +349,7 @@ void gateway_refresh_values(struct gateway *gw)
     refresh_rtu_values(gw, v);
     regmap_encode_gw(&gw->image, v);
     plc_commands_refresh(&gw->commands);
+    show_motion(gw);
     if (gw->parts & GATEWAY_PART_POLICY)
         show_policy(gw);
 }
@@ -376,10 +400,24 @@ static void check_policy(struct gateway *gw)
 static void on_policy_timer(uv_timer_t *t)
 {
     struct gateway *gw = t->data;
+    show_motion(gw);
     check_policy(gw);
     track_status_streak(gw, gateway_status_fresh(gw));
     audit_flush(&gw->audit);
     events_check(gw); /* a fault latched, the status gone stale */
+}
+
+/* Why the action is what it is, for its log line. */
+static const char *action_because(const struct gateway *gw, enum policy_action action,
+                                  enum policy_fault reason)
+{
+    enum policy_action configured =
+        reason == POLICY_FAULT_MOTION_ENABLE ? POLICY_PAUSE : (enum policy_action)gw->cfg.ne_action;
+    if (gw->policy.reaction == POLICY_REACTION_ESCALATED)
+        return " once more: the arm was still moving after the first action";
+    if (action == POLICY_STOP && configured == POLICY_PAUSE)
+        return " (the arm may run a move outside a program, which pause_program does not stop)";
+    return "";
 }
 
 /* The policy's action goes out as pause_program or stop_program. */
@@ -389,15 +427,84 @@ static bool send_policy_action(void *user, enum policy_action action,
     struct gateway *gw = user;
     const char *name = action == POLICY_STOP ? "stop_program" : "pause_program";
     int rc = plc_commands_send_now(&gw->commands, name);
+    if (rc == 0 && action == POLICY_STOP)
+        motion_stopped(&gw->motion, uv_now(gw->loop), "stopped by the network-exception policy");
     if (rc == 0)
-        log_warn("network exception: %s while the robot may move: sent %s; "
+        log_warn("network exception: %s while the robot may move: sent %s%s; "
                  "commands are refused until the PLC resets the fault",
-                 policy_fault_name(reason), name);
+                 policy_fault_name(reason), name, action_because(gw, action, reason));
     else if (!gw->policy.owed)
         log_err("network exception: %s while the robot may move: cannot send %s "
                 "(%s); trying again on every check until it goes out",
                 policy_fault_name(reason), name, strerror(-rc));
     return rc == 0;
+}
+
+/* What the status shows the arm doing, for the policy. */
+static enum policy_robot robot_seen(void *user)
+{
+    struct gateway *gw = user;
+    return motion_robot(&gw->motion, gateway_status_fresh(gw));
+}
+
+/* What the robot did about the action: one log line per change. */
+static void on_reaction(void *user, enum policy_reaction reaction, enum policy_action sent,
+                        uint64_t after_ms)
+{
+    struct gateway *gw = user;
+    const char *name = sent == POLICY_STOP ? "stop_program" : "pause_program";
+
+    switch (reaction) {
+    case POLICY_REACTION_PAUSED:
+    case POLICY_REACTION_STOPPED:
+        log_notice("network exception: the status shows the robot %s, %llu ms after %s's "
+                   "reply", policy_reaction_name(reaction), (unsigned long long)after_ms, name);
+        break;
+    case POLICY_REACTION_ESCALATED:
+        log_err("network exception: the arm is still moving %llu ms after %s's reply "
+                "(status period %llu ms): sending stop_program once more",
+                (unsigned long long)after_ms, name,
+                (unsigned long long)policy_status_period_ms(&gw->policy));
+        break;
+    case POLICY_REACTION_STILL_MOVING:
+        log_err("network exception: the arm is still moving %llu ms after the second "
+                 "stop_program's reply: the robot does not stop; check it now",
+                 (unsigned long long)after_ms);
+        break;
+    default:
+        break;
+    }
+}
+
+/* The policy's own action was answered: its check starts. */
+static void on_own_answered(void *user, const struct cmd_def *def, const struct cmd_result *r)
+{
+    struct gateway *gw = user;
+    (void)def, (void)r;
+    if (gw->parts & GATEWAY_PART_POLICY)
+        policy_action_answered(&gw->policy, uv_now(gw->loop));
+}
+
+/* Every command sent for a PLC: a move followed, a stop, a start's kind. */
+static void on_command_sent(void *user, const struct cmd_def *def, const char *json)
+{
+    struct gateway *gw = user;
+    uint64_t now = uv_now(gw->loop);
+
+    if (def && strcmp(def->name, "stop_program") == 0)
+        motion_stopped(&gw->motion, now, "stop_program from a PLC");
+    if (policy_command_starts_motion(def))
+        policy_start_kind(&gw->policy, !def || (def->flags & CMD_MOTION));
+    motion_sent(&gw->motion, now, json);
+}
+
+static void on_command_answered(void *user, const struct cmd_def *def,
+                                const struct cmd_result *r)
+{
+    struct gateway *gw = user;
+    if (def)
+        motion_answered(&gw->motion, uv_now(gw->loop), def->name, r->outcome == CMD_DONE,
+                        r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN);
 }
 
 /* The policy saw the loop stand still: logged once per stall, as the
@@ -625,6 +732,11 @@ static uint64_t loop_now_ms_of_gateway(void *user)
 static int start_commands(struct gateway *gw)
 {
     const struct gw_config *cfg = &gw->cfg;
+    motion_init(&gw->motion);
+    gw->policy_rows.motion_state = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion.state");
+    gw->policy_rows.motion_count = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion.count");
+    if (!gw->policy_rows.motion_state || !gw->policy_rows.motion_count)
+        return -EINVAL;
     struct plc_commands_config pcc = {
         .motion = cfg->motion,
         .allow_shutdown = cfg->allow_shutdown,
@@ -637,6 +749,9 @@ static int start_commands(struct gateway *gw)
         .start_sent = on_start_sent,
         .start_answered = on_start_answered,
         .own_unknown = on_own_unknown,
+        .sent = on_command_sent,
+        .answered = on_command_answered,
+        .own_answered = on_own_answered,
         .audit = &gw->audit,
     };
     return plc_commands_init(&gw->commands, &gw->image, &gw->command.queue, &pcc,
@@ -656,16 +771,21 @@ static int start_policy(struct gateway *gw)
         .single_owner = cfg->ne_single_owner,
         .start_unshown_max_ms = cfg->status_timeout_ms,
     };
-    struct policy_sink sink = {
-        .send_action = send_policy_action, .on_stall = on_loop_stall, .user = gw};
+    struct policy_sink sink = {.send_action = send_policy_action,
+                               .on_stall = on_loop_stall,
+                               .robot = robot_seen,
+                               .on_reaction = on_reaction,
+                               .user = gw};
 
     rows->fault = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault");
     rows->fault_age_ms = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "fault_age_ms");
     rows->faults = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "faults");
     rows->write_owner = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "write_owner");
     rows->motion_enabled = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion_enabled");
+    rows->reaction =
+        regmap_find_path(&gw->map, REGMAP_SRC_PATH, "network_exception.reaction");
     if (!rows->fault || !rows->fault_age_ms || !rows->faults || !rows->write_owner ||
-        !rows->motion_enabled)
+        !rows->motion_enabled || !rows->reaction)
         return -EINVAL;
     /* A tenth of the limit, 10..100 ms: reactions within limit + period. */
     uint64_t period = cfg->ne_time_limit_ms / 10;

@@ -21,6 +21,7 @@
 #include "http_server.h"
 #include "log.h"
 #include "mb_rtu.h"
+#include "motion.h"
 #include "mb_server.h"
 #include "mb_tls.h"
 #include "plc_commands.h"
@@ -59,6 +60,7 @@ enum {
 /* The policy's rows, as PLCs read its state. */
 struct gateway_policy_rows {
     const struct regmap_row *fault, *fault_age_ms, *faults, *write_owner, *motion_enabled;
+    const struct regmap_row *reaction, *motion_state, *motion_count;
 };
 
 struct gateway {
@@ -96,6 +98,8 @@ struct gateway {
     struct policy policy;
     uv_timer_t policy_timer; /* re-evaluates the policy every check period */
     struct gateway_policy_rows policy_rows;
+    struct motion motion; /* the last move sent, and what the arm does */
+    enum motion_state motion_logged; /* the state the log last told */
     struct log_ratelimit parse_log_limit;
     struct log_ratelimit command_log_limit;
 

@@ -151,6 +151,28 @@ static void add_policy(cJSON *root, const struct gateway *gw)
     cJSON_AddStringToObject(o, "write_owner", p->owner_address);
     cJSON_AddBoolToObject(o, "motion_enabled", p->motion_enabled);
     cJSON_AddNumberToObject(o, "time_limit_ms", p->cfg.time_limit_ms);
+    /* What the robot did, not only what was sent (IR 5602). */
+    cJSON_AddNumberToObject(o, "reaction", p->reaction);
+    cJSON_AddStringToObject(o, "reaction_name", policy_reaction_name(p->reaction));
+    if (p->reaction >= POLICY_REACTION_SENT)
+        cJSON_AddStringToObject(o, "action_sent", p->reaction_action == POLICY_STOP
+                                                      ? "stop_program"
+                                                      : "pause_program");
+    else
+        cJSON_AddNullToObject(o, "action_sent");
+}
+
+/* The last move the gateway sent and what became of it (IR 5600-5601). */
+static void add_motion(cJSON *root, const struct gateway *gw)
+{
+    const struct motion *m = &gw->motion;
+    cJSON *o = cJSON_AddObjectToObject(root, "motion");
+
+    cJSON_AddNumberToObject(o, "state", m->state);
+    cJSON_AddStringToObject(o, "state_name", motion_state_name(m->state));
+    cJSON_AddNumberToObject(o, "count", m->count);
+    cJSON_AddStringToObject(o, "command", m->name);
+    cJSON_AddStringToObject(o, "why", m->why);
 }
 
 static const char *const program_states[] = {"idle", "loading", "paused", "running"};
@@ -473,6 +495,7 @@ char *status_json_render(struct gateway *gw, bool registers, size_t *size)
     if (ctx.array)
         mb_server_foreach_client(&gw->modbus, add_client, &ctx);
     add_policy(root, gw);
+    add_motion(root, gw);
     add_commands(root, "commands", &gw->audit, false);
     add_commands(root, "gateway_commands", &gw->audit, true);
     add_events(root, &gw->events);

@@ -769,6 +769,8 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
     slot->pending++;
     if (slot->state)
         set_result(slot, CMD_PENDING, 0, "");
+    if (pc->cfg.sent)
+        pc->cfg.sent(pc->cfg.gate_user, def, json);
     /* The policy counts the robot as running from now on, until the
      * status can show it. */
     if (policy_command_starts_motion(def)) {
@@ -925,6 +927,8 @@ static void on_done(void *user, const struct cmd_result *r)
 
     if (slot->kind != PLC_SLOT_INFO)
         audit_command_done(pc->cfg.audit, slot, r);
+    if (pc->cfg.answered && slot->kind != PLC_SLOT_INFO && slot->kind != PLC_SLOT_HANDLE)
+        pc->cfg.answered(pc->cfg.gate_user, slot->def, r);
     slot->pending--;
     if (slot->starts_pending > 0) {
         /* One pending at a time for these slots: this is the start. */
@@ -982,6 +986,8 @@ static void on_own_done(void *user, const struct cmd_result *r)
     bool unknown = r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN;
 
     on_done(slot, r);
+    if (!unknown && pc->cfg.own_answered)
+        pc->cfg.own_answered(pc->cfg.gate_user, def, r);
     if (unknown && pc->cfg.own_unknown)
         pc->cfg.own_unknown(pc->cfg.gate_user, def);
 }

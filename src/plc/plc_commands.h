@@ -68,6 +68,16 @@ struct plc_commands_config {
      * may never have had it). Called with 'gate_user'; may be NULL.
      */
     void (*own_unknown)(void *user, const struct cmd_def *def);
+    /*
+     * Every command sent for a PLC, as its JSON text ('def' NULL: a name
+     * the table does not know); every result of a command or mailbox
+     * (any outcome); every result of a command plc_commands_send_now sent.
+     * For the motion tracker and the policy's check of its own action.
+     * Called with 'gate_user'; each may be NULL.
+     */
+    void (*sent)(void *user, const struct cmd_def *def, const char *json);
+    void (*answered)(void *user, const struct cmd_def *def, const struct cmd_result *r);
+    void (*own_answered)(void *user, const struct cmd_def *def, const struct cmd_result *r);
     /* The audit trail: every command sent and its result (NULL: none). */
     struct audit *audit;
 };

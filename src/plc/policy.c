@@ -21,6 +21,15 @@ const char *policy_fault_name(enum policy_fault reason)
     return (unsigned)reason < sizeof(names) / sizeof(names[0]) ? names[reason] : "unknown";
 }
 
+const char *policy_reaction_name(enum policy_reaction reaction)
+{
+    static const char *const names[] = {
+        "nothing due",     "flag only (action keep)", "action sent, awaiting the status",
+        "paused",          "stopped",                 "still moving: stop sent",
+        "still moving after the stop"};
+    return (unsigned)reaction < sizeof(names) / sizeof(names[0]) ? names[reaction] : "unknown";
+}
+
 /*
  * Every entry point that is given the time passes it here first: a gap
  * since the last longer than time_limit_ms is the gateway's stall. The
@@ -141,15 +150,63 @@ void policy_client_closed(struct policy *p, uint64_t now_ms, uint64_t client,
         clear_owner(p);
 }
 
-/* Sends 'action' for 'reason', or keeps it owed when it cannot go out now. */
-static void act(struct policy *p, enum policy_action action, enum policy_fault reason)
+static enum policy_robot robot_seen(const struct policy *p)
+{
+    return p->sink.robot ? p->sink.robot(p->sink.user) : POLICY_ROBOT_UNKNOWN;
+}
+
+static void set_reaction(struct policy *p, uint64_t now_ms, enum policy_reaction reaction)
+{
+    if (reaction == p->reaction)
+        return;
+    p->reaction = reaction;
+    if (p->sink.on_reaction)
+        p->sink.on_reaction(p->sink.user, reaction, p->reaction_action,
+                            p->reaction_answered ? now_ms - p->reaction_answered_ms : 0);
+}
+
+/*
+ * Sends 'action' for 'reason', or keeps it owed when it cannot go out now.
+ * Either way its check starts again: the status after its reply decides.
+ */
+static void act(struct policy *p, uint64_t now_ms, enum policy_action action,
+                enum policy_fault reason)
 {
     if (action == POLICY_KEEP || !p->sink.send_action)
         return;
+    p->reaction_action = action;
+    p->reaction_answered = false;
+    if (p->reaction != POLICY_REACTION_ESCALATED)
+        set_reaction(p, now_ms, POLICY_REACTION_SENT);
     if (p->sink.send_action(p->sink.user, action, reason))
         p->owed = POLICY_KEEP;
     else if (action > p->owed)
         p->owed = action; /* stop outranks pause */
+}
+
+/*
+ * The action for 'configured' now: a pause becomes a stop whenever the arm
+ * may run a move outside a program, which pause_program leaves running.
+ */
+static enum policy_action choose_action(const struct policy *p, uint64_t now_ms,
+                                        enum policy_action configured)
+{
+    if (configured != POLICY_PAUSE)
+        return configured;
+    switch (robot_seen(p)) {
+    case POLICY_ROBOT_MOVING:
+        return POLICY_STOP; /* moving, no program: a move */
+    case POLICY_ROBOT_PROGRAM:
+        return POLICY_PAUSE;
+    case POLICY_ROBOT_UNKNOWN:
+        /* Blind: what the gateway itself started last decides. */
+        return p->last_start_move ? POLICY_STOP : POLICY_PAUSE;
+    default:
+        /* Still as far as the status shows: a move just sent may not
+         * show yet. */
+        return p->last_start_move && policy_start_unshown(p, now_ms) ? POLICY_STOP
+                                                                       : POLICY_PAUSE;
+    }
 }
 
 static void latch(struct policy *p, uint64_t now_ms, enum policy_fault reason,
@@ -158,7 +215,56 @@ static void latch(struct policy *p, uint64_t now_ms, enum policy_fault reason,
     p->fault = reason;
     p->fault_since_ms = now_ms;
     p->faults++;
-    act(p, action, reason);
+    if (action == POLICY_KEEP) {
+        set_reaction(p, now_ms, POLICY_REACTION_FLAG_ONLY);
+        return;
+    }
+    act(p, now_ms, choose_action(p, now_ms, action), reason);
+}
+
+void policy_action_answered(struct policy *p, uint64_t now_ms)
+{
+    if (p->reaction != POLICY_REACTION_SENT && p->reaction != POLICY_REACTION_ESCALATED)
+        return;
+    p->reaction_answered = true;
+    p->reaction_answered_ms = now_ms;
+}
+
+uint64_t policy_status_period_ms(const struct policy *p)
+{
+    return p->status_period_ms;
+}
+
+/*
+ * The action's check, at every check period: once its reply came, a
+ * status document received after the reply showing the arm still ends it
+ * (paused, or stopped); none by one status period after the reply sends
+ * stop_program once more, and a second miss is final.
+ */
+static void judge_reaction(struct policy *p, uint64_t now_ms)
+{
+    if ((p->reaction != POLICY_REACTION_SENT && p->reaction != POLICY_REACTION_ESCALATED) ||
+        !p->reaction_answered)
+        return;
+    enum policy_robot robot = robot_seen(p);
+    if ((robot == POLICY_ROBOT_STILL || robot == POLICY_ROBOT_PAUSED) &&
+        p->last_document_ms > p->reaction_answered_ms) {
+        set_reaction(p, now_ms,
+                     robot == POLICY_ROBOT_PAUSED ? POLICY_REACTION_PAUSED
+                                                  : POLICY_REACTION_STOPPED);
+        return;
+    }
+    /* Before two documents, the check period stands for the period. */
+    uint64_t period = p->status_period_ms > p->cfg.check_period_ms ? p->status_period_ms
+                                                                   : p->cfg.check_period_ms;
+    if (now_ms < p->reaction_answered_ms + period)
+        return;
+    if (p->reaction == POLICY_REACTION_ESCALATED) {
+        set_reaction(p, now_ms, POLICY_REACTION_STILL_MOVING);
+        return;
+    }
+    set_reaction(p, now_ms, POLICY_REACTION_ESCALATED);
+    act(p, now_ms, POLICY_STOP, p->fault);
 }
 
 void policy_action_unknown(struct policy *p, enum policy_action action)
@@ -174,6 +280,8 @@ void policy_reset(struct policy *p)
     p->fault = POLICY_FAULT_NONE;
     p->fault_since_ms = 0;
     p->owed = POLICY_KEEP;
+    p->reaction = POLICY_REACTION_NONE;
+    p->reaction_answered = false;
 }
 
 #define START_UNSHOWN_MAX_MS_DEFAULT 10000
@@ -182,6 +290,11 @@ void policy_start_sent(struct policy *p, uint64_t now_ms)
 {
     see_time(p, now_ms);
     p->starts_unanswered++;
+}
+
+void policy_start_kind(struct policy *p, bool move)
+{
+    p->last_start_move = move;
 }
 
 void policy_start_answered(struct policy *p, uint64_t now_ms)
@@ -195,9 +308,25 @@ void policy_start_answered(struct policy *p, uint64_t now_ms)
     }
 }
 
+/* The longest interval of the last documents, decaying by an eighth a
+ * document: one late push is allowed for a while. A gap of more than four
+ * periods is an outage (the status stale meanwhile), not the period. */
+static void measure_status_period(struct policy *p, uint64_t now_ms)
+{
+    if (p->last_document_ms && now_ms > p->last_document_ms) {
+        uint64_t interval = now_ms - p->last_document_ms;
+        if (p->status_period_ms == 0 || interval <= 4 * p->status_period_ms)
+            p->status_period_ms = interval >= p->status_period_ms
+                                      ? interval
+                                      : (p->status_period_ms * 7 + interval) / 8;
+    }
+    p->last_document_ms = now_ms;
+}
+
 void policy_status_document(struct policy *p, uint64_t now_ms)
 {
     see_time(p, now_ms);
+    measure_status_period(p, now_ms);
     /* Only a document received well after the reply can show the start: a
      * controller answers before its next status push reflects the new
      * program state, and jakasim's 8 ms push is no promise for a real
@@ -290,7 +419,7 @@ static void apply_rule(struct policy *p, uint64_t now_ms, bool running, bool sta
     if ((lost & LOST(POLICY_FAULT_MOTION_ENABLE)) && !p->motion_enable_paused) {
         /* Its own reason, not the latched one's: the log says why. */
         p->motion_enable_paused = true;
-        act(p, POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
+        act(p, now_ms, choose_action(p, now_ms, POLICY_PAUSE), POLICY_FAULT_MOTION_ENABLE);
     }
 }
 
@@ -321,8 +450,9 @@ void policy_check(struct policy *p, uint64_t now_ms, bool robot_moving)
     /* Latched: an action that could not go out is tried again while the
      * robot may move. */
     if (p->fault != POLICY_FAULT_NONE && p->owed != POLICY_KEEP && running)
-        act(p, p->owed, p->fault);
+        act(p, now_ms, p->owed, p->fault);
     apply_rule(p, now_ms, running, false);
+    judge_reaction(p, now_ms);
 }
 
 bool policy_blocks_commands(const struct policy *p)

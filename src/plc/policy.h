@@ -31,6 +31,21 @@
  * a signal is lost is refused, and counts as the robot about to run: the
  * fault is latched and the action sent, so a PLC that starts and drops
  * motion enable ends the same way in either order.
+ * What the action is: the configured one (keep, pause, stop; motion
+ * enable: pause) for a program. A move outside a program is not stopped
+ * by pause_program (the manual, 4.23 (b): "stop_program can be used to
+ * stop other robot move commands, such as joint_move/moveL"): whenever the
+ * arm may be running one (the status shows it moving with no program
+ * running, or the last start the gateway sent was a move and the status
+ * cannot show it yet, or is stale), a pause becomes stop_program
+ * (choose_action() in policy.c). Keep stays keep.
+ * Then the action is checked, not assumed (struct policy's reaction): once
+ * its reply came, a status document received after it must show the arm
+ * still (in position, no program running, positions unchanged: the
+ * sink's robot()) within one status period (the interval of the last
+ * documents) after the reply; else stop_program goes out once more
+ * (POLICY_REACTION_ESCALATED) and is checked the same way: still moving
+ * then is POLICY_REACTION_STILL_MOVING, latched until the reset.
  * While a fault is latched, commands are refused, except stop and the
  * reset; the action is never repeated, except motion enable's pause, sent
  * once for each drop, and an action whose outcome is unknown (its
@@ -80,6 +95,30 @@
 #define POLICY_START_SETTLE_MS 200
 
 enum policy_action { POLICY_KEEP = 0, POLICY_PAUSE = 1, POLICY_STOP = 2 };
+
+/* What the status shows the arm doing, as the policy's sink reads it. */
+enum policy_robot {
+    POLICY_ROBOT_UNKNOWN = 0, /* no fresh status: blind */
+    POLICY_ROBOT_STILL = 1,   /* in position, no program running, positions unchanged */
+    POLICY_ROBOT_PAUSED = 2,  /* a program paused, the arm still */
+    POLICY_ROBOT_PROGRAM = 3, /* a program loading or running */
+    POLICY_ROBOT_MOVING = 4,  /* the arm moving (not in position) with no program running */
+};
+
+/* What the robot did about the latched fault, as the PLC reads it (IR
+ * network_exception.reaction). */
+enum policy_reaction {
+    POLICY_REACTION_NONE = 0,       /* no fault, or nothing was running */
+    POLICY_REACTION_FLAG_ONLY = 1,  /* action keep: nothing sent */
+    POLICY_REACTION_SENT = 2,       /* sent, its reply or the status awaited */
+    POLICY_REACTION_PAUSED = 3,     /* a status after the reply shows a program paused */
+    POLICY_REACTION_STOPPED = 4,    /* ... shows the arm still */
+    POLICY_REACTION_ESCALATED = 5,  /* still moving: stop_program sent once more */
+    POLICY_REACTION_STILL_MOVING = 6, /* still moving after that stop too */
+};
+
+/* The reaction's words, as the log and the page say them. */
+const char *policy_reaction_name(enum policy_reaction reaction);
 
 enum policy_watch {
     POLICY_WATCH_HEARTBEAT = 1,
@@ -133,6 +172,12 @@ struct policy_sink {
     /* A stall of 'gap_ms' seen (optional): once per stall, before it is
      * judged. */
     void (*on_stall)(void *user, uint64_t gap_ms);
+    /* What the status shows the arm doing now, from the last documents
+     * (optional: NULL reads as POLICY_ROBOT_UNKNOWN). */
+    enum policy_robot (*robot)(void *user);
+    /* The reaction changed (optional): 'after_ms' since the action's reply. */
+    void (*on_reaction)(void *user, enum policy_reaction reaction, enum policy_action sent,
+                        uint64_t after_ms);
     void *user;
 };
 
@@ -162,6 +207,15 @@ struct policy {
     uint64_t last_stall_ms; /* the last one's length */
     uint64_t late_turn_ms;  /* the last late turn (check_period_ms); 0: none */
     uint64_t late_turn_from_ms; /* the call before it: when its gap began */
+    bool last_start_move; /* the last start sent was a move, not a program */
+    /* The status stream's period: a decaying peak of its intervals. */
+    uint64_t last_document_ms;
+    uint64_t status_period_ms;
+    /* The check of the last action sent (see the top). */
+    enum policy_reaction reaction;
+    enum policy_action reaction_action; /* the last action sent */
+    bool reaction_answered;             /* its reply came */
+    uint64_t reaction_answered_ms;
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;
@@ -208,6 +262,12 @@ void policy_motion_enable(struct policy *p, uint64_t now_ms, bool value,
  * one in bounded time), then start_unshown_max_ms after the reply at most.
  */
 void policy_start_sent(struct policy *p, uint64_t now_ms);
+/*
+ * What the start sent last is: a move outside a program (true: any motion
+ * command) or a program's start (play_program, resume_program). Call with
+ * policy_start_sent.
+ */
+void policy_start_kind(struct policy *p, bool move);
 void policy_start_answered(struct policy *p, uint64_t now_ms);
 void policy_status_document(struct policy *p, uint64_t now_ms);
 /* Is a start sent that the status cannot show yet? */
@@ -222,6 +282,17 @@ bool policy_start_unshown(const struct policy *p, uint64_t now_ms);
  * without a latched fault.
  */
 void policy_action_unknown(struct policy *p, enum policy_action action);
+
+/*
+ * The action the policy sent got its reply (any outcome but unknown, which
+ * is policy_action_unknown): the status is judged from now on (see the
+ * top).
+ */
+void policy_action_answered(struct policy *p, uint64_t now_ms);
+
+/* The status period the reaction's check allows (ms; 0 before two
+ * documents). */
+uint64_t policy_status_period_ms(const struct policy *p);
 
 /* The PLC's reset: clears the latched fault. */
 void policy_reset(struct policy *p);

@@ -1,0 +1,333 @@
+/* SPDX-License-Identifier: MIT */
+/* motion.c - the motion tracker (motion.h). */
+#include "motion.h"
+
+#include <cJSON.h>
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#define DEG (M_PI / 180.0)
+
+const char *motion_state_name(enum motion_state state)
+{
+    static const char *const names[] = {"idle", "moving", "arrived", "stopped before arriving",
+                                        "not arrived in time"};
+    return (unsigned)state < sizeof(names) / sizeof(names[0]) ? names[state] : "unknown";
+}
+
+void motion_init(struct motion *m)
+{
+    memset(m, 0, sizeof(*m));
+}
+
+/* A flag of the document: 0, 1, or -1 when it did not carry it. */
+static int flag_of(const struct jaka_status *s, enum status_field f)
+{
+    const struct status_num *n = status_num_at(s, f, 0);
+    return n->present ? n->value != 0 : -1;
+}
+
+/* A whole array of six, or false. */
+static bool six_of(const struct jaka_status *s, enum status_field f, double out[6])
+{
+    for (unsigned i = 0; i < 6; i++) {
+        const struct status_num *n = status_num_at(s, f, i);
+        if (!n->present)
+            return false;
+        out[i] = n->value;
+    }
+    return true;
+}
+
+void motion_view_of(const struct jaka_status *s, struct motion_view *v)
+{
+    const struct status_num *interp = status_num_at(s, STATUS_F_interp_state, 0);
+    const struct status_num *rate = status_num_at(s, STATUS_F_rapidrate, 0);
+
+    memset(v, 0, sizeof(*v));
+    v->inpos = flag_of(s, STATUS_F_inpos);
+    v->interp_state = interp->present ? (int)interp->value : -1;
+    v->enabled = flag_of(s, STATUS_F_enabled);
+    v->powered_on = flag_of(s, STATUS_F_powered_on);
+    v->emergency_stop = flag_of(s, STATUS_F_emergency_stop);
+    v->protective_stop = flag_of(s, STATUS_F_protective_stop);
+    v->have_joints = six_of(s, STATUS_F_joint_actual_position, v->joints);
+    v->have_tcp = six_of(s, STATUS_F_actual_position, v->tcp);
+    v->rapid_rate = rate->present ? rate->value : 0;
+}
+
+static double wrap180(double a)
+{
+    a = fmod(a, 360.0);
+    if (a > 180)
+        a -= 360;
+    if (a < -180)
+        a += 360;
+    return a;
+}
+
+/* Fixed-axis XYZ angles (deg) as a rotation matrix: Rz(c) Ry(b) Rx(a). */
+static void rotation_of(const double rpy[3], double R[9])
+{
+    double ca = cos(rpy[0] * DEG), sa = sin(rpy[0] * DEG);
+    double cb = cos(rpy[1] * DEG), sb = sin(rpy[1] * DEG);
+    double cc = cos(rpy[2] * DEG), sc = sin(rpy[2] * DEG);
+
+    R[0] = cc * cb, R[1] = cc * sb * sa - sc * ca, R[2] = cc * sb * ca + sc * sa;
+    R[3] = sc * cb, R[4] = sc * sb * sa + cc * ca, R[5] = sc * sb * ca - cc * sa;
+    R[6] = -sb, R[7] = cb * sa, R[8] = cb * ca;
+}
+
+double motion_orientation_error_deg(const double a[3], const double b[3])
+{
+    double Ra[9], Rb[9], trace = 0;
+
+    rotation_of(a, Ra);
+    rotation_of(b, Rb);
+    /* trace(Ra^T Rb) = 1 + 2 cos(angle between them). */
+    for (int i = 0; i < 9; i++)
+        trace += Ra[i] * Rb[i];
+    double c = (trace - 1) / 2;
+    c = c > 1 ? 1 : c < -1 ? -1 : c;
+    return acos(c) / DEG;
+}
+
+uint64_t motion_bound_ms(double travel, double speed)
+{
+    if (speed < 1e-3)
+        speed = 1e-3;
+    double ms = travel / speed * 1000.0 * MOTION_BOUND_FACTOR + MOTION_BOUND_MARGIN_MS;
+    return ms > MOTION_BOUND_MAX_MS ? MOTION_BOUND_MAX_MS : (uint64_t)ms;
+}
+
+static bool number_of(const cJSON *obj, const char *key, double *out)
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    if (!cJSON_IsNumber(v))
+        return false;
+    *out = v->valuedouble;
+    return true;
+}
+
+static bool vector_of(const cJSON *obj, const char *key, double out[6])
+{
+    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) < 6)
+        return false;
+    for (int i = 0; i < 6; i++) {
+        const cJSON *e = cJSON_GetArrayItem(v, i);
+        if (!cJSON_IsNumber(e))
+            return false;
+        out[i] = e->valuedouble;
+    }
+    return true;
+}
+
+/* The moves followed: their name, target member and kind. */
+static const struct move_kind {
+    const char *name, *member;
+    enum motion_target kind;
+} moves[] = {
+    {"joint_move", "jointPosition", MOTION_TARGET_JOINTS},
+    {"end_move", "endPosition", MOTION_TARGET_TCP},
+    {"moveL", "cartPosition", MOTION_TARGET_TCP},
+};
+
+static const struct move_kind *move_named(const char *name)
+{
+    for (size_t i = 0; i < sizeof(moves) / sizeof(moves[0]); i++)
+        if (strcmp(moves[i].name, name) == 0)
+            return &moves[i];
+    return NULL;
+}
+
+/* The largest change from 'from' to 'to': joints in deg, or a TCP's mm
+ * and deg, whichever is the larger (moveL runs at speed in both). */
+static double travel_between(enum motion_target kind, const double from[6], const double to[6])
+{
+    double most = 0;
+    if (kind == MOTION_TARGET_JOINTS) {
+        for (int i = 0; i < 6; i++)
+            most = fmax(most, fabs(to[i] - from[i]));
+        return most;
+    }
+    double mm = 0;
+    for (int i = 0; i < 3; i++)
+        mm += (to[i] - from[i]) * (to[i] - from[i]);
+    for (int i = 3; i < 6; i++)
+        most = fmax(most, fabs(wrap180(to[i] - from[i])));
+    return fmax(sqrt(mm), most);
+}
+
+/* Where the move goes and how far, from the last document: its target
+ * (relative: from where the arm was), its travel for the bound. */
+static void plan_move(struct motion *m, const struct move_kind *k, const double given[6],
+                      bool relative)
+{
+    bool have_from = m->have_last && (k->kind == MOTION_TARGET_JOINTS ? m->last.have_joints
+                                                                      : m->last.have_tcp);
+    const double *from = k->kind == MOTION_TARGET_JOINTS ? m->last.joints : m->last.tcp;
+
+    m->kind = k->kind;
+    m->target_known = !relative || have_from;
+    for (int i = 0; i < 6; i++)
+        m->target[i] = relative && have_from ? from[i] + given[i] : given[i];
+    if (strcmp(k->name, "end_move") == 0)
+        m->travel = MOTION_END_MOVE_TRAVEL_DEG;
+    else if (have_from && m->target_known)
+        m->travel = travel_between(k->kind, from, m->target);
+    else
+        m->travel = k->kind == MOTION_TARGET_JOINTS ? MOTION_END_MOVE_TRAVEL_DEG : 1000.0;
+}
+
+bool motion_sent(struct motion *m, uint64_t now_ms, const char *json)
+{
+    cJSON *doc = cJSON_Parse(json);
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+    const struct move_kind *k = cJSON_IsString(name) ? move_named(name->valuestring) : NULL;
+    double given[6] = {0}, speed = 0, rel = 0;
+
+    if (!k) {
+        cJSON_Delete(doc);
+        return false;
+    }
+    bool have_target = vector_of(doc, k->member, given);
+    number_of(doc, "speed", &speed);
+    number_of(doc, "relFlag", &rel);
+    cJSON_Delete(doc);
+    snprintf(m->name, sizeof(m->name), "%s", k->name);
+    plan_move(m, k, given, rel != 0);
+    if (!have_target)
+        m->target_known = false;
+    double rate = m->have_last && m->last.rapid_rate > 0 ? m->last.rapid_rate : 1.0;
+    m->speed = speed * rate;
+    m->count++;
+    m->state = MOTION_MOVING;
+    m->answered = false;
+    m->sent_ms = now_ms;
+    m->bound_ms = motion_bound_ms(m->travel, m->speed);
+    m->why[0] = '\0';
+    return true;
+}
+
+static void end_move(struct motion *m, enum motion_state state, const char *why)
+{
+    m->state = state;
+    snprintf(m->why, sizeof(m->why), "%s", why);
+}
+
+void motion_answered(struct motion *m, uint64_t now_ms, const char *name, bool accepted,
+                     bool unknown)
+{
+    if (m->state != MOTION_MOVING || m->answered || strcmp(name, m->name) != 0)
+        return;
+    if (accepted) {
+        m->answered = true;
+        m->answered_ms = now_ms;
+    } else if (!unknown) {
+        end_move(m, MOTION_STOPPED, "refused by the robot");
+    }
+}
+
+void motion_stopped(struct motion *m, uint64_t now_ms, const char *why)
+{
+    (void)now_ms;
+    if (m->state == MOTION_MOVING)
+        end_move(m, MOTION_STOPPED, why);
+}
+
+static bool joints_still(const struct motion_view *a, const struct motion_view *b)
+{
+    if (!a->have_joints || !b->have_joints)
+        return false;
+    for (int i = 0; i < 6; i++)
+        if (fabs(a->joints[i] - b->joints[i]) > MOTION_STILL_DEG)
+            return false;
+    return true;
+}
+
+/* Does document 'v' show the move's target reached? */
+static bool at_target(const struct motion *m, const struct motion_view *v)
+{
+    if (!m->target_known)
+        return false;
+    if (m->kind == MOTION_TARGET_JOINTS) {
+        if (!v->have_joints)
+            return false;
+        for (int i = 0; i < 6; i++)
+            if (fabs(v->joints[i] - m->target[i]) > MOTION_JOINT_TOL_DEG)
+                return false;
+        return true;
+    }
+    if (!v->have_tcp)
+        return false;
+    double mm = 0;
+    for (int i = 0; i < 3; i++)
+        mm += (v->tcp[i] - m->target[i]) * (v->tcp[i] - m->target[i]);
+    return sqrt(mm) <= MOTION_TCP_TOL_MM &&
+           motion_orientation_error_deg(v->tcp + 3, m->target + 3) <= MOTION_TCP_TOL_DEG;
+}
+
+/* A stop of the robot's own that the document shows, or NULL. */
+static const char *robot_stop(const struct motion_view *v)
+{
+    if (v->emergency_stop == 1)
+        return "emergency stop";
+    if (v->protective_stop == 1)
+        return "protective stop";
+    if (v->powered_on == 0)
+        return "robot powered off";
+    if (v->enabled == 0)
+        return "robot disabled";
+    return NULL;
+}
+
+void motion_document(struct motion *m, uint64_t now_ms, const struct motion_view *v)
+{
+    m->previous = m->last;
+    m->have_previous = m->have_last;
+    m->last = *v;
+    m->have_last = true;
+    m->last_document_ms = now_ms;
+    if (m->state != MOTION_MOVING)
+        return;
+    const char *stop = robot_stop(v);
+    if (stop) {
+        end_move(m, MOTION_STOPPED, stop);
+        return;
+    }
+    /* Only a document received after the reply can show the move done. */
+    if (!m->answered || now_ms <= m->answered_ms)
+        return;
+    bool program = v->interp_state == 1 || v->interp_state == 3;
+    if (v->inpos == 1 && !program && m->have_previous && joints_still(&m->previous, v) &&
+        at_target(m, v))
+        end_move(m, MOTION_ARRIVED, "arrived");
+}
+
+bool motion_check(struct motion *m, uint64_t now_ms)
+{
+    if (m->state != MOTION_MOVING)
+        return false;
+    uint64_t from = m->answered ? m->answered_ms : m->sent_ms;
+    if (now_ms < from + m->bound_ms)
+        return false;
+    char why[64];
+    snprintf(why, sizeof(why), "not arrived within %llu ms", (unsigned long long)m->bound_ms);
+    end_move(m, MOTION_TIMED_OUT, why);
+    return true;
+}
+
+enum policy_robot motion_robot(const struct motion *m, bool fresh)
+{
+    if (!fresh || !m->have_last)
+        return POLICY_ROBOT_UNKNOWN;
+    const struct motion_view *v = &m->last;
+    if (v->interp_state == 1 || v->interp_state == 3)
+        return POLICY_ROBOT_PROGRAM;
+    /* In position and unchanged since the document before: still. */
+    if (v->inpos != 0 && m->have_previous && joints_still(&m->previous, v))
+        return v->interp_state == 2 ? POLICY_ROBOT_PAUSED : POLICY_ROBOT_STILL;
+    return POLICY_ROBOT_MOVING;
+}

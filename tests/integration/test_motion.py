@@ -1,0 +1,351 @@
+#!/usr/bin/env python3
+# SPDX-License-Identifier: MIT
+"""Moves a PLC starts, end to end: the real jakagw between a pymodbus PLC
+and the real jakasim, whose moves take time, show in its status a few
+documents after their reply, are not stopped by pause_program and are by
+stop_program (manual 4.23 (b)), an emergency or a protective stop.
+
+- A fault stops what moves: a joint_move started over Modbus, then motion
+  enable dropped or the heartbeat stopped: the arm's travel after the
+  fault (degrees and ms until it stands still) is measured and printed, and
+  bounded by the reaction time at the move's speed; the robot received
+  stop_program, never pause_program alone; IR network_exception.reaction
+  and /status.json read "stopped".
+- A robot that answers the first stop_program without stopping (jakasim
+  --fail-command stop_program --fail-times 1) gets one more, and the
+  reaction says so; one that never stops reads "still moving after the
+  stop".
+- Motion state (IR 5600) and count (IR 5601): 1 at the first reading after
+  the trigger's reply (while the status still shows the arm in position
+  where it was), 2 only once the status shows the target reached, for
+  joint_move, relative moveL and end_move, from triggers and from both
+  mailboxes; 3 after a stop, an emergency stop or a protective stop; 4
+  when a move accepted never arrives within its bound."""
+import json
+import os
+import signal
+import struct
+import time
+import urllib.request
+
+from harness import (ModbusPlc, check, free_port, log_lines, map_rows, run, running,
+                     sim_commands, wait_until)
+
+ADDR = {}
+for _row in map_rows():
+    ADDR.setdefault((_row["table"], _row["name"]), int(_row["address"]))
+
+
+def addr(table, name):
+    return ADDR[(table, name)]
+
+
+C_POWER_ON, C_ENABLE = addr("coil", "cmd_power_on"), addr("coil", "cmd_enable_robot")
+C_JOINT_MOVE, C_END_MOVE, C_MOVEL = (addr("coil", "cmd_joint_move"), addr("coil", "cmd_end_move"),
+                                     addr("coil", "cmd_moveL"))
+C_STOP, C_MOTION_ENABLE = addr("coil", "cmd_stop_program"), addr("coil", "motion_enable")
+C_JSON_TRIGGER = addr("coil", "json_trigger")
+H_HEARTBEAT = addr("holding_register", "plc_heartbeat")
+H_JOINT_MOVE, H_END_MOVE, H_MOVEL = 300, 320, 340
+H_MOVEL_REL = 356
+H_MAILBOX, H_JSON = addr("holding_register", "mailbox_code"), addr("holding_register",
+                                                                    "json_request")
+I_JOINTS, I_TCP = 200, 212
+I_MOTION_STATE, I_MOTION_COUNT = addr("input_register", "motion_state"), \
+    addr("input_register", "motion_count")
+I_REACTION, I_FAULT = addr("input_register", "fault_reaction"), addr("input_register", "fault")
+D_INPOS = addr("discrete_input", "inpos")
+
+IDLE, MOVING, ARRIVED, STOPPED, TIMED_OUT = 0, 1, 2, 3, 4
+R_PAUSED, R_STOPPED, R_ESCALATED, R_STILL_MOVING = 3, 4, 5, 6
+HOME = [0, 90, 90, 0, 90, 0]
+JOINT_TOL, TCP_TOL = 0.1, 1.0  # docs/commands.md's motion tolerances
+MAILBOX_JOINT_MOVE = 30
+
+LIMIT_MS = 500
+SIM_PERIOD_MS = 20
+SPEED = 20.0  # deg/s
+# The reaction after the fault's detection: one status period, the reply,
+# a check period (a tenth of the limit), and scheduling slack on a loaded
+# 2-core machine running the sanitizer build.
+SLACK_S = 0.4
+SIM = ["--log-commands", "--period-ms", str(SIM_PERIOD_MS)]
+
+
+def config(http_port=None, extra=""):
+    text = ("[robot]\nreconnect_min_ms = 50\nreconnect_max_ms = 400\n"
+            "[commands]\nmotion = true\n"
+            "[network_exception]\ntime_limit_ms = %d\nmotion_enable = true\n%s" % (LIMIT_MS, extra))
+    if http_port:
+        text += "[http]\nenabled = true\nport = %d\n" % http_port
+    return text
+
+
+def f32_regs(values):
+    return list(struct.unpack(">%dH" % (2 * len(values)),
+                              struct.pack(">%df" % len(values), *values)))
+
+
+class Plc(ModbusPlc):
+    """The PLC: every poll also feeds the heartbeat (one connection, as a
+    PLC program does), unless told to stop."""
+
+    def __init__(self, port):
+        super().__init__(port)
+        self.beat = 0
+        self.feeding = True
+
+    def feed(self):
+        if self.feeding:
+            self.beat = (self.beat + 1) & 0xFFFF
+            check(self.reg(H_HEARTBEAT, self.beat) == 0, "heartbeat write refused")
+
+    def f32(self, address, count=1):
+        regs = self.ir(address, 2 * count)
+        return list(struct.unpack(">%df" % count, struct.pack(">%dH" % (2 * count), *regs)))
+
+    def joints(self):
+        self.feed()
+        return self.f32(I_JOINTS, 6)
+
+    def tcp(self):
+        return self.f32(I_TCP, 6)
+
+    def state(self):
+        self.feed()
+        return self.ir(I_MOTION_STATE, 2)  # state, count
+
+    def ready(self, motion_enable=True):
+        """Powered, enabled, the heartbeat running, motion enable held."""
+        for _ in range(3):
+            self.feed()
+        if motion_enable:
+            check(self.coil(C_MOTION_ENABLE, 1) == 0, "motion enable refused")
+        for coil in (C_POWER_ON, C_ENABLE):
+            check(self.pulse(coil) == 0, "power_on / enable_robot refused")
+        wait_until(lambda: self.feed() or self.di(addr("discrete_input", "enabled"))[0] == 1,
+                   5, "the robot enabled")
+        wait_until(lambda: self.joints() == [float(v) for v in HOME] and self.di(D_INPOS)[0],
+                   5, "the arm at home")
+
+    def joint_move(self, target, speed=SPEED, rel=0):
+        self.feed()
+        check(self.regs(H_JOINT_MOVE, f32_regs(list(target) + [speed, 100.0]) + [rel]) == 0,
+              "joint_move parameters refused")
+        check(self.coil(C_JOINT_MOVE, 0) == 0, "joint_move coil re-arm refused")
+        return self.coil(C_JOINT_MOVE, 1)
+
+
+def sim_names(sim):
+    return [c.get("cmdName") for c in sim_commands(sim)]
+
+
+def status_json(port):
+    with urllib.request.urlopen("http://127.0.0.1:%d/status.json" % port, timeout=5) as r:
+        return json.loads(r.read().decode())
+
+
+def watch_travel(plc, joint, first, start, after_s=1.5):
+    """Joint 'joint' from 'first' (read at 'start', the fault) over
+    'after_s' seconds: (travel in degrees, ms until it last changed)."""
+    last = plc.joints()[joint]
+    last_change = time.monotonic() if abs(last - first) > 1e-4 else start
+    while time.monotonic() - start < after_s:
+        now = plc.joints()[joint]
+        if abs(now - last) > 1e-4:
+            last, last_change = now, time.monotonic()
+        time.sleep(0.01)
+    return abs(last - first), 1000 * (last_change - start)
+
+
+def move_then_fault(fault, name):
+    """A 60-degree joint_move at 20 deg/s; at joint 1 past 9.6 degrees (the
+    issue's figure), 'fault' happens; the arm's travel after it."""
+    http = free_port()
+    with running(SIM, config(http)) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        check(plc.joint_move([60, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        wait_until(lambda: plc.joints()[0] > 9.6, 5, "joint 1 past 9.6 deg")
+        at_fault = plc.joints()[0]
+        fault_at = time.monotonic()
+        fault(plc)
+        travel, settled_ms = watch_travel(plc, 0, at_fault, fault_at)
+        end = plc.joints()[0]
+        print("  %s: joint 1 %.1f -> %.1f deg (travel %.1f deg, still %.0f ms after the "
+              "fault; before the fix the move ran on at %.0f deg/s)"
+              % (name, at_fault, end, travel, settled_ms, SPEED))
+        # Detection (the heartbeat: the limit) plus the reaction, at 20 deg/s.
+        detect_s = LIMIT_MS / 1000 if name == "heartbeat lost" else 0
+        bound = SPEED * (detect_s + SIM_PERIOD_MS / 1000 + LIMIT_MS / 10000 + SLACK_S)
+        check(travel <= bound, "%s: the arm travelled %.1f deg after the fault (bound %.1f): "
+              "the move was not stopped" % (name, travel, bound))
+        names = sim_names(sim)
+        check("stop_program" in names, "%s: no stop_program reached the robot: %s"
+              % (name, [n for n in names if n.endswith("_program")]))
+        check("pause_program" not in names, "%s: pause_program sent for a move" % name)
+        wait_until(lambda: plc.ir(I_REACTION)[0] == R_STOPPED, 3,
+                   "%s: reaction 4 (stopped); reads %d" % (name, plc.ir(I_REACTION)[0]))
+        doc = status_json(http)
+        check(doc["policy"]["reaction_name"] == "stopped" and
+              doc["policy"]["action_sent"] == "stop_program",
+              "%s: /status.json policy %s" % (name, doc["policy"]))
+        check(plc.ir(I_MOTION_STATE)[0] == STOPPED, "%s: motion state %d, not 3"
+              % (name, plc.ir(I_MOTION_STATE)[0]))
+        check(log_lines(gw, "pause_program does not stop"), "%s: no log line saying why stop"
+              % name)
+        plc.close()
+
+
+def test_motion_enable_drop_stops_a_joint_move():
+    move_then_fault(lambda plc: check(plc.coil(C_MOTION_ENABLE, 0) == 0, "drop refused"),
+                    "motion enable dropped")
+
+
+def test_heartbeat_loss_stops_a_joint_move():
+    def stop_feeding(plc):
+        plc.feeding = False
+    move_then_fault(stop_feeding, "heartbeat lost")
+
+
+def test_motion_state_first_reading_and_arrival():
+    with running(SIM, config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        state, count = plc.state()
+        check((state, count) == (IDLE, 0), "before any move: state %d count %d" % (state, count))
+        target = [10, 90, 90, 0, 90, 0]
+        check(plc.joint_move(target) == 0, "joint_move refused")
+        first_state = plc.ir(I_MOTION_STATE)[0]
+        first_inpos = plc.di(D_INPOS)[0]
+        print("  first reading after the trigger's reply: motion state %d, in position (DI %d) "
+              "%d" % (first_state, D_INPOS, first_inpos))
+        check(first_state == MOVING, "first reading after the trigger: state %d, not 1"
+              % first_state)
+        check(plc.ir(I_MOTION_COUNT)[0] == 1, "count not 1 after one move")
+        # Never 2 before the status shows the target.
+        while True:
+            state = plc.ir(I_MOTION_STATE)[0]
+            joints = plc.joints()
+            if state == ARRIVED:
+                break
+            check(state == MOVING, "state %d during the move" % state)
+        check(all(abs(a - b) <= JOINT_TOL for a, b in zip(joints, target)),
+              "state 2 with the joints at %s, target %s" % (joints, target))
+        check(plc.di(D_INPOS)[0] == 1, "state 2 while not in position")
+        # moveL relative: +30 mm in z from where the TCP is.
+        before = plc.tcp()
+        check(plc.regs(H_MOVEL, f32_regs([0, 0, 30, 0, 0, 0, 100, 100])) == 0, "moveL params")
+        check(plc.reg(H_MOVEL_REL, 1) == 0, "moveL relFlag")
+        check(plc.pulse(C_MOVEL) == 0, "moveL refused")
+        check(plc.state() == [MOVING, 2], "moveL: not moving, count 2 at once")
+        wait_until(lambda: plc.state()[0] != MOVING, 5, "moveL to end")
+        check(plc.state()[0] == ARRIVED, "moveL ended %d" % plc.state()[0])
+        after = plc.tcp()
+        check(abs(after[2] - (before[2] + 30)) <= TCP_TOL and
+              all(abs(after[i] - before[i]) <= TCP_TOL for i in (0, 1)),
+              "moveL arrived at %s, from %s + 30 mm z" % (after, before))
+        # end_move back to the first pose: absolute.
+        check(plc.regs(H_END_MOVE, f32_regs(before + [SPEED, 100])) == 0, "end_move params")
+        check(plc.pulse(C_END_MOVE) == 0, "end_move refused")
+        check(plc.state() == [MOVING, 3], "end_move: not moving, count 3")
+        wait_until(lambda: plc.state()[0] == ARRIVED, 15, "end_move to arrive")
+        # The exactly-once mailbox and the JSON mailbox count and follow.
+        check(plc.regs(H_MAILBOX, [MAILBOX_JOINT_MOVE] + f32_regs(HOME + [SPEED, 100, 0, 0, 0, 0])
+                       + [1]) == 0, "mailbox joint_move refused")
+        check(plc.state() == [MOVING, 4], "mailbox move: not moving, count 4")
+        wait_until(lambda: plc.state()[0] == ARRIVED, 5, "the mailbox's move to arrive")
+        check(all(abs(a - b) <= JOINT_TOL for a, b in zip(plc.joints(), HOME)), "not home")
+        text = json.dumps({"cmdName": "joint_move", "jointPosition": [5, 90, 90, 0, 90, 0],
+                           "speed": SPEED, "relFlag": 0}).encode().ljust(240, b"\0")
+        check(plc.regs(H_JSON, list(struct.unpack(">120H", text))) == 0, "JSON request")
+        check(plc.pulse(C_JSON_TRIGGER) == 0, "JSON trigger refused")
+        check(plc.state() == [MOVING, 5], "JSON move: not moving, count 5")
+        wait_until(lambda: plc.state()[0] == ARRIVED, 5, "the JSON mailbox's move to arrive")
+        check(len(sim_commands(sim, "joint_move")) == 3, "joint_moves at the robot")
+        plc.close()
+
+
+def test_stops_read_stopped_before_arriving():
+    with running(SIM, config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        # stop_program from the PLC.
+        check(plc.joint_move([40, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        wait_until(lambda: plc.joints()[0] > 2, 5, "the move to show")
+        check(plc.pulse(C_STOP) == 0, "stop_program refused")
+        check(plc.state()[0] == STOPPED, "after stop_program: state %d" % plc.state()[0])
+        # An emergency stop (SIGRTMIN) and a protective stop (SIGUSR2).
+        for sig, what in ((signal.SIGUSR2, "protective stop"), (signal.SIGRTMIN, "emergency stop")):
+            if sig == signal.SIGRTMIN:
+                check(plc.pulse(addr("coil", "cmd_clear_error")) == 0, "clear_error")
+            start = plc.joints()[0]
+            check(plc.joint_move([start + 30, 90, 90, 0, 90, 0]) == 0, "%s: move refused" % what)
+            wait_until(lambda: plc.joints()[0] > start + 2, 5, "%s: the move to show" % what)
+            sim.proc.send_signal(sig)
+            wait_until(lambda: plc.state()[0] != MOVING, 2, "%s: the move to end" % what)
+            check(plc.state()[0] == STOPPED, "%s: state %d" % (what, plc.state()[0]))
+            held = plc.joints()[0]
+            time.sleep(0.2)
+            check(abs(plc.joints()[0] - held) < 1e-3, "%s: the arm still moves" % what)
+            check(log_lines(gw, "stopped before arriving: %s" % what),
+                  "%s: no log line: %s" % (what, log_lines(gw, "motion:")))
+        sim.proc.send_signal(signal.SIGRTMIN)  # released
+        plc.close()
+
+
+def test_move_never_shown_times_out():
+    # A controller that accepts the move and starts it 10 s later: 2 deg
+    # at 20 deg/s is bounded by 0.1 s * 1.5 + 1 s.
+    with running(SIM + ["--move-lag", "500"], config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        sent = time.monotonic()
+        check(plc.joint_move([2, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        wait_until(lambda: plc.state()[0] != MOVING, 3, "the bound")
+        took = time.monotonic() - sent
+        check(plc.state()[0] == TIMED_OUT, "state %d, not 4" % plc.state()[0])
+        check(1.1 <= took <= 1.15 + SLACK_S, "timed out after %.2f s, bound 1.15 s" % took)
+        check(log_lines(gw, "not arrived within 1150 ms"), "no log line for the bound")
+        plc.close()
+
+
+def escalation(fail_times):
+    sim_args = SIM + ["--fail-command", "stop_program", "--fail-times", str(fail_times)]
+    with running(sim_args, config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        check(plc.joint_move([60, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        wait_until(lambda: plc.joints()[0] > 5, 5, "the move to show")
+        check(plc.coil(C_MOTION_ENABLE, 0) == 0, "drop refused")
+        want = R_STOPPED if fail_times else R_STILL_MOVING
+        seen = set()
+        def settled():
+            seen.add(plc.ir(I_REACTION)[0])
+            return want in seen
+        wait_until(settled, 3, "reaction %d; seen %s" % (want, seen))
+        check(R_ESCALATED in seen or len(sim_commands(sim, "stop_program")) == 2,
+              "no escalation seen: %s" % seen)
+        check(len(sim_commands(sim, "stop_program")) == 2,
+              "stop_program sent %d times, not 2" % len(sim_commands(sim, "stop_program")))
+        check(log_lines(gw, "sending stop_program once more"), "no escalation log line")
+        if not fail_times:
+            check(log_lines(gw, "the robot does not stop"), "no final log line")
+        time.sleep(0.3)
+        check(len(sim_commands(sim, "stop_program")) == 2, "a third stop_program")
+        plc.close()
+
+
+def test_robot_that_does_not_stop_is_escalated():
+    escalation(1)
+
+
+def test_robot_that_never_stops_reads_still_moving():
+    escalation(0)
+
+
+if __name__ == "__main__":
+    run([test_motion_enable_drop_stops_a_joint_move, test_heartbeat_loss_stops_a_joint_move,
+         test_motion_state_first_reading_and_arrival, test_stops_read_stopped_before_arriving,
+         test_move_never_shown_times_out, test_robot_that_does_not_stop_is_escalated,
+         test_robot_that_never_stops_reads_still_moving])
