@@ -139,7 +139,7 @@ static bool connected(void)
  * fault, the robot's flags and positions, every result block, the
  * mailboxes' results, the motion state. */
 static const struct range ir_reads[] = {
-    {0, 13}, {16, 4}, {48, 2}, {60, 30}, {100, 3}, {200, 36},
+    {0, 13}, {16, 4}, {48, 2}, {60, 30}, {100, 16}, {200, 36},
     {4000, 120}, {4120, 120}, {4240, 120}, {4360, 120}, {4480, 24},
     {4600, 77}, {5600, 4},
 };
@@ -687,23 +687,38 @@ static void unit_other_blocks(void)
     scan();
     if (!P.PROG.ERROR.value || P.PROG.ERRORID.value != 6)
         fail("program command 9: ErrorID %u", P.PROG.ERRORID.value);
-    /* Speed override: per mille; the same value again is Done at once. */
+    /* Speed override: per mille; Done on the status's read-back, not on
+     * a stale result; an error state after the request is its error. */
+    IR(K(JAKA_IR_RESULT_RAPID_RATE_STATE)) = 2;
     P.OVERRIDE.FACTOR.value = 0.5f;
     P.OVERRIDE.EXECUTE.value = 1;
     scan();
     if (HR(K(JAKA_HR_RAPID_RATE)) != 500)
         fail("override: HR reads %u", HR(K(JAKA_HR_RAPID_RATE)));
-    gateway_answers(K(JAKA_IR_RESULT_RAPID_RATE_STATE), 2, NULL);
     scan();
+    scan();
+    if (P.OVERRIDE.DONE.value)
+        fail("override: Done before the status shows it");
+    IR(K(JAKA_IR_RAPIDRATE_PERMILLE)) = 500;
     scan();
     if (!P.OVERRIDE.DONE.value)
-        fail("override: not Done");
+        fail("override: not Done on the read-back");
     P.OVERRIDE.EXECUTE.value = 0;
+    scan();
+    P.OVERRIDE.FACTOR.value = 0.2f;
+    P.OVERRIDE.EXECUTE.value = 1;
+    scan();
+    gateway_answers(K(JAKA_IR_RESULT_RAPID_RATE_STATE), 7, "not the write owner: 10.0.0.9:502");
+    scan();
+    if (!P.OVERRIDE.ERROR.value || P.OVERRIDE.ERRORID.value != 0x0207)
+        fail("override refused: Error %d ErrorID 0x%04X", P.OVERRIDE.ERROR.value, P.OVERRIDE.ERRORID.value);
+    P.OVERRIDE.EXECUTE.value = 0;
+    P.OVERRIDE.FACTOR.value = 1.5f;
     scan();
     P.OVERRIDE.EXECUTE.value = 1;
     scan();
-    if (!P.OVERRIDE.DONE.value)
-        fail("override: the same value again is not Done at once");
+    if (P.OVERRIDE.ERRORID.value != 6)
+        fail("override 1.5: ErrorID %u", P.OVERRIDE.ERRORID.value);
     /* Output: the coil, then Done on the read-back. */
     P.DIGOUT.INDEX.value = 3;
     P.DIGOUT.VALUE.value = 1;
@@ -711,7 +726,6 @@ static void unit_other_blocks(void)
     scan();
     if (!CO(K(JAKA_CO_CABINET_DO_1) + 2))
         fail("output 3: coil not set");
-    gateway_answers(K(JAKA_IR_RESULT_SET_DIGITAL_OUTPUT_STATE), 2, NULL);
     scan();
     scan();
     if (P.DIGOUT.DONE.value)
@@ -808,7 +822,7 @@ static void fig(const char *fmt, ...)
 static void link_up(void)
 {
     double t = SCAN_UNTIL(P.LINK.VALID.value, 5000, "JAKA_Link Valid");
-    fig("Valid after %.0f ms", t);
+    fig("%sValid after %.0f ms", figures[0] ? ", " : "", t);
 }
 
 static void start_up(void)
