@@ -91,6 +91,7 @@ static struct client cl;
 static unsigned long tick;
 static long scans;
 static double scan_work_max_ms, scan_work_sum_ms;
+static long overruns; /* scans whose work took longer than the period */
 
 static modbus_t *connect_one(void)
 {
@@ -259,6 +260,8 @@ static void scan(void)
     scan_work_sum_ms += work;
     if (work > scan_work_max_ms)
         scan_work_max_ms = work;
+    if (work > SCAN_MS)
+        overruns++;
     if (simulated) {
         sim_us += SCAN_MS * 1000;
         return;
@@ -898,26 +901,40 @@ static void case_startup(void)
     fig(", stop %.0f ms", t);
 }
 
+/* The arm at Done is where the move was to take it. */
+static void check_arrived(const char *name, int address, float want, float tolerance)
+{
+    float at = ir_f32(address);
+    if (!failed && fabsf(at - want) > tolerance)
+        fail("%s: Done at %.3f, the target is %.3f", name, at, want);
+}
+
 static void case_moves(void)
 {
     start_up();
+    int j1 = K(JAKA_IR_JOINT_ACTUAL_POSITION_1), x = K(JAKA_IR_ACTUAL_POSITION_0);
+    float from = ir_f32(j1);
     P.MOVEJ.POSITION.value.table[0] = 10.0f;
     P.MOVEJ.RELATIVE.value = 1;
     P.MOVEJ.SPEED.value = 30.0f;
     move_and_check("joint", 0);
+    check_arrived("joint", j1, from + 10.0f, 0.1f);
     for (int i = 0; i < 6; i++)
         P.MOVEL.POSE.value.table[i] = 0;
+    from = ir_f32(x + 4);
     P.MOVEL.POSE.value.table[2] = 20.0f;
     P.MOVEL.RELATIVE.value = 1;
     P.MOVEL.SPEED.value = 100.0f;
     if (!failed)
         move_and_check("linear", 1);
+    check_arrived("linear (z)", x + 4, from + 20.0f, 1.0f);
     for (int i = 0; i < 6; i++)
-        P.MOVET.POSE.value.table[i] = ir_f32(K(JAKA_IR_ACTUAL_POSITION_0) + 2 * i);
+        P.MOVET.POSE.value.table[i] = ir_f32(x + 2 * i);
     P.MOVET.POSE.value.table[0] += 15.0f;
     P.MOVET.SPEED.value = 30.0f;
     if (!failed)
         move_and_check("tcp", 2);
+    check_arrived("tcp (x)", x, P.MOVET.POSE.value.table[0], 1.0f);
 }
 
 /* A long joint move, interrupted by 'interrupt'; CommandAborted expected. */
@@ -950,7 +967,25 @@ static void interrupted_move(const char *what, void (*interrupt)(void))
     scan();
 }
 
-static void stop_heartbeat(void) { P.LINKENABLE.value = 0; }
+static void stop_heartbeat(void) { P.LINK.FEED.value = 0; }
+
+/* What JAKA_Link reports after the interruption: 'fault' latched (or the
+ * e-stop flag when fault is 0). */
+static void check_reported(const char *what, unsigned fault)
+{
+    if (failed)
+        return;
+    if (fault == 0) {
+        SCAN_UNTIL(P.LINK.EMERGENCYSTOP.value, 2000, "JAKA_Link EmergencyStop");
+        fig(", JAKA_Link EmergencyStop");
+        return;
+    }
+    SCAN_UNTIL(IR(K(JAKA_IR_FAULT)) == fault, 3000, "the fault latched");
+    scan();
+    if (P.LINK.FAULT.value != fault)
+        fail("%s: JAKA_Link.Fault %u, expected %u", what, P.LINK.FAULT.value, fault);
+    fig(", fault %u, reaction %u", fault, IR(K(JAKA_IR_FAULT_REACTION)));
+}
 static void drop_motion_enable(void) { P.RESET.MOTIONENABLE.value = 0; }
 static void press_estop(void)
 {
@@ -960,9 +995,23 @@ static void press_estop(void)
         fail("no jakasim pid for the e-stop");
 }
 
-static void case_heartbeat_loss(void) { interrupted_move("heartbeat stopped", stop_heartbeat); }
-static void case_motion_enable(void) { interrupted_move("motion enable dropped", drop_motion_enable); }
-static void case_estop(void) { interrupted_move("e-stop", press_estop); }
+static void case_heartbeat_loss(void)
+{
+    interrupted_move("heartbeat stopped", stop_heartbeat);
+    check_reported("heartbeat stopped", 1);
+}
+
+static void case_motion_enable(void)
+{
+    interrupted_move("motion enable dropped", drop_motion_enable);
+    check_reported("motion enable dropped", 3);
+}
+
+static void case_estop(void)
+{
+    interrupted_move("e-stop", press_estop);
+    check_reported("e-stop", 0);
+}
 
 static void case_fault_reset(void)
 {
@@ -1061,10 +1110,10 @@ static int run_case(const char *name, const char *port, const char *pid, bool sp
         if (failed)
             printf("FAIL %s: %s\n", name, why);
         else
-            printf("PASS %s (%s; scan work mean %.2f ms, max %.2f ms over %ld scans of %d ms; "
-                   "%ld reads, %ld writes, %ld refused)\n",
+            printf("PASS %s (%s; scan work mean %.2f ms, max %.2f ms, %ld overruns in %ld scans of "
+                   "%d ms; %ld reads, %ld writes, %ld refused)\n",
                    name, figures[0] == ',' ? figures + 2 : figures, scan_work_sum_ms / scans,
-                   scan_work_max_ms, scans, SCAN_MS, cl.reads, cl.writes, cl.refused);
+                   scan_work_max_ms, overruns, scans, SCAN_MS, cl.reads, cl.writes, cl.refused);
         return failed ? 1 : 0;
     }
     fprintf(stderr, "plc_scan: no case %s\n", name);
