@@ -37,16 +37,22 @@ if [ -x "$dir/iec2c" ] && [ -f "$dir/lib/C/iec_std_lib.h" ]; then
     exit 0
 fi
 
-rm -rf "$dir" "$dir.tmp"
+rm -rf "$dir" "$dir.tmp" "$dir.keep"
 mkdir -p "$dir.tmp"
 start=$(date +%s)
-log=$dir.tmp/build.log
+log=$(realpath -m "$build")/matiec-build.log
+mkdir -p "$(dirname "$log")"
 tar -C "$dir.tmp" --strip-components=1 -xzf "$tarball"
 if ! (cd "$dir.tmp" && autoreconf -i && ./configure && make -j2) >"$log" 2>&1; then
     tail -n 30 "$log" >&2
     echo "matiec: the build failed (log: $log)" >&2
     exit 1
 fi
-mv "$dir.tmp" "$dir"
+# Only what the tests use stays: the compiler, its libraries (lib/, the
+# standard function blocks and the C runtime headers) and the licences.
+mkdir -p "$dir.keep"
+mv "$dir.tmp/iec2c" "$dir.tmp/lib" "$dir.tmp/COPYING" "$dir.keep/"
+rm -rf "$dir.tmp"
+mv "$dir.keep" "$dir"
 echo "matiec: built $(basename "$tarball") in $(($(date +%s) - start)) s into $dir" >&2
 echo "$dir"
