@@ -537,7 +537,11 @@ static void unit_refusals(void)
         {7, "heartbeat not started", 0x0201},
         {7, "trigger still 1: write 0 first", 0x0202},
         {7, "target not written", 0x0203},
-        {7, "network-exception fault 1 latched: reset it first", 0x0204},
+        {7, "fault 1 latched: reset it first", 0x0204},
+        {7, "PLC heartbeat lost: fault 1 latched", 0x0204},
+        {7, "no Modbus client: fault 2 latched", 0x0204},
+        {7, "motion enable dropped: fault 3 latched", 0x0204},
+        {7, "gateway loop stalled: fault 4 latched", 0x0204},
         {7, "motion enable is 0", 0x0205},
         {7, "motion is off: [commands] motion = true enables it", 0x0206},
         {7, "not the write owner: 127.0.0.1:40122", 0x0207},
@@ -579,7 +583,7 @@ static void unit_refusals(void)
     scan();
     if (P.MAILBOX.ERRORID.value != 0x0209)
         fail("mailbox refusal: ErrorID 0x%04X", P.MAILBOX.ERRORID.value);
-    report("unit_refusals", "15 result states and reasons, each its ErrorID");
+    report("unit_refusals", "19 result states and reasons, each its ErrorID");
 }
 
 /* A move: parameters in the image before the trigger, in the gateway's
@@ -1019,7 +1023,17 @@ static void case_fault_reset(void)
     if (failed)
         return;
     SCAN_UNTIL(P.LINK.FAULT.value != 0, 3000, "a fault latched");
+    /* A move before the reset: the gateway refuses it, the block says why. */
     P.RESET.MOTIONENABLE.value = 1;
+    P.MOVEJ.POSITION.value.table[0] = 1.0f;
+    P.MOVEJ.EXECUTE.value = 1;
+    SCAN_UNTIL(P.MOVEJ.ERROR.value || P.MOVEJ.DONE.value, 3000, "a move under a latched fault");
+    if (!failed && P.MOVEJ.ERRORID.value != 0x0204)
+        fail("a move under a latched fault: Done %d ErrorID 0x%04X, expected 0x0204",
+             P.MOVEJ.DONE.value, P.MOVEJ.ERRORID.value);
+    fig(", a move before the reset refused (16#0204)");
+    P.MOVEJ.EXECUTE.value = 0;
+    scan();
     double t = RUN_BLOCK(RESET, 3000, "JAKA_Reset after the fault");
     if (!failed && P.LINK.FAULT.value != 0)
         fail("fault %u after the reset", P.LINK.FAULT.value);
@@ -1059,6 +1073,30 @@ static void case_restart(void)
     fig(", refused with 16#0202 then Done %.0f ms", t);
 }
 
+/* Refusals from the real gateway, as ErrorIDs: a move before the first
+ * heartbeat (16#0201). */
+static void case_refusals(void)
+{
+    P.LINK.FEED.value = 0;
+    start_up();
+    P.MOVEJ.POSITION.value.table[0] = 1.0f;
+    P.MOVEJ.RELATIVE.value = 1;
+    P.MOVEJ.EXECUTE.value = 1;
+    SCAN_UNTIL(P.MOVEJ.ERROR.value || P.MOVEJ.DONE.value, 3000, "a move before the heartbeat");
+    if (!failed && P.MOVEJ.ERRORID.value != 0x0201)
+        fail("a move before the heartbeat: Done %d ErrorID 0x%04X, expected 0x0201",
+             P.MOVEJ.DONE.value, P.MOVEJ.ERRORID.value);
+    P.MOVEJ.EXECUTE.value = 0;
+    P.LINK.FEED.value = 1;
+    scan();
+    SCAN_UNTIL(P.LINK.HEARTBEATSTATE.value == 1, 3000, "the heartbeat seen running");
+    P.MOVEJ.EXECUTE.value = 1;
+    SCAN_UNTIL(P.MOVEJ.DONE.value || P.MOVEJ.ERROR.value, 5000, "the move with the heartbeat");
+    if (!failed && !P.MOVEJ.DONE.value)
+        fail("the move with the heartbeat: ErrorID 0x%04X", P.MOVEJ.ERRORID.value);
+    fig(", a move before the heartbeat refused (16#0201), Done once it runs");
+}
+
 static void case_link_lost(void)
 {
     link_up();
@@ -1093,6 +1131,7 @@ static int run_case(const char *name, const char *port, const char *pid, bool sp
         {"fault_reset", case_fault_reset},   {"restart", case_restart},
         {"link_lost", case_link_lost},       {"estop", case_estop},
         {"mailbox", case_mailbox},           {"two_connections", case_startup},
+        {"refusals", case_refusals},
     };
     cl.host = "127.0.0.1";
     cl.port = atoi(port);

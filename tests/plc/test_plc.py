@@ -154,6 +154,7 @@ CASES = [
     ("estop", True, "e-stop during a move: CommandAborted"),
     ("mailbox", True, "the exactly-once mailbox: one rapid_rate at the robot"),
     ("two_connections", True, "reads and writes on two connections, as a Siemens PLC makes them"),
+    ("refusals", True, "a move before the heartbeat: ErrorID 16#0201 from the gateway's reason"),
 ]
 
 
