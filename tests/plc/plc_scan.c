@@ -373,6 +373,8 @@ static void fill_map_header(void)
     IR(K(JAKA_IR_MAP_VERSION)) = K(JAKA_MAP_VERSION_VALUE);
     IR(K(JAKA_IR_PROBE_U32)) = K(JAKA_PROBE_U32_VALUE) >> 16;
     IR(K(JAKA_IR_PROBE_U32) + 1) = K(JAKA_PROBE_U32_VALUE) & 0xFFFF;
+    IR(K(JAKA_IR_MAP_CRC)) = K(JAKA_MAP_CRC_VALUE) >> 16;
+    IR(K(JAKA_IR_MAP_CRC) + 1) = K(JAKA_MAP_CRC_VALUE) & 0xFFFF;
     DI(K(JAKA_DI_STATUS_FRESH)) = 1;
 }
 
@@ -404,8 +406,8 @@ static void unit_link(void)
     scan();
     if (HR(K(JAKA_HR_PLC_HEARTBEAT)) == hb)
         fail("the heartbeat did not change from one scan to the next");
-    if (!P.LINK.VALID.value || !P.LINK.MAPCHECKED.value)
-        fail("not Valid with the map's magic, version and probe in place");
+    if (!P.LINK.VALID.value || !P.LINK.MAPCHECKED.value || !P.LINK.MAPEXACT.value)
+        fail("not Valid (or not MapExact) with the map's magic, version, probe and CRC in place");
     /* The image stops changing: stale after StaleTime (500 ms). */
     double t = SCAN_UNTIL(!P.LINK.VALID.value, 1000, "Valid falls on a frozen image");
     if (!failed && (t < 450 || P.LINK.ERRORID.value != 5))
@@ -416,6 +418,14 @@ static void unit_link(void)
     scan();
     if (!P.LINK.VALID.value)
         fail("not Valid again when the image moves again");
+    /* Another CRC (a gateway with rows added): Valid, not MapExact. */
+    reset_program();
+    fill_map_header();
+    IR(K(JAKA_IR_MAP_CRC))++;
+    IR(K(JAKA_IR_STATUS_AGE_MS) + 1) = 5;
+    scan();
+    if (!P.LINK.VALID.value || P.LINK.MAPEXACT.value)
+        fail("another map CRC: Valid %d MapExact %d", P.LINK.VALID.value, P.LINK.MAPEXACT.value);
     /* A wrong version: ErrorID 4, checked once at start. */
     reset_program();
     fill_map_header();
@@ -433,7 +443,7 @@ static void unit_link(void)
     /* No map within CheckTime (3 s). */
     reset_program();
     SCAN_UNTIL(P.LINK.ERROR.value, 3500, "no map: Error");
-    report("unit_link", "heartbeat each scan, stale at 500 ms, version, word order, no map");
+    report("unit_link", "heartbeat each scan, stale at 500 ms, CRC, version, word order, no map");
 }
 
 /* A trigger block: an edge starts exactly one request (the trigger coil
@@ -829,6 +839,8 @@ static void fig(const char *fmt, ...)
 static void link_up(void)
 {
     double t = SCAN_UNTIL(P.LINK.VALID.value, 5000, "JAKA_Link Valid");
+    if (!failed && !P.LINK.MAPEXACT.value)
+        fail("JAKA_Link: the gateway's map CRC is not plc/jaka_map.st's");
     fig("%sValid after %.0f ms", figures[0] ? ", " : "", t);
 }
 
