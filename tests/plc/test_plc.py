@@ -11,7 +11,9 @@ jakagw in front of a real jakasim. One line per case, then
 Without the tarball: a failure under CI=true, a skip (exit 0, no count)
 elsewhere. MATIEC_TARBALL names another tarball."""
 import os
+import hashlib
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -97,29 +99,41 @@ def build_harness(matiec):
     The blocks' C (Res.c, which includes POUS.c) and the harness run under
     ASan and UBSan: matiec does not check array bounds, so an index out of
     an image array would be found here. Cell.c holds only the 3000
-    constants, compiled without optimisation (5 s rather than 20). The
-    generated objects are kept while their source is unchanged."""
-    gen = os.path.join(OUT, "gen")
+    constants, compiled without optimisation (5 s rather than 20).
+
+    The generated C and its objects are kept in plc-gen-KEY beside
+    matiec's build (MATIEC_CACHE, which CI keeps across runs, else the
+    build directory), KEY covering the source, the flags, the compiler and
+    matiec: a run that changes none of them compiles only plc_scan.c."""
     source = unit_source([os.path.join(ROOT, "tests", "plc", "cell.st")], "JakaCell")
-    stamp = os.path.join(gen, "unit.st")
-    fresh = not os.path.exists(stamp) or open(stamp).read() != source
-    if fresh:
-        ok, out = iec2c(matiec, source, gen)
-        check(ok, "iec2c of the library and cell.st: " + out[-2000:])
-    includes = ["-std=gnu11", "-isystem", gen, "-isystem", os.path.join(matiec, "lib", "C")]
+    includes = ["-std=gnu11"]
     san = ["-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
            "-fno-sanitize-recover=all"]
+    units = (("Cell", ["-O0"], "plain"), ("Res", san, "san"))
+    cc = subprocess.run(["cc", "--version"], capture_output=True, text=True).stdout
+    key = hashlib.sha256(repr((source, units, cc, os.path.basename(matiec))).encode()).hexdigest()[:12]
+    cache = os.path.dirname(matiec)
+    gen = os.path.join(cache, "plc-gen-" + key)
+    objs = [os.path.join(gen, "%s-%s.o" % (name, kind)) for name, _, kind in units]
+    includes += ["-isystem", gen, "-isystem", os.path.join(matiec, "lib", "C")]
+    if not all(os.path.exists(o) for o in objs):
+        shutil.rmtree(gen, ignore_errors=True)
+        ok, out = iec2c(matiec, source, gen + ".tmp")
+        check(ok, "iec2c of the library and cell.st: " + out[-2000:])
+        for (name, flags, kind), obj in zip(units, objs):
+            # matiec's own C: its warnings are not ours to fix.
+            subprocess.run(["cc", "-std=gnu11", "-isystem", gen + ".tmp", "-isystem",
+                            os.path.join(matiec, "lib", "C")] + flags +
+                           ["-w", "-c", os.path.join(gen + ".tmp", name + ".c"),
+                            "-o", os.path.join(gen + ".tmp", os.path.basename(obj))], check=True)
+        os.rename(gen + ".tmp", gen)
+        for old in os.listdir(cache):  # one generation kept
+            if old.startswith("plc-gen-") and old != os.path.basename(gen):
+                shutil.rmtree(os.path.join(cache, old), ignore_errors=True)
     modbus = subprocess.run(["pkg-config", "--cflags", "--libs", "libmodbus"],
                             capture_output=True, text=True, check=True).stdout.split()
-    objs = []
-    for name, flags, kind in (("Cell", ["-O0"], "plain"), ("Res", san, "san")):
-        obj = os.path.join(gen, "%s-%s.o" % (name, kind))
-        if fresh or not os.path.exists(obj):
-            # matiec's own C: its warnings are not ours to fix.
-            subprocess.run(["cc"] + includes + flags + ["-w", "-c", os.path.join(gen, name + ".c"),
-                                                        "-o", obj], check=True)
-        objs.append(obj)
     exe = os.path.join(OUT, "plc_scan")
+    os.makedirs(OUT, exist_ok=True)
     subprocess.run(["cc"] + includes + san + ["-Wall", "-Wextra", "-Werror",
                                               os.path.join(ROOT, "tests", "plc", "plc_scan.c")] +
                    objs + ["-o", exe] + modbus + ["-lm"], check=True)
