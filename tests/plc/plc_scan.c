@@ -9,13 +9,23 @@
  *   plc_scan case NAME PORT [SIM_PID]      one end-to-end case against jakagw
  *   plc_scan case NAME PORT SIM_PID split  with reads and writes on two connections
  *
- * Each scan: read the image's inputs (below, reads[]), run the program,
- * then write what the program changed: each holding-register block of
- * writes[] whose registers changed, whole, in one FC16 (a command's
- * parameters, the mailbox), then each changed coil with FC05, in address
- * order (parameters before their trigger). A refused write (a Modbus
- * exception) is logged and not repeated: the block reads the outcome from
- * the result registers, as the contract says.
+ * Each scan (10 ms, on a monotonic clock):
+ * 1. reads: input registers 0-12 (self-description), 16-19 (links, status
+ *    age), 48-49 (heartbeat age), 60-89 (fault, owner), 100-115 (robot
+ *    state, override), 200-235 (positions), 4000-4503 (every result
+ *    block, in reads of 120), 4600-4676 (mailboxes), 5600-5603 (motion);
+ *    discrete inputs 0-23 (links, flags) and 512-535 (outputs read back):
+ *    15 requests (FC04, FC02);
+ * 2. the program (matiec's C), once;
+ * 3. writes, only what the program changed: each holding-register block
+ *    whose registers changed, whole, in one FC16 (a block of one register,
+ *    with FC06), the blocks being HR 0, 100, 200-231, 300-316, 320-335,
+ *    340-359, 400-425; then each changed coil with FC05, in address order
+ *    (parameters before their trigger).
+ * A refused write (a Modbus exception) is logged and not repeated: the
+ * block reads the outcome from the result registers, as the contract
+ * says. A failed read or write closes the connection; the next scan
+ * connects again (the image keeps its last values meanwhile).
  *
  * Prints "PASS name (figures)" or "FAIL name: why" per case.
  */
