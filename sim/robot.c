@@ -208,25 +208,28 @@ static void halt_arm(struct sim_robot *r)
 {
     r->moving = false;
     r->linear = false;
-    r->move_pending = false;
+    r->queued_count = 0;
     memcpy(r->joint_target, r->joints, sizeof(r->joints));
 }
 
-/* The move accepted move_lag_ticks ago starts now. */
-static void start_pending_move(struct sim_robot *r)
+/* The first move queued starts now. */
+static void start_next_move(struct sim_robot *r)
 {
-    memcpy(r->joint_target, r->pending_target, sizeof(r->joint_target));
-    memcpy(r->joint_cmd, r->pending_target, sizeof(r->joint_cmd));
-    r->joint_speed = r->pending_speed;
-    r->linear = r->pending_linear;
+    const struct sim_move *next = &r->queued[0];
+
+    memcpy(r->joint_target, next->target, sizeof(r->joint_target));
+    memcpy(r->joint_cmd, next->target, sizeof(r->joint_cmd));
+    r->joint_speed = next->speed;
+    r->linear = next->linear;
     if (r->linear) {
         memcpy(r->lin_start, r->cart, sizeof(r->lin_start));
-        memcpy(r->lin_target, r->pending_pose, sizeof(r->lin_target));
+        memcpy(r->lin_target, next->pose, sizeof(r->lin_target));
         r->lin_length = pose_distance(r->lin_start, r->lin_target);
         r->lin_done = 0;
     }
     r->moving = true;
-    r->move_pending = false;
+    r->queued_count--;
+    memmove(&r->queued[0], &r->queued[1], r->queued_count * sizeof(r->queued[0]));
 }
 
 /* Joint speed, TCP speed and the pose after the joints moved from 'before'. */
@@ -301,7 +304,7 @@ void sim_robot_tick(struct sim_robot *r, double dt)
     r->tcp_speed = 0;
     /* A stop of any kind ends a move outside a program where the arm is. */
     if ((!r->enabled || r->emergency_stop || r->protective_stop) &&
-        (r->moving || r->move_pending) && r->interp_state != 3)
+        (r->moving || r->queued_count > 0) && r->interp_state != 3)
         halt_arm(r);
     if (!r->enabled) {
         r->moving = false;
@@ -322,12 +325,13 @@ void sim_robot_tick(struct sim_robot *r, double dt)
     }
     if (r->interp_state == 2)
         return; /* paused: nothing moves, nothing starts */
-    if (r->move_pending) {
-        if (r->move_lag_left > 0)
-            r->move_lag_left--;
-        else
-            start_pending_move(r);
-    }
+    /* The next move starts once the arm is free and its lag has passed;
+     * every queued move's lag runs meanwhile. */
+    if (!r->moving && r->queued_count > 0 && r->queued[0].lag_left == 0)
+        start_next_move(r);
+    for (unsigned i = 0; i < r->queued_count; i++)
+        if (r->queued[i].lag_left > 0)
+            r->queued[i].lag_left--;
     if (r->moving && (r->linear ? move_linear(r, dt) : move_joints(r, dt))) {
         r->moving = false;
         r->linear = false;
@@ -466,10 +470,11 @@ static bool can_move(struct command_ctx *c)
 }
 
 /*
- * Accepts a move: it starts move_lag_ticks ticks from now (the status
- * documents until then still show the arm in position where it was),
- * replacing any move still running. 'pose' (NULL: a joint move) makes it
- * a linear one through that pose, 'speed' then in mm/s.
+ * Accepts a move: it starts once the moves before it have ended, and no
+ * sooner than move_lag_ticks ticks from now (the status documents until
+ * then still show the arm in position where it was). 'pose' (NULL: a
+ * joint move) makes it a linear one through that pose, 'speed' then in
+ * mm/s. A relative target was taken from where the arm is now.
  */
 static bool accept_move(struct command_ctx *c, const double target[6], double speed,
                         const double *pose)
@@ -477,13 +482,15 @@ static bool accept_move(struct command_ctx *c, const double target[6], double sp
     struct sim_robot *r = c->r;
     if (!can_move(c) || speed <= 0)
         return call_failed(c);
-    memcpy(r->pending_target, target, sizeof(r->pending_target));
-    r->pending_speed = speed;
-    r->pending_linear = pose != NULL;
+    if (r->queued_count == SIM_MOVE_QUEUE)
+        return reply_refused(c, "too many moves queued");
+    struct sim_move *m = &r->queued[r->queued_count++];
+    memcpy(m->target, target, sizeof(m->target));
+    m->speed = speed;
+    m->linear = pose != NULL;
     if (pose)
-        memcpy(r->pending_pose, pose, sizeof(r->pending_pose));
-    r->move_pending = true;
-    r->move_lag_left = r->move_lag_ticks;
+        memcpy(m->pose, pose, sizeof(m->pose));
+    m->lag_left = r->move_lag_ticks;
     return reply_ok(c);
 }
 
@@ -1049,7 +1056,7 @@ void sim_robot_network_lost(struct sim_robot *r, enum sim_net_motion motion, cha
     static const char *const verbs[] = {"kept", "paused", "stopped"};
     const char *verb = verbs[motion <= SIM_NET_STOP ? motion : 0];
     bool program = r->interp_state == 3;
-    bool move = r->interp_state == 0 && (r->moving || r->move_pending);
+    bool move = r->interp_state == 0 && (r->moving || r->queued_count > 0);
 
     if (r->interp_state == 2) {
         snprintf(done, done_size, "the %s was paused already: left paused",
@@ -1067,8 +1074,8 @@ void sim_robot_network_lost(struct sim_robot *r, enum sim_net_motion motion, cha
         snprintf(done, done_size, "%s the move%s", verb,
                  motion == SIM_NET_KEEP ? " running" : "");
     if (motion == SIM_NET_PAUSE) {
-        if (r->move_pending)
-            start_pending_move(r); /* paused as it starts */
+        if (!r->moving && r->queued_count > 0)
+            start_next_move(r); /* paused as it starts */
         r->interp_state = 2;
         r->paused_move = move;
     } else if (motion == SIM_NET_STOP) {

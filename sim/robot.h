@@ -26,6 +26,8 @@
 #define SIM_EXTIO_DO 16
 #define SIM_EXTIO_AI 8
 #define SIM_EXTIO_AO 8
+/* Moves a controller takes ahead of the one running. */
+#define SIM_MOVE_QUEUE 8
 
 struct sim_profile;
 
@@ -52,13 +54,18 @@ struct sim_robot {
      * covered so far; the joints follow by inverse kinematics. */
     bool linear;
     double lin_start[6], lin_target[6], lin_length, lin_done;
-    /* A move accepted but not started yet: a controller's planner starts
-     * it a few status periods after its reply (move_lag_ticks). */
-    bool move_pending;
-    unsigned move_lag_left;
-    double pending_target[SIM_JOINTS], pending_speed;
-    bool pending_linear;
-    double pending_pose[6];
+    /* Moves accepted, not started yet, in order. The manual's moves block
+     * (4.7, 4.8): each starts once the one before has ended, and no sooner
+     * than move_lag_ticks ticks after its own reply (a controller's
+     * planner takes a few cycles). */
+    struct sim_move {
+        double target[SIM_JOINTS]; /* the joints at its end */
+        double speed;              /* deg/s, or mm/s when linear */
+        bool linear;               /* moveL: through 'pose' on a line */
+        double pose[6];
+        unsigned lag_left;         /* ticks before it may start */
+    } queued[SIM_MOVE_QUEUE];
+    unsigned queued_count;
     unsigned move_lag_ticks; /* ticks (status documents); 0: at once */
     double tcp_speed;               /* mm/s */
     double cart[6];                 /* mm, deg: FK of joints */
@@ -99,10 +106,11 @@ void sim_robot_init(struct sim_robot *r, bool test_pattern);
 /*
  * Advances motion and programs by 'dt' seconds: one tick, one status
  * document. A move outside a program (joint_move, end_move, moveL, jog)
- * starts move_lag_ticks ticks after it was accepted, runs at its speed
- * (times the rapid rate) and ends at its target; stop_program, an
- * emergency or protective stop, disable and power off end it where the
- * arm is; pause_program does not touch it (no program runs).
+ * starts once the move before it has ended and move_lag_ticks ticks after
+ * it was accepted, runs at its speed (times the rapid rate) and ends at
+ * its target; stop_program, an emergency or protective stop, disable and
+ * power off end it where the arm is, with every move queued behind it;
+ * pause_program does not touch it (no program runs).
  */
 void sim_robot_tick(struct sim_robot *r, double dt);
 

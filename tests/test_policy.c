@@ -1324,6 +1324,7 @@ static void generated_faults_stop_what_moves(void **state)
            (unsigned long long)seed);
     fflush(stdout);
     rng = seed;
+    unsigned acted = 0, stopped_moves = 0, escalated = 0;
     for (unsigned run = 0; run < runs; run++) {
         enum policy_action configured = (enum policy_action)next_random(3);
         bool by_motion_enable = next_random(2);
@@ -1359,13 +1360,16 @@ static void generated_faults_stop_what_moves(void **state)
             continue;
         }
         assert_int_equal(sent.calls, 1);
+        acted++;
         bool move_may_run = robot == POLICY_ROBOT_MOVING ||
                             (start_is_move && started &&
                              (robot == POLICY_ROBOT_UNKNOWN ||
                               (robot == POLICY_ROBOT_STILL && unshown) ||
                               (robot == POLICY_ROBOT_PAUSED && unshown)));
-        if (move_may_run)
+        if (move_may_run) {
             assert_int_equal(sent.action[0], POLICY_STOP); /* (1) */
+            stopped_moves++;
+        }
         /* What the robot does after the action. */
         uint64_t now = p.last_seen_ms;
         robot_now = after == 1 || after == 2 ? POLICY_ROBOT_MOVING
@@ -1388,12 +1392,17 @@ static void generated_faults_stop_what_moves(void **state)
             assert_true(p.reaction == POLICY_REACTION_STOPPED ||
                         p.reaction == POLICY_REACTION_PAUSED);
         } else { /* (2) */
+            escalated++;
             assert_int_equal(sent.calls, 2);
             assert_int_equal(sent.action[1], POLICY_STOP);
             assert_int_equal(p.reaction, after == 1 ? POLICY_REACTION_STILL_MOVING
                                                     : POLICY_REACTION_STOPPED);
         }
     }
+    printf("policy property: %u acted, %u of them on a move (stop_program), %u escalated\n",
+           acted, stopped_moves, escalated);
+    /* The generator reaches every rule. */
+    assert_true(acted > runs / 4 && stopped_moves > runs / 20 && escalated > runs / 10);
 }
 
 int main(void)

@@ -101,9 +101,25 @@ uint64_t motion_bound_ms(double travel, double speed)
     return ms > MOTION_BOUND_MAX_MS ? MOTION_BOUND_MAX_MS : (uint64_t)ms;
 }
 
+/*
+ * Member 'key' of 'obj' as the robot reads it: a controller reads requests
+ * as Python's json.loads does, the last of a repeated member counting
+ * (cJSON's lookup would take the first, and follow another target).
+ */
+static const cJSON *member(const cJSON *obj, const char *key)
+{
+    const cJSON *found = NULL;
+    if (!cJSON_IsObject(obj))
+        return NULL;
+    for (const cJSON *m = obj->child; m; m = m->next)
+        if (m->string && strcmp(m->string, key) == 0)
+            found = m;
+    return found;
+}
+
 static bool number_of(const cJSON *obj, const char *key, double *out)
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    const cJSON *v = member(obj, key);
     if (!cJSON_IsNumber(v))
         return false;
     *out = v->valuedouble;
@@ -112,7 +128,7 @@ static bool number_of(const cJSON *obj, const char *key, double *out)
 
 static bool vector_of(const cJSON *obj, const char *key, double out[6])
 {
-    const cJSON *v = cJSON_GetObjectItemCaseSensitive(obj, key);
+    const cJSON *v = member(obj, key);
     if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) < 6)
         return false;
     for (int i = 0; i < 6; i++) {
@@ -184,7 +200,7 @@ static void plan_move(struct motion *m, const struct move_kind *k, const double 
 bool motion_sent(struct motion *m, uint64_t now_ms, const char *json)
 {
     cJSON *doc = cJSON_Parse(json);
-    const cJSON *name = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+    const cJSON *name = member(doc, "cmdName");
     const struct move_kind *k = cJSON_IsString(name) ? move_named(name->valuestring) : NULL;
     double given[6] = {0}, speed = 0, rel = 0;
 
@@ -324,10 +340,14 @@ enum policy_robot motion_robot(const struct motion *m, bool fresh)
     if (!fresh || !m->have_last)
         return POLICY_ROBOT_UNKNOWN;
     const struct motion_view *v = &m->last;
+    bool unchanged = m->have_previous && joints_still(&m->previous, v);
     if (v->interp_state == 1 || v->interp_state == 3)
         return POLICY_ROBOT_PROGRAM;
+    /* Paused: a paused move is not in position, yet its arm holds. */
+    if (v->interp_state == 2)
+        return unchanged ? POLICY_ROBOT_PAUSED : POLICY_ROBOT_MOVING;
     /* In position and unchanged since the document before: still. */
-    if (v->inpos != 0 && m->have_previous && joints_still(&m->previous, v))
-        return v->interp_state == 2 ? POLICY_ROBOT_PAUSED : POLICY_ROBOT_STILL;
+    if (v->inpos != 0 && unchanged)
+        return POLICY_ROBOT_STILL;
     return POLICY_ROBOT_MOVING;
 }

@@ -4,6 +4,7 @@
 the command port's replies, refusals and quirks, and status that follows
 commands."""
 import json
+import signal
 import socket
 import time
 
@@ -51,6 +52,132 @@ class Robot:
 
 def status(sim):
     return json.loads(sim.read_document())
+
+
+class Documents:
+    """The status stream, document after document, from one connection."""
+
+    def __init__(self, sim):
+        self.sock = socket.create_connection(("127.0.0.1", sim.status_port), timeout=5)
+        self.buf = ""
+        self.decoder = json.JSONDecoder()
+
+    def drain(self):
+        """Drops what has arrived: the next document comes after now."""
+        self.sock.setblocking(False)
+        try:
+            while self.sock.recv(65536):
+                pass
+        except BlockingIOError:
+            pass
+        self.sock.setblocking(True)
+        self.buf = ""
+        self.next()  # may have been cut by the drain: whole from the next on
+
+    def next(self):
+        while True:
+            start = self.buf.find('{"len"')
+            if start >= 0:
+                try:
+                    doc, end = self.decoder.raw_decode(self.buf[start:])
+                    self.buf = self.buf[start + end:]
+                    return doc
+                except ValueError:
+                    pass
+            chunk = self.sock.recv(65536)
+            check(chunk, "status port closed")
+            self.buf += chunk.decode()
+
+    def close(self):
+        self.sock.close()
+
+
+def test_moves_as_the_manual_says():
+    """A move takes time at its speed, shows a few documents after its
+    reply, is not stopped by pause_program and is by stop_program (4.23
+    (b)), an emergency or a protective stop; moveL goes along a straight
+    line at its speed in mm/s with actual_position the forward kinematics
+    of the joints; moves block (4.7, 4.8)."""
+    sim = Sim("--period-ms", "20")
+    r, docs = Robot(sim), Documents(sim)
+    try:
+        r.call("power_on")
+        r.call("enable_robot")
+        docs.drain()
+        check(r.call("joint_move", relFlag=0, jointPosition=[40, 90, 90, 0, 90, 0], speed=40,
+                     accel=100)["errorCode"] == "0", "joint_move")
+        shown = 0
+        while True:
+            d = docs.next()
+            if not d["inpos"]:
+                break
+            check(d["joint_actual_position"][0] == 0, "moved while in position")
+            shown += 1
+        print("  the move showed in the %d-th document after its reply" % (shown + 1))
+        check(3 <= shown <= 8, "the move showed after %d documents, not 3" % shown)
+        # 40 deg/s: 0.8 deg a 20 ms document.
+        a, b = docs.next()["joint_actual_position"][0], docs.next()["joint_actual_position"][0]
+        check(abs(b - a - 0.8) < 1e-6, "joint 1 went %.3f deg in a document" % (b - a))
+        reply = r.call("pause_program")
+        check(reply["errorCode"] == "2" and reply["errorMsg"] == "no program is running",
+              "pause_program on a move: %r" % reply)
+        a, b = docs.next()["joint_actual_position"][0], docs.next()["joint_actual_position"][0]
+        check(b > a, "pause_program stopped the move")
+        r.call("stop_program")
+        docs.next()
+        held = docs.next()
+        check(held["inpos"] and held["joint_actual_position"] == docs.next()["joint_actual_position"],
+              "stop_program did not stop the move")
+        check(held["joint_actual_position"][0] < 40, "the move ended anyway")
+        # moveL: +40 mm in z at 100 mm/s, on the line.
+        start = held["actual_position"]
+        check(r.call("moveL", relFlag=1, cartPosition=[0, 0, 40, 0, 0, 0], speed=100, accel=100,
+                     tol=0.5)["errorCode"] == "0", "moveL")
+        moving = 0
+        while True:
+            d = docs.next()
+            tcp = d["actual_position"]
+            check(all(abs(tcp[i] - start[i]) < 0.01 for i in (0, 1, 3, 4, 5)),
+                  "moveL left the line: %r from %r" % (tcp, start))
+            fk = r.call("kine_forward", jointPosition=d["joint_actual_position"])["cartPosition"]
+            check(all(abs(x - y) < 1e-6 for x, y in zip(fk, tcp)),
+                  "actual_position is not the joints' forward kinematics")
+            if d["inpos"] and tcp[2] > start[2]:
+                break
+            moving += not d["inpos"]
+        check(abs(tcp[2] - start[2] - 40) < 1e-3, "moveL ended at z %+.4f" % (tcp[2] - start[2]))
+        check(19 <= moving <= 21, "moveL took %d documents, 0.4 s is 20" % moving)
+        # Moves block: the second starts once the first has ended.
+        first, second = [5, 90, 90, 0, 90, 0], [5, 95, 90, 0, 90, 0]
+        for target in (first, second):
+            check(r.call("joint_move", relFlag=0, jointPosition=target, speed=40,
+                         accel=100)["errorCode"] == "0", "joint_move")
+        seen = []
+        while not seen or seen[-1] != second:
+            seen.append([round(v, 6) for v in docs.next()["joint_actual_position"]])
+        check(first in seen, "the second move did not wait for the first")
+        # A protective stop, then an emergency stop, end a move where it is.
+        for sig, what in ((signal.SIGUSR2, "protective stop"), (signal.SIGRTMIN, "e-stop")):
+            check(r.call("joint_move", relFlag=1, jointPosition=[20, 0, 0, 0, 0, 0], speed=40,
+                         accel=100)["errorCode"] == "0", "%s: joint_move" % what)
+            while docs.next()["inpos"]:
+                pass
+            sim.proc.send_signal(sig)
+            docs.next()
+            docs.next()
+            a, b = docs.next(), docs.next()
+            check(a["joint_actual_position"] == b["joint_actual_position"] and b["inpos"],
+                  "%s: the arm still moves" % what)
+            if sig == signal.SIGRTMIN:
+                check(not b["enabled"], "an emergency stop leaves the robot enabled")
+            sim.proc.send_signal(sig)  # cleared, released
+            key = "protective_stop" if sig == signal.SIGUSR2 else "emergency_stop"
+            while docs.next()[key]:
+                pass
+        r.close()
+        docs.close()
+    finally:
+        sim.stop()
 
 
 def test_wire_format_is_python_json_with_exact_len():
@@ -159,4 +286,4 @@ def test_command_faults():
 
 if __name__ == "__main__":
     run([test_wire_format_is_python_json_with_exact_len, test_commands_follow_the_state_machine,
-         test_command_faults])
+         test_command_faults, test_moves_as_the_manual_says])

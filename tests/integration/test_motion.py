@@ -55,6 +55,7 @@ I_MOTION_STATE, I_MOTION_COUNT = addr("input_register", "motion_state"), \
     addr("input_register", "motion_count")
 I_REACTION, I_FAULT = addr("input_register", "fault_reaction"), addr("input_register", "fault")
 D_INPOS = addr("discrete_input", "inpos")
+I_ROBOT_HANDLE, HANDLE_ACCEPTED = addr("input_register", "robot_handle"), 2
 
 IDLE, MOVING, ARRIVED, STOPPED, TIMED_OUT = 0, 1, 2, 3, 4
 R_PAUSED, R_STOPPED, R_ESCALATED, R_STILL_MOVING = 3, 4, 5, 6
@@ -117,8 +118,9 @@ class Plc(ModbusPlc):
 
     def ready(self, motion_enable=True):
         """Powered, enabled, the heartbeat running, motion enable held."""
-        for _ in range(3):
-            self.feed()
+        # Commands wait for the robot to accept its network-exception handler.
+        wait_until(lambda: self.feed() or self.ir(I_ROBOT_HANDLE)[0] == HANDLE_ACCEPTED, 10,
+                   "the robot's handler accepted")
         if motion_enable:
             check(self.coil(C_MOTION_ENABLE, 1) == 0, "motion enable refused")
         for coil in (C_POWER_ON, C_ENABLE):
@@ -172,9 +174,9 @@ def move_then_fault(fault, name):
         fault(plc)
         travel, settled_ms = watch_travel(plc, 0, at_fault, fault_at)
         end = plc.joints()[0]
-        print("  %s: joint 1 %.1f -> %.1f deg (travel %.1f deg, still %.0f ms after the "
-              "fault; before the fix the move ran on at %.0f deg/s)"
-              % (name, at_fault, end, travel, settled_ms, SPEED))
+        print("  %s during a %.0f deg/s joint_move: joint 1 %.1f -> %.1f deg in the 1.5 s "
+              "after (%.1f deg; its last change %.0f ms after the fault)"
+              % (name, SPEED, at_fault, end, travel, settled_ms))
         # Detection (the heartbeat: the limit) plus the reaction, at 20 deg/s.
         detect_s = LIMIT_MS / 1000 if name == "heartbeat lost" else 0
         bound = SPEED * (detect_s + SIM_PERIOD_MS / 1000 + LIMIT_MS / 10000 + SLACK_S)
@@ -323,7 +325,10 @@ def escalation(fail_times):
         def settled():
             seen.add(plc.ir(I_REACTION)[0])
             return want in seen
-        wait_until(settled, 3, "reaction %d; seen %s" % (want, seen))
+        try:
+            wait_until(settled, 3, "reaction %d" % want)
+        except Exception as e:
+            raise type(e)("%s; IR 5602 read %s" % (e, sorted(seen)))
         check(R_ESCALATED in seen or len(sim_commands(sim, "stop_program")) == 2,
               "no escalation seen: %s" % seen)
         check(len(sim_commands(sim, "stop_program")) == 2,
