@@ -49,7 +49,9 @@
 
 TIME __CURRENT_TIME;
 extern JAKACELL RES__MAIN;
+extern JAKAEXAMPLE RES__EXAMPLE;
 #define P RES__MAIN
+#define EX RES__EXAMPLE
 void config_init__(void);
 void config_run__(unsigned long tick);
 
@@ -98,6 +100,13 @@ struct client {
 };
 
 static struct client cl;
+
+/* The image the client keeps in step: the cell's (tests/plc/cell.st), or
+ * the example program's (plc/examples/jaka_cell.st) in case "example". */
+static struct {
+    uint8_t *co, *di;
+    uint16_t *ir, *hr;
+} img;
 static unsigned long tick;
 static long scans;
 static double scan_work_max_ms, scan_work_sum_ms;
@@ -177,7 +186,7 @@ static void read_inputs(void)
             return;
         }
         for (int k = 0; k < r->count; k++)
-            P.INREGS.value.table[r->first + k] = regs[k];
+            img.ir[r->first + k] = regs[k];
         cl.reads++;
     }
     for (size_t i = 0; i < sizeof(di_reads) / sizeof(di_reads[0]); i++) {
@@ -187,7 +196,7 @@ static void read_inputs(void)
             return;
         }
         for (int k = 0; k < r->count; k++)
-            P.INPUTS.value.table[r->first + k] = bits[k];
+            img.di[r->first + k] = bits[k];
         cl.reads++;
     }
 }
@@ -222,8 +231,8 @@ static void write_outputs(void)
         {K(JAKA_HR_MOVEL_POSE_1), K(JAKA_HR_MOVEL_TOL) + 2 - K(JAKA_HR_MOVEL_POSE_1)},
         {K(JAKA_HR_MAILBOX_CODE), K(JAKA_HR_MAILBOX_SEQ) - K(JAKA_HR_MAILBOX_CODE) + 1},
     };
-    const uint16_t *hr = P.HOLDREGS.value.table;
-    const uint8_t *co = P.COILS.value.table;
+    const uint16_t *hr = img.hr;
+    const uint8_t *co = img.co;
 
     if (!connected())
         return;
@@ -1142,6 +1151,26 @@ static void case_mailbox(void)
     fig(", mailbox Done %.0f ms (sequence %u)", t, P.MAILBOX.SEQUENCE.value);
 }
 
+/* The example program as it ships: the operator's start, then its whole
+ * sequence (power, override, load, play, output, stop, a move) with no
+ * alarm; jakasim's log is checked by the driver. */
+static void case_example(void)
+{
+    img.co = EX.COILS.value.table;
+    img.di = EX.INPUTS.value.table;
+    img.ir = EX.INREGS.value.table;
+    img.hr = EX.HOLDREGS.value.table;
+    double t = SCAN_UNTIL(EX.LINK.VALID.value, 5000, "the example's JAKA_Link Valid");
+    fig("Valid after %.0f ms", t);
+    EX.STARTBUTTON.value = 1;
+    SCAN_UNTIL(EX.SEQUENCE.value != 0, 1000, "the sequence started");
+    EX.STARTBUTTON.value = 0;
+    t = SCAN_UNTIL(EX.SEQUENCE.value == 0 || EX.ALARM.value, 20000, "the sequence's end");
+    if (!failed && EX.ALARM.value)
+        fail("the example's alarm, ErrorID 0x%04X, at step %d", EX.ALARMID.value, EX.SEQUENCE.value);
+    fig(", the whole sequence in %.0f ms", t);
+}
+
 static int run_case(const char *name, const char *port, const char *pid, bool split)
 {
     static const struct {
@@ -1153,13 +1182,17 @@ static int run_case(const char *name, const char *port, const char *pid, bool sp
         {"fault_reset", case_fault_reset},   {"restart", case_restart},
         {"link_lost", case_link_lost},       {"estop", case_estop},
         {"mailbox", case_mailbox},           {"two_connections", case_startup},
-        {"refusals", case_refusals},
+        {"refusals", case_refusals},         {"example", case_example},
     };
     cl.host = "127.0.0.1";
     cl.port = atoi(port);
     cl.split = split;
     sim_pid = pid ? atoi(pid) : 0;
     config_init__();
+    img.co = P.COILS.value.table;
+    img.di = P.INPUTS.value.table;
+    img.ir = P.INREGS.value.table;
+    img.hr = P.HOLDREGS.value.table;
     for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
         if (strcmp(cases[i].name, name) != 0)
             continue;

@@ -27,6 +27,7 @@ BUILD = os.path.join(ROOT, os.environ.get("JAKAGW_BIN_DIR", "build"))
 OUT = os.path.join(BUILD, "plc")
 MAP = os.path.join(ROOT, "plc", "jaka_map.st")
 LIB = os.path.join(ROOT, "plc", "jaka.st")
+EXAMPLE = os.path.join(ROOT, "plc", "examples", "jaka_cell.st")
 
 GATEWAY_CONFIG = """
 [commands]
@@ -52,13 +53,17 @@ def map_parts():
     return types, re.search(r"^VAR_GLOBAL CONSTANT\n.*?^END_VAR\n", text, re.M | re.S).group(0)
 
 
-def unit_source(program_files, program_type):
+def unit_source(program_files, program_type, extra=""):
+    """One compilation unit: the map's types, the library, the programs,
+    and a configuration with the map's constants and one 10 ms task
+    running program_type as Main (and 'extra' program lines)."""
     types, globals_ = map_parts()
     body = "".join(open(f).read() + "\n" for f in program_files)
     return (types + open(LIB).read() + "\n" + body +
             "CONFIGURATION Cell\n" + globals_ +
             "RESOURCE Res ON PLC\n  TASK Scan(INTERVAL := T#10ms, PRIORITY := 0);\n"
-            "  PROGRAM Main WITH Scan : %s;\nEND_RESOURCE\nEND_CONFIGURATION\n" % program_type)
+            "  PROGRAM Main WITH Scan : %s;\n%sEND_RESOURCE\nEND_CONFIGURATION\n"
+            % (program_type, extra))
 
 
 def iec2c(matiec, source, outdir):
@@ -104,7 +109,10 @@ def build_harness(matiec):
     matiec's build (MATIEC_CACHE, which CI keeps across runs, else the
     build directory), KEY covering the source, the flags, the compiler and
     matiec: a run that changes none of them compiles only plc_scan.c."""
-    source = unit_source([os.path.join(ROOT, "tests", "plc", "cell.st")], "JakaCell")
+    # The cell (every block) as Main; the shipped example as Example, run
+    # by the same task (its image is kept in step only in case "example").
+    source = unit_source([os.path.join(ROOT, "tests", "plc", "cell.st"), EXAMPLE], "JakaCell",
+                         "  PROGRAM Example WITH Scan : JakaExample;\n")
     includes = ["-std=gnu11"]
     san = ["-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
            "-fno-sanitize-recover=all"]
@@ -164,6 +172,7 @@ CASES = [
     ("mailbox", True, "the exactly-once mailbox: one rapid_rate at the robot"),
     ("two_connections", True, "reads and writes on two connections, as a Siemens PLC makes them"),
     ("refusals", True, "a move before the heartbeat: ErrorID 16#0201 from the gateway's reason"),
+    ("example", True, "plc/examples/jaka_cell.st's whole sequence, each command once at the robot"),
 ]
 
 
@@ -187,6 +196,15 @@ def run_case(exe, name, needs_contract, contract):
             ok = len(rates) == 1
             if not ok:
                 out.append("FAIL mailbox: jakasim received %d rapid_rate, expected 1" % len(rates))
+        if ok and name == "example":
+            sent = [c["cmdName"] for c in sim_commands_named(sim, None)
+                    if not is_housekeeping(c.get("cmdName"))]
+            want = ["power_on", "enable_robot", "rapid_rate", "load_program", "play_program",
+                    "set_digital_output", "stop_program", "joint_move"]
+            ok = sent == want and any(c.get("programName") == "pick_and_place"
+                                      for c in sim_commands_named(sim, "load_program"))
+            if not ok:
+                out.append("FAIL example: jakasim received %s, expected %s" % (sent, want))
         if ok and name == "restart":
             stops = sim_commands_named(sim, "stop_program")
             ok = len(stops) == 2
@@ -205,6 +223,11 @@ def run_case(exe, name, needs_contract, contract):
 def sim_commands_named(sim, name):
     from harness import sim_commands
     return sim_commands(sim, name)
+
+
+def is_housekeeping(name):
+    from harness import is_housekeeping as housekeeping
+    return housekeeping(name)
 
 
 def main():
