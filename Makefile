@@ -3,6 +3,7 @@
 #   make            build build/jakagw and build/jakasim
 #   make demo       install missing packages, build, run the gateway on the simulator
 #   make test       install missing packages, build, run every test (plain and ASan/UBSan)
+#   make test-plc   the PLC library (plc/) compiled with matiec and run as a PLC (docs/plc-library.md)
 #   make install    install into $(DESTDIR)$(PREFIX) (binaries, config, units, man pages, docs)
 #   make deb        build the Debian package into $(BUILD)/deb/
 #   make ARCH=arm64 (or armhf), make deb ARCH=..., make test ARCH=...
