@@ -3,6 +3,7 @@
 #   make            build build/jakagw and build/jakasim
 #   make demo       install missing packages, build, run the gateway on the simulator
 #   make test       install missing packages, build, run every test (plain and ASan/UBSan)
+#   make test-plc   the PLC library (plc/) compiled with matiec and run as a PLC (docs/plc-library.md)
 #   make install    install into $(DESTDIR)$(PREFIX) (binaries, config, units, man pages, docs)
 #   make deb        build the Debian package into $(BUILD)/deb/
 #   make ARCH=arm64 (or armhf), make deb ARCH=..., make test ARCH=...
@@ -220,6 +221,16 @@ else
 	@BUILDS=$(BUILD) JAKAGW_ARCH=$(ARCH) tests/run.sh
 endif
 
+# The PLC library (plc/) run as a PLC: builds matiec from its source
+# tarball outside this tree (MATIEC_TARBALL, default
+# ../shared/tools/matiec/matiec-*.tar.gz; cached in $(BUILD)/matiec-HASH),
+# compiles every .st file of plc/ with iec2c, runs the blocks' unit tests
+# and the end-to-end cases against jakagw and jakasim (tests/plc/test_plc.py,
+# docs/plc-library.md). make test runs it too (tests/run.sh).
+.PHONY: test-plc
+test-plc: all
+	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/plc/test_plc.py
+
 # 32 Modbus clients at 1000 requests/s in total for LOAD_SECONDS, with
 # commands, the heartbeat and the status at 125 Hz; make test runs it too
 # (tests/run.sh runs every integration test).
@@ -252,10 +263,12 @@ screenshot: all
 test-faults: all
 	JAKAGW_BIN_DIR=$(BUILD) /usr/bin/python3 tests/integration/test_faults.py
 
-# docs/register-map.md is generated from the table in src/modbus/regmap_table.c.
+# docs/register-map.md is generated from the table in src/modbus/regmap_table.c,
+# and so are the PLC library's constants (plc/jaka_map.st).
 docs: $(BUILD)/jakagw man
 	$(BUILD)/jakagw --print-map md > docs/register-map.md
 	$(BUILD)/jakagw --print-map csv > docs/register-map.csv
+	$(BUILD)/jakagw --print-map st > plc/jaka_map.st
 	$(BUILD)/jakagw -c config/jakagw.conf --print-dbc > docs/jakagw.dbc
 
 # The CAN mirror on a real kernel CAN stack: boots Debian's kernel in qemu

@@ -42,13 +42,16 @@ group cross "to build, package and test for ARM boards (make ARCH=arm64|armhf): 
 group netfault "to inject network faults in the fault-injection suite (test_faults.py): nftables (silent pulls, resets, random loss), iproute2 (ip, ss) in a namespace made with unshare (util-linux, always installed)" \
     nftables iproute2
 
+group plc "to build matiec, the IEC 61131-3 compiler the PLC library's tests compile its Structured Text with (make test-plc, from its source tarball in ../shared/tools/matiec): flex and bison generate its parser, autoconf and automake its build (autoreconf), g++ compiles it (build-essential, group build)" \
+    flex bison autoconf automake
+
 group web "to test /metrics, the alert rules (promtool, and the prometheus server end to end: tests/integration/test_alerts.py) and the status page (tests/integration/test_http.py, make screenshot): promtool from prometheus, headless chromium driven by python3-selenium through chromium-driver" \
     prometheus chromium chromium-driver python3-selenium
 
 group fuzz "to run the libFuzzer targets (make fuzz, make fuzz-ci): clang, and the libFuzzer and sanitizer runtimes it links, which Debian 12 ships apart in libclang-rt-14-dev" \
     clang libclang-rt-14-dev
 
-DEFAULT_GROUPS="build tests web can package service cross netfault"
+DEFAULT_GROUPS="build tests web can package service cross netfault plc"
 # CI's make test also runs the fuzz targets (make fuzz-ci).
 [ "${CI:-}" = true ] && DEFAULT_GROUPS="$DEFAULT_GROUPS fuzz"
 

@@ -33,6 +33,7 @@ PYTHON=${PYTHON:-/usr/bin/python3}
 RUNNER=${JAKAGW_RUNNER:-}
 SUITES=${SUITES:-}
 for name in $SUITES; do
+    [ "$name" = plc ] && continue  # tests/plc/test_plc.py
     [ -f "tests/integration/test_$name.py" ] ||
         { echo "SUITES: no tests/integration/test_$name.py" >&2; exit 2; }
 done
@@ -139,6 +140,17 @@ for build in $BUILDS; do
         record_summary "$t($build)" "$status" "$log"
     done
 done
+
+# The PLC library run as a PLC (make test-plc): once, with the first
+# native build; SUITES leaves it out unless it names plc.
+if [ "$what" = all ] && [ -z "${JAKAGW_ARCH:-}" ] &&
+   { [ -z "$SUITES" ] || [[ " $SUITES " == *" plc "* ]]; }; then
+    build=${BUILDS%% *}
+    echo "== tests/plc/test_plc.py ($build)"
+    JAKAGW_BIN_DIR="$build" "$PYTHON" tests/plc/test_plc.py 2>&1 | tee "$log"
+    status=${PIPESTATUS[0]}
+    record_summary "tests/plc/test_plc.py($build)" "$status" "$log"
+fi
 
 # The CAN mirror on a real kernel CAN stack, and netem on single links, in
 # VMs: once, with the first build.

@@ -48,7 +48,7 @@ static void usage(FILE *out)
             "      --modbus-port N      Modbus TCP port (default 502)\n"
             "      --log-level LEVEL    error, warning, notice, info or debug\n"
             "      --check-config       check the configuration, print it, exit\n"
-            "      --print-map FORMAT   print the register map as csv or md, exit\n"
+            "      --print-map FORMAT   print the register map as csv, md or st, exit\n"
             "      --print-config-keys  print every configuration key, its default and\n"
             "                           whether a reload (SIGHUP) applies it, exit\n"
             "      --print-dbc          print the DBC of the CAN frames as configured, exit\n"
@@ -70,8 +70,10 @@ static int print_map(const char *format)
         f = REGMAP_FORMAT_CSV;
     else if (strcmp(format, "md") == 0)
         f = REGMAP_FORMAT_MD;
+    else if (strcmp(format, "st") == 0)
+        f = REGMAP_FORMAT_ST;
     else {
-        log_plain("jakagw: --print-map: '%s' must be csv or md", format);
+        log_plain("jakagw: --print-map: '%s' must be csv, md or st", format);
         return EXIT_CONFIG;
     }
     rc = regmap_init(&map);

@@ -6,7 +6,7 @@
  * field), or one gateway value, in one Modbus table: its address, type,
  * scale, unit, access and documentation. From the rows come the register
  * image that the Modbus server answers from, the write checks, and the
- * CSV and Markdown listings (jakagw --print-map csv|md).
+ * CSV, Markdown and Structured Text listings (jakagw --print-map csv|md|st).
  *
  * Conventions, which the listings repeat for the integrator:
  * - Addresses are 0-based wire addresses; PLC notation adds 1 and the table
@@ -253,7 +253,13 @@ unsigned regmap_element_address(const struct regmap_row *row, unsigned i);
 const struct regmap_row *regmap_find(const struct regmap *map,
                                      enum regmap_table table, unsigned address);
 
-enum regmap_format { REGMAP_FORMAT_CSV, REGMAP_FORMAT_MD };
+/*
+ * REGMAP_FORMAT_ST: IEC 61131-3 Structured Text for the PLC library
+ * (plc/jaka_map.st): the register image's array types, sized to each
+ * table, then one named constant per address (VAR_GLOBAL CONSTANT), so
+ * that no PLC program writes an address by hand.
+ */
+enum regmap_format { REGMAP_FORMAT_CSV, REGMAP_FORMAT_MD, REGMAP_FORMAT_ST };
 
 /* Writes the listing; returns 0 or -EIO. */
 int regmap_print(const struct regmap *map, enum regmap_format format, FILE *out);

@@ -16,18 +16,19 @@ def jakagw(*args, config=None):
 
 
 def test_committed_register_map_is_current():
-    for fmt, name in (("md", "register-map.md"), ("csv", "register-map.csv")):
-        with open(os.path.join(ROOT, "docs", name), "rb") as f:
+    for fmt, path in (("md", "docs/register-map.md"), ("csv", "docs/register-map.csv"),
+                      ("st", "plc/jaka_map.st")):
+        with open(os.path.join(ROOT, path), "rb") as f:
             committed = f.read()
         check(committed == print_map(fmt),
-              "docs/%s is out of date: run 'make docs' and commit it" % name)
+              "%s is out of date: run 'make docs' and commit it" % path)
 
 
 def test_bad_flags_and_config_exit_2():
     cases = [
         (["--modbus-port", "99999"], "--modbus-port: 99999 is out of range 1..65535"),
         (["--status-port", "x"], "--status-port: 'x' is not a whole number"),
-        (["--print-map", "xml"], "--print-map: 'xml' must be csv or md"),
+        (["--print-map", "xml"], "--print-map: 'xml' must be csv, md or st"),
         (["--bogus"], "see jakagw --help"),
         (["-c", "/nonexistent.conf"], "/nonexistent.conf: cannot open"),
         (["extra"], "unexpected argument 'extra'"),
