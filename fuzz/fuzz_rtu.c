@@ -87,7 +87,7 @@ static uint64_t sure(const struct bus *b)
 {
     return 2 * ((uint64_t)b->line.cfg.t35_ns + RTU_PIECE_CHARS * (uint64_t)b->line.cfg.char_ns +
                 b->line.cfg.delivery_ns) +
-           RTU_ECHO_LATE_NS;
+           RTU_ECHO_WINDOW_NS;
 }
 
 static void deliver(struct bus *b, uint64_t t, const uint8_t *data, size_t size)

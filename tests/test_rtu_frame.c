@@ -86,6 +86,7 @@ struct rig {
     size_t reply_size;
     uint8_t reply[RTU_MAX_ADU];
     bool pending_reply;
+    size_t replies;  /* replies sent */
     bool via_server; /* requests go through mb_rtu's on_request to the server */
 };
 
@@ -149,6 +150,7 @@ static void on_request_via_server(void *user, const uint8_t *frame, size_t size)
     memcpy(r->reply, out, (size_t)n);
     r->reply_size = (size_t)n;
     r->reply_at = fake_now;
+    r->replies++;
     r->now = fake_now;
     trace_bytes("reply", r->now, r->reply, r->reply_size);
 }
@@ -173,6 +175,7 @@ static void send_reply(struct rig *r)
         assert_true(at >= r->l->tx_end_ns + r->l->cfg.t35_ns);
     r->now = at;
     r->reply_at = at;
+    r->replies++;
     trace_bytes("reply", at, r->reply, r->reply_size);
     rtu_line_frame_out(r->l, r->reply, r->reply_size);
     rtu_line_bytes_out(r->l, r->reply_size, at);
@@ -203,6 +206,26 @@ static void deliver(struct rig *r, uint64_t t, const uint8_t *data, size_t size)
                (unsigned long long)r->l->stats.echoes, (unsigned long long)r->l->stats.out_of_turn);
     trace_bytes("read", r->now, data, size);
     rtu_line_input(r->l, data, size, r->now, hooks_of(r));
+}
+
+/* Bytes that arrived after 'after' (the reader's last look at an empty
+ * port) and are read at 't'. */
+static void deliver_read(struct rig *r, uint64_t t, uint64_t after, const uint8_t *data,
+                         size_t size)
+{
+    run_to(r, t);
+    trace_bytes("read", r->now, data, size);
+    rtu_line_input_read(r->l, data, size, r->now, after, hooks_of(r));
+}
+
+/* A loop that stalled: bytes read at 't' without the silences due before
+ * it having been judged (the loop did not run), after 'after'. */
+static void read_after_stall(struct rig *r, uint64_t t, uint64_t after, const uint8_t *data,
+                             size_t size)
+{
+    r->now = t;
+    trace_bytes("late read", r->now, data, size);
+    rtu_line_input_read(r->l, data, size, r->now, after, hooks_of(r));
 }
 
 static void rig_init(struct rig *r, unsigned baud, bool local_echo, bool pty)
@@ -556,7 +579,8 @@ static void an_echo_is_judged_by_its_arrival(void **state)
     assert_int_equal(r.l->stats.echoes, 1);
 }
 
-/* A master that repeats one write, 40 times 30 ms apart: 40 executed. */
+/* A master that repeats one write, 40 times, each past the echo window
+ * after our reply: 40 executed. */
 static void a_repeated_write_is_executed_each_time(void **state)
 {
     struct rig r;
@@ -565,7 +589,7 @@ static void a_repeated_write_is_executed_each_time(void **state)
     (void)state;
     rig_init(&r, 19200, false, true);
     for (int i = 0; i < 40; i++)
-        deliver(&r, r.now + 30 * MS, write, n);
+        deliver(&r, r.now + RTU_ECHO_WINDOW_NS + 30 * MS, write, n);
     run_to(&r, r.now + 30 * MS);
     assert_int_equal(r.executed, 40);
     assert_int_equal(r.l->stats.echoes, 0);
@@ -608,6 +632,231 @@ static void our_frames_keep_t35_apart(void **state)
     rtu_line_bytes_out(r.l, n - 3, r.now + 20 * MS); /* the port was full */
     uint64_t ready = rtu_line_tx_ready_ns(r.l);
     assert_true(ready >= r.now + 20 * MS + (n - 3) * r.l->cfg.char_ns + r.l->cfg.t35_ns);
+}
+
+/* ---- the line as the field wires it ---- */
+
+/* An adapter that gives every reply back 'delay' after its wire time, to
+ * a reader that looks at the port as the bytes come: one FC05 write, then
+ * 1.5 s of whatever the line does with the echoes. Returns the
+ * executions (each one a reply, a set_digital_output at the robot). */
+static size_t echo_loop(unsigned baud, bool local_echo, uint64_t delay, struct rig *r)
+{
+    uint8_t write[8];
+    size_t n = write_coil(write, UNIT, 200, true), echoed = 0;
+    rig_init(r, baud, local_echo, false);
+    start_synced(r);
+    deliver(r, r->now + 20 * MS, write, n);
+    uint64_t end = r->now + 1500 * MS;
+    while (r->now < end) {
+        run_to(r, r->now + r->l->cfg.t35_ns + RTU_PIECE_CHARS * r->l->cfg.char_ns +
+                      r->l->cfg.delivery_ns + 1 * MS);
+        if (echoed == r->replies)
+            break; /* nothing more to give back */
+        uint64_t at = r->l->tx_end_ns + delay;
+        deliver_read(r, at, at - 1 * US, r->reply, r->reply_size);
+        echoed++;
+    }
+    run_to(r, r->now + 200 * MS);
+    return r->executed;
+}
+
+/* Why's first case: an echo later than t3.5 made one write repeat without
+ * end with local_echo = false (378 executions in 1.5 s for an echo at
+ * t3.5 at 115200). Within the echo window, with either setting, at 115200
+ * and 9600: one execution, the echo counted and said. */
+static void an_echo_in_its_window_is_never_a_request(void **state)
+{
+    static const unsigned bauds[] = {115200, 9600};
+    static const uint64_t delays_us[] = {0, 900, 1750, 3500, 3900, 5250, 8000, 16000, 50000,
+                                         99000, RTU_ECHO_WINDOW_NS / US - 1000};
+    (void)state;
+    for (int echo = 0; echo < 2; echo++)
+        for (size_t b = 0; b < 2; b++)
+            for (size_t d = 0; d < sizeof(delays_us) / sizeof(delays_us[0]); d++) {
+                struct rig r;
+                size_t executed = echo_loop(bauds[b], echo, delays_us[d] * US, &r);
+                if (executed != 1 || r.l->stats.echoes != 1 ||
+                    (!echo && r.events[RTU_EVENT_ECHO] != 1))
+                    fail_msg("local_echo %d, %u baud, echo %.2f ms late: %zu executed, %llu "
+                             "echoes, %u said",
+                             echo, bauds[b], delays_us[d] / 1000.0, executed,
+                             (unsigned long long)r.l->stats.echoes, r.events[RTU_EVENT_ECHO]);
+            }
+}
+
+/* Past the window, the same write is the master's again: answered each
+ * time (20 writes, each 10 ms after the window). Inside the window, a
+ * request of ours that differs from our last reply is never an echo. */
+static void the_same_write_after_the_window_is_answered(void **state)
+{
+    uint8_t on[8], off[8], read[8];
+    write_coil(on, UNIT, 200, true);
+    write_coil(off, UNIT, 200, false);
+    read_request(read, UNIT, 4, 0, 1);
+    (void)state;
+    for (int echo = 0; echo < 2; echo++) {
+        struct rig r;
+        rig_init(&r, 115200, echo, false);
+        start_synced(&r);
+        deliver(&r, r.now + 5 * MS, on, 8);
+        for (int i = 0; i < 20; i++) {
+            run_to(&r, r.now + 3 * MS);
+            uint64_t at = r.l->tx_end_ns + RTU_ECHO_WINDOW_NS + 10 * MS;
+            deliver_read(&r, at, at - 1 * US, on, 8);
+        }
+        run_to(&r, r.now + 10 * MS);
+        assert_int_equal(r.executed, 21);
+        assert_int_equal(r.replies, 21);
+        /* 2 ms after our reply (t3.5 kept): another write, a read. */
+        deliver(&r, r.l->tx_end_ns + 2 * MS, off, 8);
+        run_to(&r, r.now + 3 * MS);
+        deliver(&r, r.l->tx_end_ns + 2 * MS, read, 8);
+        run_to(&r, r.now + 3 * MS);
+        assert_int_equal(r.executed, 23);
+        assert_int_equal(r.l->stats.echoes, 0);
+    }
+}
+
+/* Why's second case: the echo is judged by when its bytes can have come.
+ * The echo 5 ms after the reply, and the loop stalled 0.3 s before it read
+ * it, or after it read half of it; an echo in two pieces, the second
+ * 105 ms late. With either setting: never a second execution. */
+static void a_stall_never_makes_an_echo_a_request(void **state)
+{
+    static const unsigned bauds[] = {115200, 9600};
+    (void)state;
+    for (int echo = 0; echo < 2; echo++)
+        for (size_t b = 0; b < 2; b++)
+            for (int how = 0; how < 3; how++) {
+                struct rig r;
+                uint8_t write[8];
+                size_t n = write_coil(write, UNIT, 200, true);
+                rig_init(&r, bauds[b], echo, false);
+                start_synced(&r);
+                deliver(&r, r.now + 5 * MS, write, n);
+                run_to(&r, r.now + 30 * MS);
+                assert_int_equal(r.executed, 1);
+                uint64_t end = r.l->tx_end_ns, look = r.now; /* the last look */
+                if (how == 0) {
+                    read_after_stall(&r, end + 305 * MS, look, r.reply, r.reply_size);
+                } else if (how == 1) {
+                    deliver_read(&r, end + 5 * MS, end + 5 * MS - 1 * US, r.reply, 3);
+                    read_after_stall(&r, end + 305 * MS, look, r.reply + 3, r.reply_size - 3);
+                } else {
+                    deliver_read(&r, end + 5 * MS, end + 5 * MS - 1 * US, r.reply, 3);
+                    deliver_read(&r, end + 105 * MS, end + 105 * MS - 1 * US, r.reply + 3,
+                                 r.reply_size - 3);
+                }
+                run_to(&r, r.now + 300 * MS);
+                if (r.executed != 1)
+                    fail_msg("local_echo %d, %u baud, %s: %zu executions", echo, bauds[b],
+                             how == 0   ? "stall before the echo's read"
+                             : how == 1 ? "stall after half of it"
+                                        : "in two pieces, 105 ms apart",
+                             r.executed);
+            }
+}
+
+/* The master of Why's third case: a poll cycle of a request for unit 18
+ * (or an absent unit 19, or FC08 "return query data" with 4 bytes to unit
+ * 18), its response, and our request, each 'gap' after the frame before;
+ * a cycle starts t3.5 and 1 ms after our reply, or 100 ms after our
+ * request when there was none. */
+enum cycle_kind { CYCLE_READ_18, CYCLE_ABSENT_19, CYCLE_FC08_18 };
+
+static size_t poll_cycles(struct rig *r, enum cycle_kind kind, uint64_t gap, unsigned cycles,
+                          bool noise_glued)
+{
+    uint8_t req[16], rsp[16], ours[8];
+    size_t req_n, rsp_n = 0;
+    uint64_t c = r->l->cfg.char_ns;
+    if (kind == CYCLE_FC08_18) {
+        const uint8_t diag[] = {18, 8, 0, 0, 0xA5, 0x37, 0x12, 0x34};
+        memcpy(req, diag, sizeof(diag));
+        req_n = rtu_append_crc(req, sizeof(diag));
+        memcpy(rsp, req, req_n);
+        rsp_n = req_n;
+    } else {
+        req_n = read_request(req, kind == CYCLE_ABSENT_19 ? 19 : 18, 3, 0, 2);
+        if (kind == CYCLE_READ_18) {
+            const uint8_t r18[] = {18, 3, 4, 0, 1, 0, 2};
+            memcpy(rsp, r18, sizeof(r18));
+            rsp_n = rtu_append_crc(rsp, sizeof(r18));
+        }
+    }
+    /* Noise: one byte, alone or 1 character before the first request. */
+    uint8_t noise = 0x5A;
+    uint64_t t = r->now + 50 * MS;
+    deliver(r, t, &noise, 1);
+    t += noise_glued ? c : 50 * MS;
+    size_t before = r->executed;
+    for (unsigned i = 0; i < cycles; i++) {
+        size_t replies = r->replies;
+        write_coil(ours, UNIT, 200, i & 1);
+        t += req_n * c;
+        deliver(r, t, req, req_n);
+        if (rsp_n) {
+            t += gap + rsp_n * c;
+            deliver(r, t, rsp, rsp_n);
+        }
+        t += gap + 8 * c;
+        deliver(r, t, ours, 8);
+        run_to(r, t + 100 * MS);
+        t = r->replies > replies ? r->l->tx_end_ns + r->l->cfg.t35_ns + 1 * MS : t + 100 * MS;
+        if (t < r->now)
+            t = r->now;
+    }
+    return r->executed - before;
+}
+
+/* Why's third case: after one noise byte, a busy bus (gaps above t3.5,
+ * below t3.5 + 16 characters + the port's delivery) lost every write of
+ * ours (0 of 30 at 9600; 0 of 10 at 115200 with 2 ms gaps; FC08 with 4
+ * data bytes to another unit: 0 of 10). One cycle at most is lost. */
+static void a_busy_bus_regains_its_place_after_noise(void **state)
+{
+    static const unsigned bauds[] = {115200, 9600};
+    (void)state;
+    for (size_t b = 0; b < 2; b++)
+        for (int kind = CYCLE_READ_18; kind <= CYCLE_FC08_18; kind++)
+            for (int glued = 0; glued < 2; glued++) {
+                struct rig r;
+                rig_init(&r, bauds[b], false, false);
+                start_synced(&r);
+                uint64_t gap = r.l->cfg.t35_ns + r.l->cfg.t35_ns / 7;
+                size_t got = poll_cycles(&r, (enum cycle_kind)kind, gap, 10, glued);
+                if (got < 9)
+                    fail_msg("%u baud, %s, noise %s: %zu of 10 writes executed", bauds[b],
+                             kind == CYCLE_READ_18     ? "FC03 to unit 18"
+                             : kind == CYCLE_ABSENT_19 ? "absent unit 19"
+                                                       : "FC08 to unit 18",
+                             glued ? "glued" : "alone", got);
+            }
+}
+
+/* Why's fourth case: a master that keeps no t3.5 of its own sends each
+ * request as soon as our reply has come (50 writes, each toggling the
+ * output): every one answered, on a wire and on a pty. */
+static void a_master_without_t35_is_answered(void **state)
+{
+    (void)state;
+    for (int pty = 0; pty < 2; pty++) {
+        struct rig r;
+        uint8_t write[8];
+        rig_init(&r, 115200, false, pty);
+        start_synced(&r);
+        deliver(&r, r.now + 5 * MS, write, write_coil(write, UNIT, 200, true));
+        for (int i = 0; i < 50; i++) {
+            run_to(&r, r.now + r.l->cfg.t35_ns + 10 * US);
+            uint64_t at = r.l->tx_end_ns + 8 * r.l->cfg.char_ns + 50 * US;
+            deliver(&r, at, write, write_coil(write, UNIT, 200, i & 1));
+        }
+        run_to(&r, r.now + 50 * MS);
+        if (r.executed != 51)
+            fail_msg("pty %d: %zu of 51 executed", pty, r.executed);
+        assert_int_equal(r.replies, 51);
+    }
 }
 
 /* ---- the property test ---- */
@@ -693,6 +942,20 @@ static uint64_t next_start(struct bus *b)
             b->careful--;
     }
     return from + b->t35 + 2 * b->jitter + b->char_ns + sure + below(3) * below(2000) * US;
+}
+
+/* A master that repeats our last reply (the same write) does it after the
+ * echo window (rtu_frame.h: within it, the frame is that reply heard
+ * back). 'size' 0: a chunk that does not start with our request. */
+static uint64_t past_echo_window(const struct bus *b, const uint8_t *frame, size_t size,
+                                 uint64_t start)
+{
+    const struct rtu_line *l = b->r.l;
+    uint64_t window_end = rtu_line_echo_window_end_ns(l);
+    if (size && size == l->sent_size && memcmp(frame, l->sent, size) == 0 &&
+        start < window_end + 1 * MS)
+        return window_end + 1 * MS;
+    return start;
 }
 
 static void expect_request(struct bus *b, const uint8_t *frame, size_t size)
@@ -894,6 +1157,7 @@ static void one_bus(unsigned long bus_no)
         if (what < 35) {
             /* Ours, whole. */
             size_t n = our_request(frame, last_write, &last_write_size);
+            start = past_echo_window(&b, frame, n, start);
             b.r.reply_at = 0;
             transmit(&b, frame, n, start, 0, 0);
             expect_request(&b, frame, n);
@@ -946,14 +1210,15 @@ static void one_bus(unsigned long bus_no)
                 continue;
             }
             size_t m = our_request(frame + n, last_write, &last_write_size);
+            start = past_echo_window(&b, frame, 0, start);
             uint64_t end = start + (n + m) * b.char_ns + 2 * b.t35;
             b.r.reply_at = 0;
             deliver(&b.r, end, frame, n + m);
             b.read_at = b.wire = end;
-            /* Taken where the line knew where it stood; else dropped
-             * whole, and the line still does not know. */
-            if (b.synced)
-                expect_request(&b, frame + n, m);
+            /* Taken where the line knew where it stood, or after a sure
+             * silence (where a line that lost its place parses what
+             * came). */
+            expect_request(&b, frame + n, m);
             our_reply_and_echo(&b, local_echo);
         } else if (what < 88) {
             /* A broadcast write: never executed, never answered. */
@@ -1098,6 +1363,11 @@ int main(void)
         cmocka_unit_test(a_repeated_write_is_executed_each_time),
         cmocka_unit_test(our_request_must_end_its_chunk),
         cmocka_unit_test(our_frames_keep_t35_apart),
+        cmocka_unit_test(an_echo_in_its_window_is_never_a_request),
+        cmocka_unit_test(the_same_write_after_the_window_is_answered),
+        cmocka_unit_test(a_stall_never_makes_an_echo_a_request),
+        cmocka_unit_test(a_busy_bus_regains_its_place_after_noise),
+        cmocka_unit_test(a_master_without_t35_is_answered),
         cmocka_unit_test(generated_buses_execute_exactly_our_whole_requests),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

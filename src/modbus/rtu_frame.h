@@ -135,9 +135,15 @@ enum rtu_length rtu_request_length(const uint8_t *frame, size_t avail, size_t *s
 enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
                                     const uint8_t *frame, size_t avail, size_t *size);
 
-/* How late an adapter with local echo may give a frame back after its
- * wire time (a USB adapter's latency timer is 16 ms by default). */
-#define RTU_ECHO_LATE_NS 100000000ull
+/* The echo window: a frame equal to our last one, whose first bytes can
+ * have come within this time after it left the wire, is our frame heard
+ * back (once per frame we send), whatever local_echo says. A USB adapter
+ * hands received bytes over when its latency timer runs out (FTDI: 16 ms
+ * by default, CH340 and CP210x 1-16 ms), a loaded host reads later still:
+ * 100 ms covers them with room to spare, and 20 ms more a host that is
+ * late to look. A master that repeats our last frame (the same write)
+ * within it is not answered that once; after it, every time. */
+#define RTU_ECHO_WINDOW_NS 120000000ull
 /* A port hands over what it received at least every this many characters
  * (a 16550's FIFO triggers at 14 at most; a USB adapter's lateness is the
  * config's delivery_ns): how long a frame begun but not whole is waited
@@ -206,7 +212,7 @@ struct rtu_line {
     uint16_t gaps[RTU_LINE_MAX_GAPS];
     size_t gap_count;
     uint64_t first_rx_ns, last_rx_ns;
-    uint64_t last_after_ns; /* the last bytes arrived after this (rtu_line_input_read) */
+    uint64_t chunk_after_ns; /* the chunk's first bytes arrived after this */
     bool silence_before;  /* the line surely was silent for t3.5 before it */
     uint64_t judge_at_ns; /* when the chunk's silence is due */
     bool waited;          /* judge_at_ns includes the wait for missing bytes */
@@ -214,6 +220,7 @@ struct rtu_line {
     uint64_t tx_end_ns; /* our last frame's last byte off the wire; 0: none yet */
     uint8_t sent[RTU_MAX_ADU];
     size_t sent_size;
+    bool echo_seen;    /* our last frame came back (one echo per frame) */
     bool echo_pending; /* local echo: sent[echo_at..] still to come back */
     size_t echo_at;
     uint64_t echo_until_ns;
@@ -261,5 +268,10 @@ void rtu_line_bytes_out(struct rtu_line *line, size_t size, uint64_t now_ns);
 /* The earliest time our next frame may start: t3.5 after our last one
  * left the wire (0: any time). */
 uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line);
+
+/* When our last frame's echo window ends (0: nothing sent): a reader that
+ * looks at the port then, and finds it empty, lets what comes later be
+ * judged as the master's. */
+uint64_t rtu_line_echo_window_end_ns(const struct rtu_line *line);
 
 #endif
