@@ -337,6 +337,11 @@ static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint
     uint64_t since = now_ns - line->last_rx_ns,
              own = (uint64_t)size * line->cfg.char_ns + line->cfg.delivery_ns;
     uint64_t silence = !line->last_rx_ns ? UINT64_MAX : since > own ? since - own : 0;
+    /* A reader late for the chunk's silence (a stalled loop: the bytes may
+     * have come right after the last ones, long before this read) proves
+     * no silence before them. */
+    if (line->chunk_open && now_ns > line->judge_at_ns)
+        silence = 0;
     if (!line->chunk_open) {
         line->first_rx_ns = now_ns;
         line->chunk_after_ns = after_ns < now_ns ? after_ns : now_ns;
@@ -535,18 +540,91 @@ static bool whole_frame(enum rtu_length how, size_t len, const uint8_t *d, size_
            rtu_crc_ok(d, len);
 }
 
-/* A request's length where the chunk holds what follows it: FC08's return
- * query data carries any data, and its response repeats it byte for byte,
- * so the request is the shortest CRC-valid run that the next bytes repeat
- * (another unit's: ours ends its chunk). */
-static enum rtu_length request_length_in_chunk(const struct rtu_line *line, const uint8_t *d,
-                                               size_t avail, size_t *size)
+static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size_t at,
+                                               size_t avail, size_t *size, unsigned depth,
+                                               bool final);
+
+/* How many requests of unknown length (FC08's return query data to units
+ * that do not answer) in a row are cut by CRC-valid runs, and how many
+ * runs are tried for each: the work stays bounded whatever the data. */
+#define RUN_SEARCH_DEPTH 3
+#define RUN_SEARCH_TRIES 4
+
+/* Is a whole request at 'at' (its length as the chunk gives it, or the
+ * chunk's rest)? */
+static bool request_follows(const struct rtu_line *line, size_t at, size_t avail, unsigned depth)
 {
+    size_t len = 0;
+    enum rtu_length how = request_length_in_chunk(line, at, avail, &len, depth, true);
+    if (how == RTU_LENGTH_UNKNOWN)
+        len = avail, how = RTU_LENGTH_EXACT;
+    return whole_frame(how, len, line->rx + at, avail);
+}
+
+/* The first k >= 'from' for which the k bytes at 'd' end in the CRC of
+ * what precedes them (their running CRC: one pass), and whose next k
+ * bytes repeat them if 'repeated'; 0 if none. */
+static size_t first_crc_run(const uint8_t *d, size_t avail, size_t from, bool repeated)
+{
+    uint16_t crc = 0xFFFF;
+    /* crc: of the m bytes before d[m], then compared with d[m], d[m+1]. */
+    for (size_t m = 1; m + 2 <= avail && m + 2 <= RTU_MAX_ADU; m++) {
+        crc = (uint16_t)((crc >> 8) ^ crc_table[(crc ^ d[m - 1]) & 0xFF]);
+        if (m + 2 < from || d[m] != (crc & 0xFF) || d[m + 1] != (crc >> 8))
+            continue;
+        if (!repeated)
+            return m + 2;
+        if (2 * (m + 2) <= avail && memcmp(d, d + m + 2, m + 2) == 0)
+            return m + 2;
+    }
+    return 0;
+}
+
+/*
+ * A request's length where the chunk holds what follows it. A function
+ * whose request length only its end tells: the run up to the next sure
+ * silence, if CRC-valid (no frame goes across one). FC08's return query data carries any
+ * data, and its response repeats it byte for byte: the request is the
+ * shortest CRC-valid run that the next bytes repeat; for a unit that does
+ * not answer, the chunk's rest if CRC-valid, else the shortest CRC-valid
+ * run if a whole request follows it (the master's next; 'depth': how many
+ * such cuts came before, up to RUN_SEARCH_DEPTH). Its data is the master's own,
+ * never another unit's registers. Ours ends its chunk: its rest.
+ */
+static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size_t at,
+                                               size_t avail, size_t *size, unsigned depth,
+                                               bool final)
+{
+    const uint8_t *d = line->rx + at;
     enum rtu_length how = rtu_request_length(d, avail, size);
-    if (how != RTU_LENGTH_UNKNOWN || d[1] != 8 || d[0] == line->cfg.unit_id)
+    size_t k, next;
+
+    if (how != RTU_LENGTH_UNKNOWN || d[0] == line->cfg.unit_id || (d[1] & 0x80))
+        return how; /* 0x80 and up: an exception, never a request */
+    next = next_silence(line, at);
+    if (next && next - at <= RTU_MAX_ADU && next - at >= RTU_MIN_ADU &&
+        rtu_crc_ok(d, next - at)) {
+        *size = next - at;
+        return RTU_LENGTH_EXACT;
+    }
+    if (d[1] != 8)
         return how;
-    for (size_t k = 6; 2 * k <= avail && k <= RTU_MAX_ADU; k++)
-        if (rtu_crc_ok(d, k) && memcmp(d, d + k, k) == 0) {
+    if ((k = first_crc_run(d, avail, 6, true)) != 0) {
+        *size = k;
+        return RTU_LENGTH_EXACT;
+    }
+    if (avail <= RTU_MAX_ADU && avail >= 6 && rtu_crc_ok(d, avail)) {
+        /* The chunk's rest, once nothing more comes (a port's piece may
+         * end where a CRC happens to be valid). */
+        *size = final ? avail : avail + 1;
+        return final ? RTU_LENGTH_EXACT : RTU_LENGTH_MORE;
+    }
+    /* The first CRC-valid runs (at most RTU_MAX_ADU bytes are scanned). */
+    unsigned tries = 0;
+    for (size_t from = 6; depth < RUN_SEARCH_DEPTH && tries++ < RUN_SEARCH_TRIES &&
+                          (k = first_crc_run(d, avail, from, false)) != 0;
+         from = k + 1)
+        if (k + RTU_MIN_ADU <= avail && request_follows(line, at + k, avail - k, depth + 1)) {
             *size = k;
             return RTU_LENGTH_EXACT;
         }
@@ -564,6 +642,14 @@ static size_t response_reading(const uint8_t *d, size_t avail, size_t len)
     return rsp_len != len && whole_frame(how, rsp_len, d, avail) ? rsp_len : 0;
 }
 
+/* What a frame at 'd' lacks to be a whole response by its own fields. */
+static size_t response_lacking(const uint8_t *d, size_t avail)
+{
+    size_t len = 0;
+    enum rtu_length how = response_form_length(d, avail, &len);
+    return lacking(how, len, avail);
+}
+
 /*
  * The first frame after a silence the line is sure of, where it lost its
  * place: a master's request (its length from its function), or a
@@ -573,10 +659,10 @@ static size_t response_reading(const uint8_t *d, size_t avail, size_t len)
  * FRAME_NONE with *missing, what a frame begun there lacks.
  */
 static enum frame_kind first_frame(const struct rtu_line *line, const uint8_t *d, size_t avail,
-                                   size_t *len, size_t *rsp_len, size_t *missing)
+                                   bool final, size_t *len, size_t *rsp_len, size_t *missing)
 {
     size_t q = 0, p = 0;
-    enum rtu_length qh = request_length_in_chunk(line, d, avail, &q);
+    enum rtu_length qh = request_length_in_chunk(line, (size_t)(d - line->rx), avail, &q, 0, final);
     enum rtu_length ph = response_form_length(d, avail, &p);
     bool q_ok = whole_frame(qh, q, d, avail), p_ok = whole_frame(ph, p, d, avail);
 
@@ -584,6 +670,12 @@ static enum frame_kind first_frame(const struct rtu_line *line, const uint8_t *d
     *rsp_len = 0;
     if (d[0] == line->cfg.unit_id || d[0] == RTU_BROADCAST)
         p_ok = false; /* only we answer as our unit, and nobody as 0 */
+    if (q_ok && !p_ok && !final && d[0] != line->cfg.unit_id && d[0] != RTU_BROADCAST &&
+        lacking(ph, p, avail)) {
+        /* It may still become a whole response: wait for it. */
+        *missing = lacking(ph, p, avail);
+        return FRAME_NONE;
+    }
     if (q_ok) {
         *len = q;
         *rsp_len = p_ok && p != q ? p : 0;
@@ -690,6 +782,7 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
     while (at < size) {
         const uint8_t *d = rx + at;
         size_t avail = size - at, len = 0, rsp_len = 0, missing = 0;
+        bool awaited = false; /* rsp_len is the response awaited */
         /* Where the line knows where it stands, a frame starts at the
          * chunk's start, where the last one ended; where it does not,
          * only after a silence it is sure of. */
@@ -708,7 +801,7 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
                            : FRAME_RESPONSE;
                 len = avail;
             } else if (silence) {
-                kind = first_frame(line, d, avail, &len, &rsp_len, &missing);
+                kind = first_frame(line, d, avail, final, &len, &rsp_len, &missing);
             }
         } else {
             size_t as_response = 0, as_request = 0;
@@ -727,10 +820,25 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
                                           &len);
                 if (how == RTU_LENGTH_UNKNOWN && silence)
                     how = RTU_LENGTH_EXACT, len = avail; /* the rest of the chunk */
-                if (whole_frame(how, len, d, avail) && echoes_request(w->await_request, d, len))
+                if (whole_frame(how, len, d, avail) && echoes_request(w->await_request, d, len)) {
+                    /* Or the master asking U again, with the same
+                     * function; where the response repeats the request
+                     * (05, 06, FC08's return query data), it is the
+                     * response the conversation expects. */
+                    size_t q = 0;
+                    enum rtu_length qh = request_length_in_chunk(line, at, avail, &q, 0, final);
+                    bool repeats = len == w->await_request_size &&
+                                   memcmp(d, w->await_request, len) == 0;
                     kind = FRAME_RESPONSE;
-                else
+                    if (!repeats && whole_frame(qh, q, d, avail) && d[0] != RTU_BROADCAST) {
+                        kind = FRAME_REQUEST;
+                        rsp_len = len;
+                        len = q;
+                        awaited = true;
+                    }
+                } else {
                     as_response = lacking(how, len, avail);
+                }
                 if (kind == FRAME_NONE && (!as_response || final))
                     response = false;
             }
@@ -738,15 +846,24 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
              * next request): a master's request, where the last frame
              * ended. */
             if (kind == FRAME_NONE && !response) {
-                how = request_length_in_chunk(line, d, avail, &len);
-                if (how == RTU_LENGTH_UNKNOWN && (silence || d[0] == line->cfg.unit_id))
-                    how = RTU_LENGTH_EXACT, len = avail; /* only as the chunk's rest */
+                how = request_length_in_chunk(line, at, avail, &len, 0, final);
+                bool rest = how == RTU_LENGTH_UNKNOWN && (silence || d[0] == line->cfg.unit_id);
+                if (rest) /* only as the chunk's rest, once nothing more comes */
+                    how = final ? RTU_LENGTH_EXACT : RTU_LENGTH_MORE, len = avail + !final;
                 if (whole_frame(how, len, d, avail)) {
                     kind = FRAME_REQUEST;
-                    if (d[0] != line->cfg.unit_id && d[0] != RTU_BROADCAST)
+                    if (d[0] != line->cfg.unit_id && d[0] != RTU_BROADCAST) {
                         rsp_len = response_reading(d, avail, len);
+                        /* A response it may still become: wait for it. */
+                        if (!rsp_len && !final && response_lacking(d, avail)) {
+                            kind = FRAME_NONE;
+                            as_request = response_lacking(d, avail);
+                        }
+                    }
                 } else {
-                    as_request = lacking(how, len, avail);
+                    /* A frame of a length only its end tells may still
+                     * be coming in the port's next piece. */
+                    as_request = rest ? 1 : lacking(how, len, avail);
                 }
             }
             /* Whichever form the tail may still become first. */
@@ -762,7 +879,12 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
             if (!branched && !pause_inside(line, at, at + rsp_len) &&
                 take_either(line, at, len, rsp_len, final, w))
                 return;
-            kind = FRAME_NONE;
+            /* Within a reading already taken: the response awaited, if
+             * it was one, else dropped. */
+            if (awaited && branched && !pause_inside(line, at, at + rsp_len))
+                kind = FRAME_RESPONSE, len = rsp_len;
+            else
+                kind = FRAME_NONE;
         }
         if (kind == FRAME_NONE && !paused)
             w->stats.crc_errors++;
@@ -885,7 +1007,7 @@ bool rtu_line_silence(struct rtu_line *line, uint64_t now_ns, const struct rtu_l
          * another unit's data, cut there by a port's delivery, is never
          * taken for a whole one. Either way: t3.5 and what a port hands
          * over at once, and its delivery. */
-        if (w.missing || conv == RTU_CONV_UNSYNCED) {
+        if (w.missing || conv == RTU_CONV_UNSYNCED || w.dropped) {
             uint64_t until = line->last_rx_ns + line->cfg.t35_ns +
                              (uint64_t)RTU_PIECE_CHARS * line->cfg.char_ns +
                              line->cfg.delivery_ns;
