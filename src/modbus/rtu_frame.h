@@ -21,8 +21,10 @@
  * over in pieces (a UART's FIFO every 8 characters, further apart than
  * t3.5 at 19200 baud; a USB adapter's packets), so the silence the line
  * is SURE of before some bytes is the time since the last read less their
- * own wire time and the port's delivery (delivery_ns). A pause over t1.5
- * of that inside a frame discards it. A chunk is judged t3.5 after its
+ * own wire time and the port's delivery (delivery_ns); a reader late for
+ * the chunk's silence (a stalled loop) proves none, as the bytes may have
+ * come right after the last ones. A pause over t1.5 of that inside a
+ * frame discards it. A chunk is judged t3.5 after its
  * last read, except: a frame begun and not whole waits for the port's
  * next piece (RTU_PIECE_CHARS more characters and the delivery), and
  * nothing after it in the chunk is searched (its late pieces); in UNSYNCED
@@ -73,7 +75,9 @@
  *             with a bad CRC or stopped short, is read as a new request
  *             (as in IDLE), where the last frame ended.
  *
- * TWO READINGS. A foreign frame read as a request that is also a whole
+ * TWO READINGS. A foreign frame read as a request that may still become
+ * a whole response of another length waits for it (as a frame begun and
+ * not whole does). A foreign frame read as a request that is also a whole
  * response of another length (a response whose first bytes were made to
  * pass for a request, with a frame hidden after them; or a request whose
  * bytes happen to be one) is walked both ways: the reading that explains
