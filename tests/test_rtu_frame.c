@@ -31,7 +31,8 @@
  * masters with no t3.5): safety (whole requests of ours only, each once,
  * in order) and liveness (every one from the second cycle after the last
  * fault on, executed and answered); RTU_FIELD_BUSES sets how many (100000
- * by default). RTU_PROPERTY_SEED replays a run (with RTU_PROPERTY_BUS=N,
+ * by default; under qemu-user, JAKAGW_ARCH set, a tenth of each).
+ * RTU_PROPERTY_SEED replays a run (with RTU_PROPERTY_BUS=N,
  * RTU_PROPERTY_BUSES=1 or RTU_FIELD_BUSES=1 and the other 0, and
  * RTU_PROPERTY_TRACE=1: one bus).
  */
@@ -920,6 +921,16 @@ static void a_master_without_t35_is_answered(void **state)
 
 /* ---- the property test ---- */
 
+/* Under qemu-user (an ARM build's make test: JAKAGW_ARCH set), a tenth of
+ * the buses: the native builds run them all, and an emulated CPU, many
+ * times slower, checks that the code behaves the same on the board's. */
+static unsigned long emulated(void)
+{
+    const char *arch = getenv("JAKAGW_ARCH");
+    return arch && arch[0] ? 10 : 1;
+}
+
+
 /* xorshift64*: a seed replays a run. */
 static uint64_t rng_state;
 static uint64_t rnd(void)
@@ -1581,7 +1592,7 @@ static void one_field_bus(unsigned long bus_no)
 static void field_buses_keep_safety_and_liveness(void **state)
 {
     const char *env = getenv("RTU_FIELD_BUSES"), *seed_env = getenv("RTU_PROPERTY_SEED");
-    unsigned long buses = env ? strtoul(env, NULL, 10) : 100000;
+    unsigned long buses = env ? strtoul(env, NULL, 10) : 100000 / emulated();
     uint64_t seed = seed_env ? strtoull(seed_env, NULL, 0)
                              : (uint64_t)time(NULL) * 2654435761u ^ (uint64_t)getpid() << 32 ^
                                    (uint64_t)clock();
@@ -1654,7 +1665,7 @@ static void server_close(struct server_path *p)
 static void generated_buses_execute_exactly_our_whole_requests(void **state)
 {
     const char *env = getenv("RTU_PROPERTY_BUSES"), *seed_env = getenv("RTU_PROPERTY_SEED");
-    unsigned long buses = env ? strtoul(env, NULL, 10) : 50000;
+    unsigned long buses = env ? strtoul(env, NULL, 10) : 50000 / emulated();
     uint64_t seed = seed_env ? strtoull(seed_env, NULL, 0)
                              : (uint64_t)time(NULL) * 2654435761u ^ (uint64_t)getpid() << 32 ^
                                    (uint64_t)clock();
