@@ -1001,8 +1001,8 @@ bool rtu_line_silence(struct rtu_line *line, uint64_t now_ns, const struct rtu_l
         walk_chunk(line, echo, conv, false, &w);
         line->waited = true;
         /* A frame begun but not whole waits for its next piece; where the
-         * line lost its place, a chunk is judged only once the line
-         * surely fell silent after it (the next piece of a frame that
+         * line lost its place (before the chunk or within it), a chunk is
+         * judged only once the line surely fell silent after it (the next piece of a frame that
          * merely paused would have come by then), so that a frame inside
          * another unit's data, cut there by a port's delivery, is never
          * taken for a whole one. Either way: t3.5 and what a port hands

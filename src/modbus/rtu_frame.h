@@ -49,10 +49,10 @@
  *                 an exception's 5 bytes), and the walk goes on from
  *                 there as in IDLE or AWAIT;
  *               - anything else: dropped to the next sure silence.
- *             A chunk here is judged only once the line surely fell
- *             silent after it (the wait above), so a frame is taken only
- *             with sure silences on both sides or boundaries the
- *             conversation gives.
+ *             A chunk here, or one that drops something, is judged
+ *             only once the line surely fell silent after it (the wait
+ *             above), so a frame is taken only with sure silences on both
+ *             sides or boundaries the conversation gives.
  *   IDLE      An exchange ended: the next frame is a master's request, of
  *             the length its function code gives (with the byte count
  *             for 15, 16, 20, 21, 23; FC08's return query data, any
