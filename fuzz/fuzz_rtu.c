@@ -13,13 +13,23 @@
  *      good): it must be executed, once; our reply goes out;
  *   1: one byte of noise (the line loses its place), then 'len' arbitrary
  *      bytes: executed only if the run, whole, is a request of ours;
- *   2: our last reply given back (within t3.5 without local_echo, up to
- *      100 ms late with it): never executed;
+ *   2: our last reply given back up to 116 ms late ((tag >> 3) & 31 times
+ *      3.75 ms), with either setting, read at once or (tag & 0x80) by a
+ *      loop stalled 300 ms: never executed;
  *   3: a read of 'len' / 2 registers of another unit and its response,
  *      the arbitrary bytes its register data: nothing executed;
  *   4: a write of those bytes to another unit's registers (16) and its
  *      response: nothing executed;
- *   5..7: a silence of (tag >> 3) milliseconds.
+ *   5: a busy poll cycle: a read of another unit, its response (the
+ *      arbitrary bytes its data; or none: an absent unit), a request of
+ *      ours, gaps between t3.5 and t3.5 + 16 characters + the port's
+ *      delivery: safety as everywhere, and liveness: ours executed in
+ *      every such cycle after one that was (a line that lost its place
+ *      regains it within a cycle);
+ *   6, 7: a silence of (tag >> 3) milliseconds.
+ * Invariants: safety (exactly the whole requests of ours that the input
+ * made, each once, in order: abort otherwise) and liveness (the requests
+ * of tag 0, and of tag 5 after a cycle that was served, executed).
  */
 #include <stdint.h>
 #include <stdlib.h>
@@ -42,6 +52,8 @@ struct bus {
     uint8_t reply[RTU_MAX_ADU];
     size_t reply_size;
     bool reply_due;
+    bool echoed;          /* our last reply was given back */
+    unsigned served_cycles; /* busy cycles served in a row */
 };
 
 static void on_request(void *user, const uint8_t *frame, size_t size)
@@ -76,6 +88,7 @@ static void run_to(struct bus *b, uint64_t t)
             b->now = at;
             rtu_line_frame_out(&b->line, b->reply, b->reply_size);
             rtu_line_bytes_out(&b->line, b->reply_size, at);
+            b->echoed = false;
         }
     }
     if (t > b->now)
@@ -87,7 +100,7 @@ static uint64_t sure(const struct bus *b)
 {
     return 2 * ((uint64_t)b->line.cfg.t35_ns + RTU_PIECE_CHARS * (uint64_t)b->line.cfg.char_ns +
                 b->line.cfg.delivery_ns) +
-           RTU_ECHO_LATE_NS;
+           RTU_ECHO_WINDOW_NS;
 }
 
 static void deliver(struct bus *b, uint64_t t, const uint8_t *data, size_t size)
@@ -148,6 +161,52 @@ static void send(struct bus *b, const uint8_t *frame, size_t size, const uint8_t
     run_to(b, b->now + sure(b));
 }
 
+/* 'frame' on the wire from 't', in one piece (a pty) or two (a port),
+ * delivered at its last byte's wire time; returns that time. */
+static uint64_t put(struct bus *b, const uint8_t *frame, size_t n, uint64_t t)
+{
+    t += n * b->line.cfg.char_ns;
+    deliver(b, t, frame, n);
+    return t;
+}
+
+static void busy_cycle(struct bus *b, const uint8_t *data, size_t size, size_t *at, uint8_t tag)
+{
+    uint8_t req[8], rsp[RTU_MAX_ADU], ours[8] = {UNIT, 4, 0, 0, 0, 1};
+    size_t n = take(data, size, at, 16) & ~(size_t)1;
+    uint8_t unit = (uint8_t)(tag >> 3);
+    const struct rtu_line_config *c = &b->line.cfg;
+    uint64_t span = (uint64_t)RTU_PIECE_CHARS * c->char_ns + c->delivery_ns;
+    uint64_t gap = c->t35_ns + 50000 + (n ? data[*at] : 0) * span / 256;
+    bool absent = n == 0;
+
+    if (unit == UNIT || unit == RTU_BROADCAST)
+        unit = 18;
+    req[0] = unit, req[1] = 3, req[2] = 0, req[3] = 0, req[4] = 0, req[5] = (uint8_t)(n / 2);
+    rtu_append_crc(req, 6);
+    rsp[0] = unit, rsp[1] = 3, rsp[2] = (uint8_t)n;
+    memcpy(rsp + 3, data + *at, n);
+    size_t rsp_n = rtu_append_crc(rsp, 3 + n);
+    *at += n;
+    ours[3] = (uint8_t)b->expected; /* each request of ours its own */
+    rtu_append_crc(ours, 6);
+
+    uint64_t t = b->now + sure(b);
+    t = put(b, req, 8, t) + gap;
+    if (!absent)
+        t = put(b, rsp, rsp_n, t) + gap;
+    expect(b, ours, 8);
+    put(b, ours, 8, t);
+    run_to(b, b->now + sure(b));
+    if (b->want_one && b->served_cycles)
+        abort(); /* liveness: a line that was served lost ours */
+    b->served_cycles = b->want_one ? 0 : b->served_cycles + 1;
+    if (b->want_one) {
+        b->want_one = false; /* not executed: the master times out */
+        b->expected--;
+    }
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
@@ -202,14 +261,26 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             break;
         }
         case 2:
-            if (b->reply_size && b->line.tx_end_ns) {
-                uint64_t t = b->line.tx_end_ns +
-                             (cfg.local_echo ? (uint64_t)(tag >> 3) * 3 * MS : cfg.t35_ns / 2);
+            if (b->reply_size && b->line.tx_end_ns && !b->echoed) {
+                uint64_t t = b->line.tx_end_ns + (uint64_t)((tag >> 3) & 15) * 3750000ull;
                 if (t < b->now)
                     break; /* too late to be an echo in its window */
-                deliver(b, t, b->reply, b->reply_size);
+                b->echoed = true;
+                if (tag & 0x80) {
+                    /* Arrived at t; the loop, stalled, reads it later. */
+                    struct rtu_line_hooks h = hooks;
+                    h.user = b;
+                    run_to(b, t - 1);
+                    b->now = t + 300 * MS;
+                    rtu_line_input_read(&b->line, b->reply, b->reply_size, b->now, t - 1, &h);
+                } else {
+                    deliver(b, t, b->reply, b->reply_size);
+                }
                 run_to(b, b->now + sure(b));
             }
+            break;
+        case 5:
+            busy_cycle(b, data, size, &at, tag);
             break;
         case 3:
         case 4: {
@@ -242,6 +313,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             run_to(b, b->now + (uint64_t)(tag >> 3) * MS);
             break;
         }
+        if ((tag & 7) == 1)
+            b->served_cycles = 0; /* the line may have lost its place */
     }
     run_to(b, b->now + sure(b));
     if (b->executed != b->expected)

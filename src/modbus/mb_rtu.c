@@ -255,13 +255,16 @@ static void sync_stats(struct mb_rtu *rtu)
 static void arm_timer(struct mb_rtu *rtu)
 {
     uint64_t at = rtu_line_deadline(&rtu->line);
-    uint64_t turn_end = rtu_line_tx_ready_ns(&rtu->line);
+    /* Looks at the port when our turn ends (our reply's end plus t3.5)
+     * and when its echo window ends: found empty then, what comes later
+     * surely came after it, and a frame equal to our reply is the master
+     * repeating it; bytes found there may be our reply heard back. */
+    const uint64_t looks[] = {rtu_line_tx_ready_ns(&rtu->line),
+                              rtu_line_echo_window_end_ns(&rtu->line)};
 
-    /* A look at the port when our turn ends (our reply's end plus t3.5):
-     * found empty then, what comes later surely came after it and may be
-     * a request; bytes found there may be our reply heard back. */
-    if (turn_end && rtu->seen_empty_ns < turn_end && (!at || turn_end < at))
-        at = turn_end;
+    for (size_t i = 0; i < sizeof(looks) / sizeof(looks[0]); i++)
+        if (looks[i] && rtu->seen_empty_ns < looks[i] && (!at || looks[i] < at))
+            at = looks[i];
 
     if (rtu->tx_count && !rtu->tx_waiting) {
         uint64_t ready = rtu_line_tx_ready_ns(&rtu->line);

@@ -31,15 +31,21 @@
  * broadcast (unit 0) is counted and never acted on, because no reply
  * could tell the master whether a command was carried out.
  *
- * Echo. An adapter that hears its own transmitter gives each reply back:
- * [rtu] local_echo = true takes those bytes off the input (up to 100 ms
- * after their wire time; a difference is a collision, counted and logged
- * once). With either setting, no frame whose last byte arrived (was read)
- * before our reply's wire time plus t3.5 is executed; with local_echo = false
- * such a frame equal to our reply is counted as an echo and logged once
- * with the hint to set local_echo = true. Nothing is learnt: a master
- * that repeats a write is answered and acted on every time, as over TCP.
- * Two frames we send are at least t3.5 apart, however the port's
+ * Echo. An adapter that hears its own transmitter gives each reply back.
+ * With either setting of [rtu] local_echo, a frame equal to our last
+ * reply whose bytes can have come within the echo window (120 ms after
+ * its wire time, RTU_ECHO_WINDOW_NS: a USB adapter's latency timer and a
+ * late host) is that reply heard back, once per reply: counted, skipped,
+ * and with local_echo = false logged once with the hint to set it true.
+ * When they can have come is judged from the last read that found the
+ * port empty before them, and the port is looked at when the window ends,
+ * so a stalled loop never makes an echo a request. local_echo = true
+ * also takes the reply's bytes off the input as they come (glued to a
+ * request, in pieces; a difference is a collision, counted and logged
+ * once). A master that repeats a write is answered and acted on every
+ * time it comes after the window, as over TCP; any other request, also
+ * one that comes right after our reply (a master that keeps no t3.5), is
+ * served. Two frames we send are at least t3.5 apart, however the port's
  * writability goes (replies wait in a small queue).
  *
  * Limits. The line is a client of the server with no socket: it never
@@ -102,7 +108,7 @@ struct mb_rtu_stats {
     uint64_t gap_discards;   /* good frames with a pause inside them */
     uint64_t echoes;         /* our own replies read back, skipped */
     uint64_t collisions;     /* local_echo: a reply came back different */
-    uint64_t out_of_turn;    /* frames begun before our reply's end + t3.5 */
+    uint64_t out_of_turn;    /* frames begun before our reply's end + t3.5 (served) */
     uint64_t replies;
     uint32_t turnaround_us;     /* the last reply: request's last byte to write */
     uint32_t turnaround_max_us;

@@ -432,14 +432,16 @@ const struct regmap_row regmap_table_rows[] = {
     G_IR(5556, rtu_turnaround_max_us, REGMAP_U32, "us",
          "The longest RTU turnaround since start or the last counter reset"),
     G_IR(5558, rtu_echoes, REGMAP_U32, "",
-         "RTU replies of ours read back from the line and skipped: an adapter that echoes "
-         "(with local_echo = false, a hint to set local_echo = true is logged once)"),
+         "RTU replies of ours read back from the line within 120 ms and skipped: an adapter "
+         "that echoes (with local_echo = false, a hint to set local_echo = true is logged "
+         "once)"),
     G_IR(5560, rtu_collisions, REGMAP_U32, "",
          "local_echo = true: a reply read back different from what was sent (another "
          "sender on the line at the same time, or noise)"),
     G_IR(5562, rtu_out_of_turn, REGMAP_U32, "",
-         "RTU frames that ended before our reply's wire time + t3.5: never executed (a "
-         "master that does not keep the 3.5-character silence, or an echo)"),
+         "RTU frames begun before our reply's wire time + t3.5 that were not our reply "
+         "heard back: served all the same (a master that does not keep the 3.5-character "
+         "silence)"),
 
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",

@@ -93,7 +93,16 @@ enum rtu_length rtu_request_length(const uint8_t *d, size_t avail, size_t *size)
         return RTU_LENGTH_MORE;
     }
     switch (d[1]) {
-    case 1: case 2: case 3: case 4: case 5: case 6: case 8:
+    case 1: case 2: case 3: case 4: case 5: case 6:
+        *size = 8;
+        return RTU_LENGTH_EXACT;
+    case 8:
+        if (avail < 4) {
+            *size = 8;
+            return RTU_LENGTH_MORE;
+        }
+        if (d[2] == 0 && d[3] == 0)
+            return RTU_LENGTH_UNKNOWN; /* return query data: any data */
         *size = 8;
         return RTU_LENGTH_EXACT;
     case 7: case 11: case 12: case 17:
@@ -176,7 +185,10 @@ enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
     case 3: case 4: case 23: /* 23: the read's count, as for 3 */
         *size = 5 + 2 * (size_t)count;
         return RTU_LENGTH_EXACT;
-    case 5: case 6: case 8: case 11: case 15: case 16:
+    case 8: /* return query data repeats the request; the others, 8 bytes */
+        *size = request[2] == 0 && request[3] == 0 ? request_size : 8;
+        return RTU_LENGTH_EXACT;
+    case 5: case 6: case 11: case 15: case 16:
         *size = 8;
         return RTU_LENGTH_EXACT;
     case 7:
@@ -209,6 +221,60 @@ enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
     }
 }
 
+/*
+ * The length of a response at 'd' whose request the line did not hear,
+ * from the response's own fields (a byte count, an exception's fixed
+ * size); RTU_LENGTH_UNKNOWN where only the request tells (21, FC08's
+ * return query data).
+ */
+static enum rtu_length response_form_length(const uint8_t *d, size_t avail, size_t *size)
+{
+    if (avail < 3) {
+        *size = 5;
+        return RTU_LENGTH_MORE;
+    }
+    if (d[1] & 0x80) {
+        *size = 5;
+        return RTU_LENGTH_EXACT;
+    }
+    switch (d[1]) {
+    case 1: case 2: case 3: case 4: case 12: case 17: case 20: case 23:
+        *size = 5 + (size_t)d[2];
+        return RTU_LENGTH_EXACT;
+    case 5: case 6: case 11: case 15: case 16:
+        *size = 8;
+        return RTU_LENGTH_EXACT;
+    case 8:
+        if (avail < 4) {
+            *size = 8;
+            return RTU_LENGTH_MORE;
+        }
+        if (d[2] == 0 && d[3] == 0)
+            return RTU_LENGTH_UNKNOWN;
+        *size = 8;
+        return RTU_LENGTH_EXACT;
+    case 7:
+        *size = 5;
+        return RTU_LENGTH_EXACT;
+    case 22:
+        *size = 10;
+        return RTU_LENGTH_EXACT;
+    case 24:
+        if (avail < 4) {
+            *size = 6;
+            return RTU_LENGTH_MORE;
+        }
+        *size = 6 + ((size_t)d[2] << 8 | d[3]);
+        return RTU_LENGTH_EXACT;
+    case 43:
+        if (d[2] != 14)
+            return RTU_LENGTH_UNKNOWN;
+        return device_id_length(d, avail, size);
+    default:
+        return RTU_LENGTH_UNKNOWN;
+    }
+}
+
 /* ---- the line as a conversation ---- */
 
 void rtu_line_init(struct rtu_line *line, const struct rtu_line_config *cfg)
@@ -227,6 +293,7 @@ static void clear_chunk(struct rtu_line *line)
     line->echo_broken = false;
     line->waited = false;
     line->judge_at_ns = 0;
+    line->chunk_after_ns = 0;
 }
 
 void rtu_line_reset(struct rtu_line *line)
@@ -244,8 +311,22 @@ static void emit(const struct rtu_line_hooks *hooks, enum rtu_event event)
 
 #define GAP_AT(g) ((size_t)((g) & ~RTU_GAP_WAITED))
 
-/* Bytes that are the line's input (not our echo). */
-static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns)
+/* Is the chunk's last boundary at its end (before the bytes to come)? */
+static bool gap_at_end(const struct rtu_line *line)
+{
+    return line->gap_count && GAP_AT(line->gaps[line->gap_count - 1]) == line->rx_used;
+}
+
+static void add_gap_at_end(struct rtu_line *line, uint16_t flags)
+{
+    if (line->gap_count < RTU_LINE_MAX_GAPS && line->rx_used < RTU_GAP_WAITED && !gap_at_end(line))
+        line->gaps[line->gap_count++] = (uint16_t)(line->rx_used | flags);
+}
+
+/* Bytes that are the line's input (not our echo), read at 'now_ns',
+ * arrived after 'after_ns'. */
+static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
+                   uint64_t after_ns)
 {
     if (size == 0)
         return;
@@ -256,20 +337,27 @@ static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint
     uint64_t since = now_ns - line->last_rx_ns,
              own = (uint64_t)size * line->cfg.char_ns + line->cfg.delivery_ns;
     uint64_t silence = !line->last_rx_ns ? UINT64_MAX : since > own ? since - own : 0;
+    /* A reader late for the chunk's silence (a stalled loop: the bytes may
+     * have come right after the last ones, long before this read) proves
+     * no silence before them. */
+    if (line->chunk_open && now_ns > line->judge_at_ns)
+        silence = 0;
     if (!line->chunk_open) {
         line->first_rx_ns = now_ns;
+        line->chunk_after_ns = after_ns < now_ns ? after_ns : now_ns;
         line->chunk_open = true;
         line->silence_before = silence >= line->cfg.t35_ns;
     } else if (line->rx_used) {
         /* A silence waited past here was the port's delay unless the line
          * surely was silent for t3.5. */
-        if (line->gap_count && GAP_AT(line->gaps[line->gap_count - 1]) == line->rx_used &&
-            silence < line->cfg.t35_ns)
+        if (gap_at_end(line) && silence < line->cfg.t35_ns)
             line->gap_count--;
-        /* A pause longer than t1.5: a frame across it is discarded. */
-        if (silence > line->cfg.t15_ns && line->gap_count < RTU_LINE_MAX_GAPS &&
-            (!line->gap_count || GAP_AT(line->gaps[line->gap_count - 1]) != line->rx_used))
-            line->gaps[line->gap_count++] = (uint16_t)line->rx_used;
+        /* A sure silence of t3.5: a frame may start here. A pause longer
+         * than t1.5: a frame across either is discarded. */
+        if (silence >= line->cfg.t35_ns)
+            add_gap_at_end(line, RTU_GAP_WAITED);
+        else if (silence > line->cfg.t15_ns)
+            add_gap_at_end(line, 0);
     }
     if (line->rx_overrun || line->rx_used + size > sizeof(line->rx)) {
         if (!line->rx_overrun)
@@ -288,21 +376,25 @@ static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint
 
 /*
  * Local echo: takes what comes back of our frame off the input. Returns
- * the bytes consumed. Where the input differs from our frame, what matched
- * of it is input again: a master's request starts as our reply did (unit
- * id, function), so a request on an adapter that gave nothing back is
- * read as a request; a collision leaves bytes that are no frame, and the
- * chunk's judgement (end_chunk) counts it.
+ * the bytes consumed. The bytes are judged by when they can have come
+ * (after 'after_ns', the reader's last look at an empty port), not by
+ * when they were read: a loop that stalls, or reads half an echo and then
+ * stalls, still takes the echo off. Where the input differs from our
+ * frame, what matched of it is input again: a master's request starts as
+ * our reply did (unit id, function), so a request on an adapter that gave
+ * nothing back is read as a request; a collision leaves bytes that are no
+ * frame, and the chunk's judgement (end_chunk) counts it.
  */
-static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns)
+static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
+                        uint64_t after_ns)
 {
     size_t used = 0;
 
-    if (now_ns > line->echo_until_ns) {
-        /* Not back in time: what comes now is the master's. */
+    if (after_ns >= line->echo_until_ns) {
+        /* Surely not back in its window: what comes now is the master's. */
         line->echo_pending = false;
         line->echo_broken = true;
-        append(line, line->sent, line->echo_at, now_ns);
+        append(line, line->sent, line->echo_at, now_ns, after_ns);
         return 0;
     }
     while (used < size && line->echo_pending) {
@@ -310,12 +402,13 @@ static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size,
             used++;
             if (++line->echo_at == line->sent_size) {
                 line->echo_pending = false;
+                line->echo_seen = true;
                 line->stats.echoes++;
             }
         } else {
             line->echo_pending = false;
             line->echo_broken = true;
-            append(line, line->sent, line->echo_at, now_ns);
+            append(line, line->sent, line->echo_at, now_ns, after_ns);
         }
     }
     return used;
@@ -325,15 +418,14 @@ void rtu_line_input_read(struct rtu_line *line, const uint8_t *data, size_t size
                          uint64_t after_ns, const struct rtu_line_hooks *hooks)
 {
     (void)hooks;
+    if (after_ns > now_ns)
+        after_ns = now_ns;
     if (line->echo_pending) {
-        size_t echo = take_echo(line, data, size, now_ns);
+        size_t echo = take_echo(line, data, size, now_ns, after_ns);
         data += echo;
         size -= echo;
     }
-    if (size == 0)
-        return;
-    append(line, data, size, now_ns);
-    line->last_after_ns = after_ns < now_ns ? after_ns : now_ns;
+    append(line, data, size, now_ns, after_ns);
 }
 
 void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
@@ -358,8 +450,8 @@ static bool pause_inside(const struct rtu_line *line, size_t from, size_t to)
     return false;
 }
 
-/* Is 'at' after a silence of t3.5: the chunk's start if one came before
- * it, or a silence waited past? */
+/* Is 'at' after a silence of t3.5 the line is sure of: the chunk's start
+ * if one came before it, or a silence proven inside the chunk? */
 static bool after_silence(const struct rtu_line *line, size_t at)
 {
     if (at == 0)
@@ -370,7 +462,7 @@ static bool after_silence(const struct rtu_line *line, size_t at)
     return false;
 }
 
-/* The next silence waited past after 'at', or 0. */
+/* The next sure silence after 'at', or 0. */
 static size_t next_silence(const struct rtu_line *line, size_t at)
 {
     size_t best = 0;
@@ -399,6 +491,20 @@ static bool echoes_request(const uint8_t *request, const uint8_t *rsp, size_t si
     }
 }
 
+/* Our last frame heard back: the chunk starts with it, byte for byte, it
+ * has not come back yet, and the chunk's first bytes can have arrived
+ * within the echo window after it left the wire (judged from the reader's
+ * last look at an empty port before them, never from the time of the
+ * read). Returns its size, or 0. */
+static size_t echo_at_head(const struct rtu_line *line)
+{
+    if (!line->tx_end_ns || !line->sent_size || line->echo_seen || line->rx_overrun ||
+        line->chunk_after_ns >= line->tx_end_ns + RTU_ECHO_WINDOW_NS ||
+        line->rx_used < line->sent_size || memcmp(line->rx, line->sent, line->sent_size) != 0)
+        return 0;
+    return line->sent_size;
+}
+
 /* What the walk of a chunk found. */
 struct walk {
     enum rtu_conv conv;
@@ -407,6 +513,8 @@ struct walk {
     struct rtu_line_stats stats; /* added to the line's */
     size_t execute_at, execute_size; /* a request of ours, or size 0 */
     size_t missing; /* bytes the tail lacks to be what is expected */
+    size_t from;    /* where the walk began (after our echo) */
+    bool dropped;   /* something in the chunk was not what was expected */
 };
 
 enum frame_kind { FRAME_NONE, FRAME_REQUEST, FRAME_RESPONSE };
@@ -420,46 +528,280 @@ static size_t lacking(enum rtu_length how, size_t len, size_t avail)
     return len - avail;
 }
 
-/*
- * Walks the chunk as the model in rtu_frame.h says, from the line's state,
- * without changing the line: the state after it, the counters, the
- * request to execute, and what a frame begun at the end lacks. 'final':
- * the chunk is being judged, nothing more will come.
- */
-static void walk_chunk(const struct rtu_line *line, bool final, struct walk *w)
+static size_t least_lacking(size_t a, size_t b)
 {
-    const uint8_t *rx = line->rx;
-    size_t size = line->rx_used, at = 0;
+    return !a ? b : !b ? a : a < b ? a : b;
+}
 
+/* Is a frame of the form 'how', 'len' at 'd' whole, with its CRC? */
+static bool whole_frame(enum rtu_length how, size_t len, const uint8_t *d, size_t avail)
+{
+    return how == RTU_LENGTH_EXACT && len >= RTU_MIN_ADU && len <= avail && len <= RTU_MAX_ADU &&
+           rtu_crc_ok(d, len);
+}
+
+static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size_t at,
+                                               size_t avail, size_t *size, unsigned depth,
+                                               bool final);
+
+/* How many requests of unknown length (FC08's return query data to units
+ * that do not answer) in a row are cut by CRC-valid runs, and how many
+ * runs are tried for each: the work stays bounded whatever the data. */
+#define RUN_SEARCH_DEPTH 3
+#define RUN_SEARCH_TRIES 4
+
+/* Is a whole request at 'at' (its length as the chunk gives it, or the
+ * chunk's rest)? */
+static bool request_follows(const struct rtu_line *line, size_t at, size_t avail, unsigned depth)
+{
+    size_t len = 0;
+    enum rtu_length how = request_length_in_chunk(line, at, avail, &len, depth, true);
+    if (how == RTU_LENGTH_UNKNOWN)
+        len = avail, how = RTU_LENGTH_EXACT;
+    return whole_frame(how, len, line->rx + at, avail);
+}
+
+/* The first k >= 'from' for which the k bytes at 'd' end in the CRC of
+ * what precedes them (their running CRC: one pass), and whose next k
+ * bytes repeat them if 'repeated'; 0 if none. */
+static size_t first_crc_run(const uint8_t *d, size_t avail, size_t from, bool repeated)
+{
+    uint16_t crc = 0xFFFF;
+    /* crc: of the m bytes before d[m], then compared with d[m], d[m+1]. */
+    for (size_t m = 1; m + 2 <= avail && m + 2 <= RTU_MAX_ADU; m++) {
+        crc = (uint16_t)((crc >> 8) ^ crc_table[(crc ^ d[m - 1]) & 0xFF]);
+        if (m + 2 < from || d[m] != (crc & 0xFF) || d[m + 1] != (crc >> 8))
+            continue;
+        if (!repeated)
+            return m + 2;
+        if (2 * (m + 2) <= avail && memcmp(d, d + m + 2, m + 2) == 0)
+            return m + 2;
+    }
+    return 0;
+}
+
+/*
+ * A request's length where the chunk holds what follows it. A function
+ * whose request length only its end tells: the run up to the next sure
+ * silence, if CRC-valid (no frame goes across one). FC08's return query data carries any
+ * data, and its response repeats it byte for byte: the request is the
+ * shortest CRC-valid run that the next bytes repeat; for a unit that does
+ * not answer, the chunk's rest if CRC-valid, else the shortest CRC-valid
+ * run if a whole request follows it (the master's next; 'depth': how many
+ * such cuts came before, up to RUN_SEARCH_DEPTH). Its data is the master's own,
+ * never another unit's registers. Ours ends its chunk: its rest.
+ */
+static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size_t at,
+                                               size_t avail, size_t *size, unsigned depth,
+                                               bool final)
+{
+    const uint8_t *d = line->rx + at;
+    enum rtu_length how = rtu_request_length(d, avail, size);
+    size_t k, next;
+
+    if (how != RTU_LENGTH_UNKNOWN || d[0] == line->cfg.unit_id || (d[1] & 0x80))
+        return how; /* 0x80 and up: an exception, never a request */
+    next = next_silence(line, at);
+    if (next && next - at <= RTU_MAX_ADU && next - at >= RTU_MIN_ADU &&
+        rtu_crc_ok(d, next - at)) {
+        *size = next - at;
+        return RTU_LENGTH_EXACT;
+    }
+    if (d[1] != 8)
+        return how;
+    if ((k = first_crc_run(d, avail, 6, true)) != 0) {
+        *size = k;
+        return RTU_LENGTH_EXACT;
+    }
+    if (avail <= RTU_MAX_ADU && avail >= 6 && rtu_crc_ok(d, avail)) {
+        /* The chunk's rest, once nothing more comes (a port's piece may
+         * end where a CRC happens to be valid). */
+        *size = final ? avail : avail + 1;
+        return final ? RTU_LENGTH_EXACT : RTU_LENGTH_MORE;
+    }
+    /* The first CRC-valid runs (at most RTU_MAX_ADU bytes are scanned). */
+    unsigned tries = 0;
+    for (size_t from = 6; depth < RUN_SEARCH_DEPTH && tries++ < RUN_SEARCH_TRIES &&
+                          (k = first_crc_run(d, avail, from, false)) != 0;
+         from = k + 1)
+        if (k + RTU_MIN_ADU <= avail && request_follows(line, at + k, avail - k, depth + 1)) {
+            *size = k;
+            return RTU_LENGTH_EXACT;
+        }
+    return RTU_LENGTH_UNKNOWN;
+}
+
+/* The length of a frame of another unit read as a request of 'len' bytes
+ * if it is also a whole response of another length (its own fields
+ * giving it), else 0. 05 and 06, whose request and response are alike,
+ * have one length. */
+static size_t response_reading(const uint8_t *d, size_t avail, size_t len)
+{
+    size_t rsp_len = 0;
+    enum rtu_length how = response_form_length(d, avail, &rsp_len);
+    return rsp_len != len && whole_frame(how, rsp_len, d, avail) ? rsp_len : 0;
+}
+
+/* What a frame at 'd' lacks to be a whole response by its own fields. */
+static size_t response_lacking(const uint8_t *d, size_t avail)
+{
+    size_t len = 0;
+    enum rtu_length how = response_form_length(d, avail, &len);
+    return lacking(how, len, avail);
+}
+
+/*
+ * The first frame after a silence the line is sure of, where it lost its
+ * place: a master's request (its length from its function), or a
+ * response to a request the line did not hear (its length from its own
+ * fields). FRAME_REQUEST with *len, and *rsp_len if it is also a whole
+ * response of another length (two readings); FRAME_RESPONSE; or
+ * FRAME_NONE with *missing, what a frame begun there lacks.
+ */
+static enum frame_kind first_frame(const struct rtu_line *line, const uint8_t *d, size_t avail,
+                                   bool final, size_t *len, size_t *rsp_len, size_t *missing)
+{
+    size_t q = 0, p = 0;
+    enum rtu_length qh = request_length_in_chunk(line, (size_t)(d - line->rx), avail, &q, 0, final);
+    enum rtu_length ph = response_form_length(d, avail, &p);
+    bool q_ok = whole_frame(qh, q, d, avail), p_ok = whole_frame(ph, p, d, avail);
+
+    *missing = 0;
+    *rsp_len = 0;
+    if (d[0] == line->cfg.unit_id || d[0] == RTU_BROADCAST)
+        p_ok = false; /* only we answer as our unit, and nobody as 0 */
+    if (q_ok && !p_ok && !final && d[0] != line->cfg.unit_id && d[0] != RTU_BROADCAST &&
+        lacking(ph, p, avail)) {
+        /* It may still become a whole response: wait for it. */
+        *missing = lacking(ph, p, avail);
+        return FRAME_NONE;
+    }
+    if (q_ok) {
+        *len = q;
+        *rsp_len = p_ok && p != q ? p : 0;
+        return FRAME_REQUEST;
+    }
+    if (p_ok) {
+        *len = p;
+        return FRAME_RESPONSE;
+    }
+    *missing = least_lacking(lacking(qh, q, avail), lacking(ph, p, avail));
+    if (!*missing && avail < RTU_MIN_ADU)
+        *missing = RTU_MIN_ADU - avail;
+    return FRAME_NONE;
+}
+
+static void walk_from(const struct rtu_line *line, size_t at, bool final, struct walk *w,
+                      bool branched);
+
+/* The walk takes the frame at 'at' as 'kind', 'len' bytes, and goes on. */
+static void take_frame(const struct rtu_line *line, size_t at, enum frame_kind kind, size_t len,
+                       struct walk *w)
+{
+    const uint8_t *d = line->rx + at;
+
+    w->stats.frames++;
+    if (kind == FRAME_RESPONSE) {
+        w->stats.foreign_frames++;
+        w->conv = RTU_CONV_IDLE;
+    } else if (d[0] == RTU_BROADCAST) {
+        w->stats.broadcasts++;
+        w->conv = RTU_CONV_IDLE;
+    } else if (d[0] == line->cfg.unit_id) {
+        w->execute_at = at;
+        w->execute_size = len;
+        w->conv = RTU_CONV_IDLE; /* our reply ends the exchange */
+    } else {
+        w->stats.foreign_frames++;
+        memcpy(w->await_request, d, len);
+        w->await_request_size = len;
+        w->conv = RTU_CONV_AWAIT;
+    }
+}
+
+/*
+ * A frame of another unit that reads two ways, a request of 'len' bytes
+ * or a response of 'rsp_len' (a response whose first bytes were made to
+ * pass for a request, a frame hidden after them; or a request whose bytes
+ * happen to be a response's): the walk goes on both ways. The reading
+ * that explains the rest of the chunk is the bus; where both do, only
+ * what both would execute is (a hidden frame is executed by one reading
+ * alone); where neither does, the frame is dropped (false).
+ */
+static bool take_either(const struct rtu_line *line, size_t at, size_t len, size_t rsp_len,
+                        bool final, struct walk *w)
+{
+    struct walk as_request = *w, as_response = *w;
+
+    take_frame(line, at, FRAME_REQUEST, len, &as_request);
+    walk_from(line, at + len, final, &as_request, true);
+    take_frame(line, at, FRAME_RESPONSE, rsp_len, &as_response);
+    walk_from(line, at + rsp_len, final, &as_response, true);
+    bool q = !as_request.dropped, p = !as_response.dropped;
+    if (!q && !p)
+        return false;
+    if (q && p && (as_request.execute_size != as_response.execute_size ||
+                   as_request.execute_at != as_response.execute_at)) {
+        as_request.execute_size = 0;
+        as_request.conv = RTU_CONV_UNSYNCED;
+    }
+    *w = q ? as_request : as_response;
+    /* Still to come: wait for what either reading lacks. */
+    if (as_request.missing > w->missing)
+        w->missing = as_request.missing;
+    if (as_response.missing > w->missing)
+        w->missing = as_response.missing;
+    return true;
+}
+
+/*
+ * Walks the chunk from 'from' as the model in rtu_frame.h says, from the
+ * state 'conv', without changing the line: the state after it, the
+ * counters, the request to execute, and what a frame begun at the end
+ * lacks. 'final': the chunk is being judged, nothing more will come.
+ */
+static void walk_chunk(const struct rtu_line *line, size_t from, enum rtu_conv conv, bool final,
+                       struct walk *w)
+{
     memset(w, 0, sizeof(*w));
-    w->conv = line->conv;
+    w->conv = conv;
     memcpy(w->await_request, line->await_request, line->await_request_size);
     w->await_request_size = line->await_request_size;
+    w->from = from;
+    walk_from(line, from, final, w, false);
+}
+
+/* The walk from 'at' on; 'branched': inside take_either (a second frame
+ * that reads two ways is dropped). */
+static void walk_from(const struct rtu_line *line, size_t at, bool final, struct walk *w,
+                      bool branched)
+{
+    const uint8_t *rx = line->rx;
+    size_t size = line->rx_used;
+
     while (at < size) {
         const uint8_t *d = rx + at;
-        size_t avail = size - at, len = 0;
+        size_t avail = size - at, len = 0, rsp_len = 0, missing = 0;
+        bool awaited = false; /* rsp_len is the response awaited */
         /* Where the line knows where it stands, a frame starts at the
-         * chunk's start; where it does not, only after a silence it is
-         * sure of. */
+         * chunk's start, where the last one ended; where it does not,
+         * only after a silence it is sure of. */
         bool silence = w->conv == RTU_CONV_UNSYNCED ? after_silence(line, at)
-                                                    : at == 0 || after_silence(line, at);
+                                                    : at == w->from || after_silence(line, at);
         enum frame_kind kind = FRAME_NONE;
         enum rtu_length how;
 
-        size_t missing = 0;
         if (w->conv == RTU_CONV_UNSYNCED) {
-            /* Only a whole chunk: from a silence to the end. */
-            how = rtu_request_length(d, avail, &len);
             if (silence && avail >= RTU_MIN_ADU && avail <= RTU_MAX_ADU &&
                 rtu_crc_ok(d, avail)) {
+                /* A whole chunk from a silence to the end: one frame. */
+                how = rtu_request_length(d, avail, &len);
                 kind = how == RTU_LENGTH_UNKNOWN || (how == RTU_LENGTH_EXACT && len == avail)
                            ? FRAME_REQUEST
                            : FRAME_RESPONSE;
                 len = avail;
             } else if (silence) {
-                missing = lacking(how, len, avail);
-                if (!missing && avail < RTU_MIN_ADU)
-                    missing = RTU_MIN_ADU - avail;
+                kind = first_frame(line, d, avail, final, &len, &rsp_len, &missing);
             }
         } else {
             size_t as_response = 0, as_request = 0;
@@ -478,42 +820,80 @@ static void walk_chunk(const struct rtu_line *line, bool final, struct walk *w)
                                           &len);
                 if (how == RTU_LENGTH_UNKNOWN && silence)
                     how = RTU_LENGTH_EXACT, len = avail; /* the rest of the chunk */
-                if (how == RTU_LENGTH_EXACT && len <= avail && len >= RTU_MIN_ADU &&
-                    len <= RTU_MAX_ADU && rtu_crc_ok(d, len) &&
-                    echoes_request(w->await_request, d, len))
+                if (whole_frame(how, len, d, avail) && echoes_request(w->await_request, d, len)) {
+                    /* Or the master asking U again, with the same
+                     * function; where the response repeats the request
+                     * (05, 06, FC08's return query data), it is the
+                     * response the conversation expects. */
+                    size_t q = 0;
+                    enum rtu_length qh = request_length_in_chunk(line, at, avail, &q, 0, final);
+                    bool repeats = len == w->await_request_size &&
+                                   memcmp(d, w->await_request, len) == 0;
                     kind = FRAME_RESPONSE;
-                else
+                    if (!repeats && whole_frame(qh, q, d, avail) && d[0] != RTU_BROADCAST) {
+                        kind = FRAME_REQUEST;
+                        rsp_len = len;
+                        len = q;
+                        awaited = true;
+                    }
+                } else {
                     as_response = lacking(how, len, avail);
+                }
                 if (kind == FRAME_NONE && (!as_response || final))
                     response = false;
             }
-            if (kind == FRAME_NONE && !response && (w->conv == RTU_CONV_IDLE || silence)) {
-                how = rtu_request_length(d, avail, &len);
-                if (how == RTU_LENGTH_UNKNOWN && silence)
-                    how = RTU_LENGTH_EXACT, len = avail; /* only as a whole chunk */
-                if (how == RTU_LENGTH_EXACT && len <= avail && len >= RTU_MIN_ADU &&
-                    len <= RTU_MAX_ADU && rtu_crc_ok(d, len))
+            /* Not the response awaited (another unit, or a silent one's
+             * next request): a master's request, where the last frame
+             * ended. */
+            if (kind == FRAME_NONE && !response) {
+                how = request_length_in_chunk(line, at, avail, &len, 0, final);
+                bool rest = how == RTU_LENGTH_UNKNOWN && (silence || d[0] == line->cfg.unit_id);
+                if (rest) /* only as the chunk's rest, once nothing more comes */
+                    how = final ? RTU_LENGTH_EXACT : RTU_LENGTH_MORE, len = avail + !final;
+                if (whole_frame(how, len, d, avail)) {
                     kind = FRAME_REQUEST;
-                else
-                    as_request = lacking(how, len, avail);
+                    if (d[0] != line->cfg.unit_id && d[0] != RTU_BROADCAST) {
+                        rsp_len = response_reading(d, avail, len);
+                        /* A response it may still become: wait for it. */
+                        if (!rsp_len && !final && response_lacking(d, avail)) {
+                            kind = FRAME_NONE;
+                            as_request = response_lacking(d, avail);
+                        }
+                    }
+                } else {
+                    /* A frame of a length only its end tells may still
+                     * be coming in the port's next piece. */
+                    as_request = rest ? 1 : lacking(how, len, avail);
+                }
             }
             /* Whichever form the tail may still become first. */
-            missing = !as_response ? as_request
-                         : !as_request ? as_response
-                         : as_request < as_response ? as_request : as_response;
+            missing = least_lacking(as_request, as_response);
         }
-        if (kind != FRAME_NONE && pause_inside(line, at, at + len)) {
+        bool paused = kind != FRAME_NONE && pause_inside(line, at, at + len);
+        if (paused) {
             w->stats.gap_discards++;
             kind = FRAME_NONE;
             missing = 0;
-        } else if (kind == FRAME_NONE) {
-            w->stats.crc_errors++;
         }
+        if (kind == FRAME_REQUEST && rsp_len) {
+            if (!branched && !pause_inside(line, at, at + rsp_len) &&
+                take_either(line, at, len, rsp_len, final, w))
+                return;
+            /* Within a reading already taken: the response awaited, if
+             * it was one, else dropped. */
+            if (awaited && branched && !pause_inside(line, at, at + rsp_len))
+                kind = FRAME_RESPONSE, len = rsp_len;
+            else
+                kind = FRAME_NONE;
+        }
+        if (kind == FRAME_NONE && !paused)
+            w->stats.crc_errors++;
         /* A frame begun and not whole: every byte after it may be its
          * late pieces (a silence waited past in it is the port's delay),
          * so nothing after it is searched for frames; it is waited for,
          * and dropped with them if it does not come. */
         if (kind == FRAME_NONE && missing) {
+            w->dropped = final; /* else it may still come */
             w->missing = missing;
             w->conv = RTU_CONV_UNSYNCED;
             return;
@@ -524,31 +904,17 @@ static void walk_chunk(const struct rtu_line *line, bool final, struct walk *w)
             kind = FRAME_NONE;
         }
         if (kind == FRAME_NONE) {
-            /* Dropped up to the next silence, where nothing is known. */
+            /* Dropped up to the next sure silence, where the line takes
+             * its place again. */
             size_t next = next_silence(line, at);
+            w->dropped = true;
             w->conv = RTU_CONV_UNSYNCED;
             if (!next)
                 return;
             at = next;
             continue;
         }
-        w->stats.frames++;
-        if (kind == FRAME_RESPONSE) {
-            w->stats.foreign_frames++;
-            w->conv = RTU_CONV_IDLE;
-        } else if (d[0] == RTU_BROADCAST) {
-            w->stats.broadcasts++;
-            w->conv = RTU_CONV_IDLE;
-        } else if (d[0] == line->cfg.unit_id) {
-            w->execute_at = at;
-            w->execute_size = len;
-            w->conv = RTU_CONV_IDLE; /* our reply ends the exchange */
-        } else {
-            w->stats.foreign_frames++;
-            memcpy(w->await_request, d, len);
-            w->await_request_size = len;
-            w->conv = RTU_CONV_AWAIT;
-        }
+        take_frame(line, at, kind, len, w);
         at += len;
     }
     w->missing = 0; /* the chunk ends with a whole frame */
@@ -563,21 +929,11 @@ static void add_stats(struct rtu_line_stats *to, const struct rtu_line_stats *ad
     to->gap_discards += add->gap_discards;
 }
 
-/* Did the chunk's last byte arrive before our last frame's end plus t3.5?
- * As read; and for a chunk equal to that frame (our reply heard back),
- * from the earliest it can have arrived (the last time the port was seen
- * empty before it was read): a loop late to read an echo must not make it
- * a request. Other frames are not held to that bound, so a request that
- * comes while a busy loop has not yet looked at the port is served. */
-static bool in_our_turn(const struct rtu_line *line)
+/* Did the chunk begin before our last frame's end plus t3.5 (a master
+ * that keeps no silence of its own after our reply)? Counted; served. */
+static bool began_in_our_turn(const struct rtu_line *line)
 {
-    uint64_t turn_end = line->tx_end_ns + line->cfg.t35_ns;
-    if (!line->tx_end_ns)
-        return false;
-    if (line->last_rx_ns < turn_end)
-        return true;
-    return line->last_after_ns < turn_end && line->rx_used == line->sent_size &&
-           memcmp(line->rx, line->sent, line->sent_size) == 0;
+    return line->tx_end_ns && line->first_rx_ns < line->tx_end_ns + line->cfg.t35_ns;
 }
 
 /* The silence came: the chunk is judged and consumed; then our request,
@@ -590,43 +946,40 @@ static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
     if (line->rx_overrun) {
         /* Counted when it happened; nothing in it can be trusted. */
         line->conv = RTU_CONV_UNSYNCED;
-    } else if (in_our_turn(line)) {
-        /* Begun in our turn: no master may speak before t3.5 after our
-         * frame. Our frame heard back, or a collision. */
-        if (line->echo_broken) {
-            /* local_echo: what came back in our own turn differs from
-             * our frame: another transmitter spoke over it. */
-            line->stats.collisions++;
-            emit(hooks, RTU_EVENT_COLLISION);
-            line->conv = RTU_CONV_UNSYNCED;
-        } else if (line->rx_used == line->sent_size &&
-                   memcmp(line->rx, line->sent, line->sent_size) == 0) {
+    } else {
+        size_t echo = echo_at_head(line);
+        if (echo) {
+            /* Our reply heard back: skipped; what follows it is the
+             * master's next request. */
+            line->echo_seen = true;
             line->stats.echoes++;
             emit(hooks, RTU_EVENT_ECHO);
-        } else {
+            line->conv = RTU_CONV_IDLE;
+        } else if (began_in_our_turn(line)) {
             line->stats.out_of_turn++;
-            line->conv = RTU_CONV_UNSYNCED;
         }
-    } else {
-        struct walk w;
-        walk_chunk(line, true, &w);
-        if (line->echo_broken) {
-            /* Our frame did not come back whole: a chunk that is what the
-             * conversation expects means the adapter gave nothing back;
-             * anything else, that another transmitter spoke over us. */
-            bool clean = !w.stats.crc_errors && !w.stats.gap_discards;
-            if (!clean)
-                line->stats.collisions++;
-            emit(hooks, clean ? RTU_EVENT_NO_ECHO : RTU_EVENT_COLLISION);
-        }
-        add_stats(&line->stats, &w.stats);
-        line->conv = w.conv;
-        memcpy(line->await_request, w.await_request, w.await_request_size);
-        line->await_request_size = w.await_request_size;
-        if (w.execute_size) {
-            memcpy(request, line->rx + w.execute_at, w.execute_size);
-            request_size = w.execute_size;
-            line->stats.executed++;
+        if (echo < line->rx_used) {
+            struct walk w;
+            walk_chunk(line, echo, line->conv, true, &w);
+            if (line->echo_broken) {
+                /* local_echo: our frame did not come back whole. A chunk
+                 * that is what the conversation expects means the adapter
+                 * gave nothing back; anything else, that another
+                 * transmitter spoke over us. */
+                bool clean = !w.stats.crc_errors && !w.stats.gap_discards;
+                if (!clean)
+                    line->stats.collisions++;
+                emit(hooks, clean ? RTU_EVENT_NO_ECHO : RTU_EVENT_COLLISION);
+            }
+            add_stats(&line->stats, &w.stats);
+            line->conv = w.conv;
+            memcpy(line->await_request, w.await_request, w.await_request_size);
+            line->await_request_size = w.await_request_size;
+            if (w.execute_size) {
+                memcpy(request, line->rx + w.execute_at, w.execute_size);
+                request_size = w.execute_size;
+                line->stats.executed++;
+            }
         }
     }
     clear_chunk(line);
@@ -640,33 +993,28 @@ bool rtu_line_silence(struct rtu_line *line, uint64_t now_ns, const struct rtu_l
         return true;
     if (now_ns < line->judge_at_ns)
         return false;
-    bool our_turn = in_our_turn(line);
-    /* In our turn nothing is executed: no waiting (an echo's wait would
-     * hold the master's next request in the same chunk). */
-    if (!line->waited && !line->rx_overrun && !our_turn) {
-        /* A frame begun but not whole: its bytes may still be in the
-         * port's FIFO or the adapter's next packet. */
+    size_t echo = echo_at_head(line);
+    /* Our echo alone is judged at once: nothing in it is executed. */
+    if (!line->waited && !line->rx_overrun && echo < line->rx_used) {
+        enum rtu_conv conv = echo ? RTU_CONV_IDLE : line->conv;
         struct walk w;
-        walk_chunk(line, false, &w);
+        walk_chunk(line, echo, conv, false, &w);
         line->waited = true;
         /* A frame begun but not whole waits for its next piece; where the
-         * line lost its place, a whole frame is taken only once the line
-         * surely fell silent after it (the next piece of a frame that
+         * line lost its place (before the chunk or within it), a chunk is
+         * judged only once the line surely fell silent after it (the next piece of a frame that
          * merely paused would have come by then), so that a frame inside
          * another unit's data, cut there by a port's delivery, is never
          * taken for a whole one. Either way: t3.5 and what a port hands
          * over at once, and its delivery. */
-        if (w.missing || line->conv == RTU_CONV_UNSYNCED) {
+        if (w.missing || conv == RTU_CONV_UNSYNCED || w.dropped) {
             uint64_t until = line->last_rx_ns + line->cfg.t35_ns +
                              (uint64_t)RTU_PIECE_CHARS * line->cfg.char_ns +
                              line->cfg.delivery_ns;
             if (now_ns < until) {
                 /* If the frame was noise after all, the next starts here. */
-                if (w.missing && line->gap_count < RTU_LINE_MAX_GAPS &&
-                    line->rx_used < RTU_GAP_WAITED &&
-                    (line->gap_count == 0 ||
-                     GAP_AT(line->gaps[line->gap_count - 1]) != line->rx_used))
-                    line->gaps[line->gap_count++] = (uint16_t)(line->rx_used | RTU_GAP_WAITED);
+                if (w.missing)
+                    add_gap_at_end(line, RTU_GAP_WAITED);
                 line->judge_at_ns = until;
                 return false;
             }
@@ -682,6 +1030,7 @@ void rtu_line_frame_out(struct rtu_line *line, const uint8_t *frame, size_t size
         size = sizeof(line->sent);
     memcpy(line->sent, frame, size);
     line->sent_size = size;
+    line->echo_seen = false;
     line->echo_pending = line->cfg.local_echo && size > 0;
     line->echo_at = 0;
     line->conv = RTU_CONV_IDLE;
@@ -692,10 +1041,15 @@ void rtu_line_bytes_out(struct rtu_line *line, size_t size, uint64_t now_ns)
     uint64_t from = line->tx_end_ns > now_ns ? line->tx_end_ns : now_ns;
 
     line->tx_end_ns = from + (uint64_t)size * line->cfg.tx_char_ns;
-    line->echo_until_ns = line->tx_end_ns + RTU_ECHO_LATE_NS;
+    line->echo_until_ns = line->tx_end_ns + RTU_ECHO_WINDOW_NS;
 }
 
 uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line)
 {
     return line->tx_end_ns ? line->tx_end_ns + line->cfg.t35_ns : 0;
+}
+
+uint64_t rtu_line_echo_window_end_ns(const struct rtu_line *line)
+{
+    return line->tx_end_ns ? line->tx_end_ns + RTU_ECHO_WINDOW_NS : 0;
 }

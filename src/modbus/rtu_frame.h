@@ -21,8 +21,10 @@
  * over in pieces (a UART's FIFO every 8 characters, further apart than
  * t3.5 at 19200 baud; a USB adapter's packets), so the silence the line
  * is SURE of before some bytes is the time since the last read less their
- * own wire time and the port's delivery (delivery_ns). A pause over t1.5
- * of that inside a frame discards it. A chunk is judged t3.5 after its
+ * own wire time and the port's delivery (delivery_ns); a reader late for
+ * the chunk's silence (a stalled loop) proves none, as the bytes may have
+ * come right after the last ones. A pause over t1.5 of that inside a
+ * frame discards it. A chunk is judged t3.5 after its
  * last read, except: a frame begun and not whole waits for the port's
  * next piece (RTU_PIECE_CHARS more characters and the delivery), and
  * nothing after it in the chunk is searched (its late pieces); in UNSYNCED
@@ -31,62 +33,89 @@
  * States, kept between chunks and walked through a chunk frame by frame:
  *
  *   UNSYNCED  Where the conversation stands is unknown (at start, after a
- *             chunk that did not parse, an overrun, a collision, a frame
- *             out of turn). Only a frame that is a whole chunk, after a
- *             sure silence (the chunk's start, or a silence waited past
- *             that the next bytes proved) and before one, is taken:
- *               - a request of ours (its function's request length, or any
- *                 length for a function we do not know): EXECUTED -> IDLE;
- *               - a foreign frame of request form -> AWAIT its response;
- *               - a broadcast (unit 0) -> IDLE, never executed;
- *               - any other whole frame (a response) -> IDLE;
- *               - anything else: dropped, stay UNSYNCED.
+ *             chunk that did not parse, an overrun, a collision). The
+ *             line takes its place again at the first silence it is sure
+ *             of (t3.5 beyond the port's delivery: the chunk's start, or
+ *             one proven inside the chunk) from which what came parses:
+ *               - the rest of the chunk, whole, one frame: a request of
+ *                 ours (its function's request length, or any length for
+ *                 a function we do not know): EXECUTED -> IDLE; a foreign
+ *                 frame of request form -> AWAIT its response; a broadcast
+ *                 -> IDLE, never executed; any other frame (a response)
+ *                 -> IDLE;
+ *               - else its first frame, read as a request (its length
+ *                 from its function) or as a response to a request the
+ *                 line did not hear (from its own fields: a byte count,
+ *                 an exception's 5 bytes), and the walk goes on from
+ *                 there as in IDLE or AWAIT;
+ *               - anything else: dropped to the next sure silence.
+ *             A chunk here, or one that drops something, is judged
+ *             only once the line surely fell silent after it (the wait
+ *             above), so a frame is taken only with sure silences on both
+ *             sides or boundaries the conversation gives.
  *   IDLE      An exchange ended: the next frame is a master's request, of
  *             the length its function code gives (with the byte count
- *             for 15, 16, 20, 21, 23):
+ *             for 15, 16, 20, 21, 23; FC08's return query data, any
+ *             length, as the shortest CRC-valid run its response repeats):
  *               - ours: EXECUTED if it is the last frame of its chunk (the
  *                 master waits for our reply; bytes after it mean it did
  *                 not, and the chunk is dropped from there) -> IDLE;
  *               - foreign -> AWAIT (its response's length is now known);
  *               - broadcast -> IDLE, never executed;
  *               - a function whose request length we do not know: taken
- *                 only as a whole chunk.
+ *                 only as the chunk's rest.
  *   AWAIT     A request for unit U went out: the next frame is U's
  *             response, whose length the request gives (5 for an
  *             exception; 05, 06 repeat the request, 15, 16 its address
- *             and count), skipped whole -> IDLE. While a frame of U's
- *             unit and function may still become that response it is
- *             never read as anything else. At the chunk's start the
- *             master may instead have given up on a silent U: a frame of
- *             another unit, or one of U's that has come whole with a bad
- *             CRC or stopped short, is read as a new request (as in IDLE).
+ *             and count, FC08's return query data all of it), skipped
+ *             whole -> IDLE. While a frame of U's unit and function may
+ *             still become that response it is never read as anything
+ *             else. The master may instead have given up on a silent U:
+ *             a frame of another unit, or one of U's that has come whole
+ *             with a bad CRC or stopped short, is read as a new request
+ *             (as in IDLE), where the last frame ended.
+ *
+ * TWO READINGS. A foreign frame read as a request that may still become
+ * a whole response of another length waits for it (as a frame begun and
+ * not whole does). A foreign frame read as a request that is also a whole
+ * response of another length (a response whose first bytes were made to
+ * pass for a request, with a frame hidden after them; or a request whose
+ * bytes happen to be one) is walked both ways: the reading that explains
+ * the rest of the chunk is the bus; where both do, only what both would
+ * execute is executed; where neither does, it is dropped.
  *
  * A frame that is not what its state expects (wrong unit, function,
  * length or CRC, a pause inside it, or past the chunk's end) drops the
- * chunk from there up to the next silence -> UNSYNCED. So a CRC-valid
- * frame hidden in the data of another unit's request or response is
- * never seen: that frame is skipped by its length, or, where its request
- * was missed, is a whole chunk that starts with the other unit's id; and
- * a port's piece that happens to start at the hidden frame is no sure
- * silence.
+ * chunk from there up to the next sure silence -> UNSYNCED. So a
+ * CRC-valid frame hidden in the data of another unit's request or
+ * response is never seen: that frame is skipped by its length; where its
+ * request was missed, the response is a whole chunk, or the first frame
+ * after a sure silence read by its own fields; and a port's piece that
+ * happens to start at the hidden frame is no sure silence.
  *
  * OUR OWN TRANSMISSIONS. rtu_line_frame_out() and rtu_line_bytes_out()
  * tell the line what we send and when; from them it knows when our last
  * frame leaves the wire (tx_end: the bytes' wire time, none on a pty,
- * which has no wire). No chunk whose last byte came before tx_end + t3.5
- * is executed, and none equal to our last frame that may have come before
- * it (rtu_line_input_read: from the earliest it can have come) (a master may not speak before then): a chunk equal to our
- * last frame is counted as an echo (RTU_EVENT_ECHO), anything else as out
- * of turn. With local_echo, the bytes of each frame we send are expected
- * back first, up to RTU_ECHO_LATE_NS after its wire time, and are taken
- * off the input before any framing. Where the input differs (or comes
- * later), what matched is input again with the rest, and the chunk is
- * judged: what the conversation expects means the adapter gave nothing
- * back (RTU_EVENT_NO_ECHO: a master's request starts as our reply did,
- * with the unit id and function); anything else is a collision
+ * which has no wire). THE ECHO WINDOW (RTU_ECHO_WINDOW_NS): a chunk that
+ * starts with our last frame, byte for byte, whose first bytes can have
+ * come within the window after tx_end, is that frame heard back, once per
+ * frame we send, whatever local_echo says: counted (RTU_EVENT_ECHO),
+ * skipped, and what follows it in the chunk is the master's next request.
+ * When the bytes can have come is judged from the reader's last look at
+ * an empty port before them (rtu_line_input_read's 'after_ns'), never
+ * from the time of the read: a loop that stalls, an echo in pieces or
+ * read by halves stays an echo. Any other frame is the master's, also
+ * one that begins before tx_end + t3.5 (a master that keeps no silence of
+ * its own: counted out of turn, and served). With local_echo, the bytes
+ * of each frame we send are expected back first, within the window, and
+ * are taken off the input before any framing. Where the input differs (or
+ * surely comes later), what matched is input again with the rest, and the
+ * chunk is judged: what the conversation expects means the adapter gave
+ * nothing back (RTU_EVENT_NO_ECHO: a master's request starts as our reply
+ * did, with the unit id and function); anything else is a collision
  * (RTU_EVENT_COLLISION, counted), dropped as any chunk that is no frame.
- * The next frame we send
- * may start at rtu_line_tx_ready_ns(): t3.5 after the last one's end.
+ * The next frame we send may start at rtu_line_tx_ready_ns(): t3.5 after
+ * the last one's end.
  *
  * Hooks run from rtu_line_silence() after the line has consumed the
  * chunk: a hook may call rtu_line_frame_out() (a reply sent at once).
@@ -135,9 +164,15 @@ enum rtu_length rtu_request_length(const uint8_t *frame, size_t avail, size_t *s
 enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
                                     const uint8_t *frame, size_t avail, size_t *size);
 
-/* How late an adapter with local echo may give a frame back after its
- * wire time (a USB adapter's latency timer is 16 ms by default). */
-#define RTU_ECHO_LATE_NS 100000000ull
+/* The echo window: a frame equal to our last one, whose first bytes can
+ * have come within this time after it left the wire, is our frame heard
+ * back (once per frame we send), whatever local_echo says. A USB adapter
+ * hands received bytes over when its latency timer runs out (FTDI: 16 ms
+ * by default, CH340 and CP210x 1-16 ms), a loaded host reads later still:
+ * 100 ms covers them with room to spare, and 20 ms more a host that is
+ * late to look. A master that repeats our last frame (the same write)
+ * within it is not answered that once; after it, every time. */
+#define RTU_ECHO_WINDOW_NS 120000000ull
 /* A port hands over what it received at least every this many characters
  * (a 16550's FIFO triggers at 14 at most; a USB adapter's lateness is the
  * config's delivery_ns): how long a frame begun but not whole is waited
@@ -172,14 +207,14 @@ struct rtu_line_stats {
     uint64_t broadcasts;     /* requests for unit 0, never executed */
     uint64_t overruns;       /* chunks longer than the receive buffer */
     uint64_t gap_discards;   /* frames with a pause inside them */
-    uint64_t echoes;         /* our frames heard back (local echo, or in our turn) */
+    uint64_t echoes;         /* our frames heard back within the echo window */
     uint64_t collisions;     /* local echo: our frame came back different */
-    uint64_t out_of_turn;    /* chunks begun before t3.5 after our frame, not our echo */
+    uint64_t out_of_turn;    /* chunks begun before t3.5 after our frame, not our echo (served) */
     uint64_t executed;       /* requests of ours handed on */
 };
 
 enum rtu_event {
-    RTU_EVENT_ECHO,      /* our frame heard back in our turn (count in stats) */
+    RTU_EVENT_ECHO,      /* our frame heard back in its echo window (count in stats) */
     RTU_EVENT_COLLISION, /* local echo differed from what we sent */
     RTU_EVENT_NO_ECHO,   /* local echo: nothing of our frame came back */
     RTU_EVENT_COUNT      /* how many there are; not an event */
@@ -206,7 +241,7 @@ struct rtu_line {
     uint16_t gaps[RTU_LINE_MAX_GAPS];
     size_t gap_count;
     uint64_t first_rx_ns, last_rx_ns;
-    uint64_t last_after_ns; /* the last bytes arrived after this (rtu_line_input_read) */
+    uint64_t chunk_after_ns; /* the chunk's first bytes arrived after this */
     bool silence_before;  /* the line surely was silent for t3.5 before it */
     uint64_t judge_at_ns; /* when the chunk's silence is due */
     bool waited;          /* judge_at_ns includes the wait for missing bytes */
@@ -214,6 +249,7 @@ struct rtu_line {
     uint64_t tx_end_ns; /* our last frame's last byte off the wire; 0: none yet */
     uint8_t sent[RTU_MAX_ADU];
     size_t sent_size;
+    bool echo_seen;    /* our last frame came back (one echo per frame) */
     bool echo_pending; /* local echo: sent[echo_at..] still to come back */
     size_t echo_at;
     uint64_t echo_until_ns;
@@ -234,9 +270,9 @@ void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uin
 
 /* The same, for a reader that knows more: the bytes arrived after
  * 'after_ns' (the last time it found the port empty) and by 'now_ns'. The
- * silences are judged from 'now_ns'; whether the bytes came in our turn
- * (before our frame's end plus t3.5, never executed) from 'after_ns', so a
- * loop late to read an echo cannot make it a request. */
+ * silences are judged from 'now_ns'; whether the bytes can be our frame
+ * heard back (in its echo window) from 'after_ns', so a loop late to read
+ * an echo cannot make it a request. */
 void rtu_line_input_read(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
                          uint64_t after_ns, const struct rtu_line_hooks *hooks);
 
@@ -261,5 +297,10 @@ void rtu_line_bytes_out(struct rtu_line *line, size_t size, uint64_t now_ns);
 /* The earliest time our next frame may start: t3.5 after our last one
  * left the wire (0: any time). */
 uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line);
+
+/* When our last frame's echo window ends (0: nothing sent): a reader that
+ * looks at the port then, and finds it empty, lets what comes later be
+ * judged as the master's. */
+uint64_t rtu_line_echo_window_end_ns(const struct rtu_line *line);
 
 #endif
