@@ -2,6 +2,8 @@
 /* robot.c - see robot.h. */
 #include "robot.h"
 
+#include "json_member.h"
+
 #include "status_doc.h"
 
 #include <cJSON.h>
@@ -417,25 +419,9 @@ static bool call_failed(struct command_ctx *c)
     return reply_refused(c, msg);
 }
 
-/*
- * Member 'key' of 'obj'. The controller answers in Python's json format
- * and reads requests as Python's json.loads does: a member given twice
- * counts with its last value (cJSON's lookup would take the first).
- */
-static const cJSON *member(const cJSON *obj, const char *key)
-{
-    const cJSON *found = NULL;
-    if (!cJSON_IsObject(obj))
-        return NULL;
-    for (const cJSON *m = obj->child; m; m = m->next)
-        if (m->string && strcmp(m->string, key) == 0)
-            found = m;
-    return found;
-}
-
 static bool get_number(const cJSON *req, const char *key, double *out)
 {
-    const cJSON *v = member(req, key);
+    const cJSON *v = json_member_last(req, key);
     if (!cJSON_IsNumber(v))
         return false;
     *out = v->valuedouble;
@@ -444,7 +430,7 @@ static bool get_number(const cJSON *req, const char *key, double *out)
 
 static bool get_vector(const cJSON *req, const char *key, double *out, int n)
 {
-    const cJSON *v = member(req, key);
+    const cJSON *v = json_member_last(req, key);
     if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) < n)
         return false;
     for (int i = 0; i < n; i++) {
@@ -706,7 +692,7 @@ static bool cmd_rapid_rate(struct command_ctx *c)
 
 static bool cmd_load_program(struct command_ctx *c)
 {
-    const cJSON *name = member(c->req, "programName");
+    const cJSON *name = json_member_last(c->req, "programName");
     if (!cJSON_IsString(name) || name->valuestring[0] == '\0')
         return call_failed(c);
     if (c->r->interp_state == 3 || c->r->interp_state == 2)
@@ -1175,7 +1161,7 @@ bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
                        char *cmd_name, size_t cmd_name_size)
 {
     cJSON *req = cJSON_ParseWithLength(json, size);
-    const cJSON *name = member(req, "cmdName");
+    const cJSON *name = json_member_last(req, "cmdName");
     struct command_ctx c = {r, req, NULL, reply};
     bool answered = true;
 

@@ -2,6 +2,8 @@
 /* motion.c - the motion tracker (motion.h). */
 #include "motion.h"
 
+#include "json_member.h"
+
 #include <cJSON.h>
 #include <math.h>
 #include <stdio.h>
@@ -101,25 +103,9 @@ uint64_t motion_bound_ms(double travel, double speed)
     return ms > MOTION_BOUND_MAX_MS ? MOTION_BOUND_MAX_MS : (uint64_t)ms;
 }
 
-/*
- * Member 'key' of 'obj' as the robot reads it: a controller reads requests
- * as Python's json.loads does, the last of a repeated member counting
- * (cJSON's lookup would take the first, and follow another target).
- */
-static const cJSON *member(const cJSON *obj, const char *key)
-{
-    const cJSON *found = NULL;
-    if (!cJSON_IsObject(obj))
-        return NULL;
-    for (const cJSON *m = obj->child; m; m = m->next)
-        if (m->string && strcmp(m->string, key) == 0)
-            found = m;
-    return found;
-}
-
 static bool number_of(const cJSON *obj, const char *key, double *out)
 {
-    const cJSON *v = member(obj, key);
+    const cJSON *v = json_member_last(obj, key);
     if (!cJSON_IsNumber(v))
         return false;
     *out = v->valuedouble;
@@ -128,7 +114,7 @@ static bool number_of(const cJSON *obj, const char *key, double *out)
 
 static bool vector_of(const cJSON *obj, const char *key, double out[6])
 {
-    const cJSON *v = member(obj, key);
+    const cJSON *v = json_member_last(obj, key);
     if (!cJSON_IsArray(v) || cJSON_GetArraySize(v) < 6)
         return false;
     for (int i = 0; i < 6; i++) {
@@ -200,7 +186,7 @@ static void plan_move(struct motion *m, const struct move_kind *k, const double 
 bool motion_sent(struct motion *m, uint64_t now_ms, const char *json)
 {
     cJSON *doc = cJSON_Parse(json);
-    const cJSON *name = member(doc, "cmdName");
+    const cJSON *name = json_member_last(doc, "cmdName");
     const struct move_kind *k = cJSON_IsString(name) ? move_named(name->valuestring) : NULL;
     double given[6] = {0}, speed = 0, rel = 0;
 
