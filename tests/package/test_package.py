@@ -376,6 +376,10 @@ def test_generator_grants_serial_ports_only():
             made, r = generate()
             check(not [m for m in made if "rtu" in m], "%s: drop-ins %s" % (device, made))
             check(device in r.stderr and "cell1" in r.stderr, "%s: said %r" % (device, r.stderr))
+            # Nothing written outside the output folder: here, no /dev/kmsg
+            # file made where the root has no such device.
+            check(not os.path.exists(rootpath("/dev/kmsg")) or
+                  not os.path.isfile(rootpath("/dev/kmsg")), "the generator made a /dev/kmsg file")
     finally:
         os.remove(conf)
     _, r = generate("")
