@@ -396,9 +396,11 @@ test-package:
 # The installed package under systemd as PID 1, in a VM (docs/service.md,
 # "Tested under systemd"): make deb, a Debian 12 image with the package
 # installed by apt (cached in $(BUILD)/service-vm/ while its inputs are
-# unchanged), one qemu boot of this machine's kernel for every case
-# (ready, reload, watchdog, socket, instances, credential, rtu, can,
-# journal, upgrade, seccomp). make test runs it too, with the first build.
+# unchanged), one qemu of this machine's kernel for every case (one boot,
+# two reboots): fresh_install, ready, reload, watchdog, socket, instances,
+# credential, journal, tls_only, credential_rtu, rtu, can, generator,
+# upgrade, upgrade_socket, upgrade_instance, both_enabled, remove, purge,
+# seccomp. make test runs it too, with the first build.
 test-service:
 	@/usr/bin/python3 tests/service/test_service_vm.py $(BUILD)
 

@@ -18,8 +18,8 @@ What else is in it, and why:
   - the test agent (tests/service/agent.py) and its unit, which runs the
     host's commands and sends back what they printed over a virtio serial
     port; jakasim as the robot (robot.service);
-  - a newer build of the same package (VERSION+upgrade1, repacked from the
-    .deb) in /root/debs for the upgrade case;
+  - two newer builds of the same package (VERSION+upgrade1 and +upgrade2,
+    repacked from the .deb) in /root/debs for the upgrade cases;
   - for speed under TCG (DPKG_OPTIONS, UNUSED_DIRS, MASKED_UNITS,
     MASKED_GENERATORS): dpkg without fsync, no other packages'
     translations, manuals and documents, no boot units or generators that
@@ -211,16 +211,16 @@ def build(outdir, deb):
         debs = os.path.join(work, "debs")
         os.makedirs(debs)
         shutil.copy(deb, debs)
-        repack(deb, deb_version + "+upgrade1",
-               os.path.join(debs, "jakagw_%s+upgrade1.deb" % deb_version))
+        newer = ["jakagw_%s+upgrade%d.deb" % (deb_version, n) for n in (1, 2)]
+        for n, name in enumerate(newer, 1):
+            repack(deb, "%s+upgrade%d" % (deb_version, n), os.path.join(debs, name))
         print("make-service-image: mmdebstrap (%s) with %s" % (", ".join(PACKAGES),
               os.path.basename(deb)), file=sys.stderr)
         sh(["mmdebstrap", "--mode=root", "--variant=apt", "--include=" + ",".join(PACKAGES)] +
            ["--dpkgopt=" + o for o in DPKG_OPTIONS] + [
             "--customize-hook=mkdir -p \"$1/root/debs\"",
-            "--customize-hook=copy-in %s %s /root/debs" % (
-                os.path.join(debs, os.path.basename(deb)),
-                os.path.join(debs, "jakagw_%s+upgrade1.deb" % deb_version)),
+            "--customize-hook=copy-in %s /root/debs" % " ".join(
+                os.path.join(debs, name) for name in [os.path.basename(deb)] + newer),
             "--customize-hook=chroot \"$1\" env DEBIAN_FRONTEND=noninteractive apt-get "
             "install -y --no-install-recommends /root/debs/%s" % os.path.basename(deb),
             # No package lists: the VM is offline, and apt reading them

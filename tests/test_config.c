@@ -15,6 +15,7 @@
 #include <ini.h>
 
 #include "config.h"
+#include "config_reload.h"
 
 static char path[64];
 
@@ -509,6 +510,32 @@ static void role_names_are_utf8(void **state)
     expect_refused(long_name, strlen(long_name), "at most 63 bytes");
 }
 
+/*
+ * What a reload names as waiting for a restart (the summary line and the
+ * status line): the changed keys that are not live, in table order; a live
+ * key that changed is not among them; none changed, nothing named; a list
+ * longer than the room ends with "...".
+ */
+static void reload_names_the_keys_that_need_a_restart(void **state)
+{
+    struct gw_config running, next;
+    char text[CONFIG_RELOAD_KEYS_TEXT], why[256];
+
+    (void)state;
+    config_defaults(&running);
+    config_defaults(&next);
+    assert_int_equal(config_reload_restart_keys(&running, &next, text, sizeof(text)), 0);
+    assert_string_equal(text, "");
+    assert_int_equal(config_set(&next, "modbus", "port", "1502", why, sizeof(why)), 0);
+    assert_int_equal(config_set(&next, "robot", "host", "10.0.0.7", why, sizeof(why)), 0);
+    assert_int_equal(config_set(&next, "modbus", "idle_timeout_ms", "500", why, sizeof(why)), 0);
+    assert_int_equal(config_reload_restart_keys(&running, &next, text, sizeof(text)), 2);
+    assert_string_equal(text, "[robot] host, [modbus] port");
+    /* Room for the first name and ", ..." only. */
+    assert_int_equal(config_reload_restart_keys(&running, &next, text, 20), 2);
+    assert_string_equal(text, "[robot] host, ...");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -532,6 +559,7 @@ int main(void)
         cmocka_unit_test(rules_between_keys),
         cmocka_unit_test(rtu_keys),
         cmocka_unit_test(keys_compare_by_type),
+        cmocka_unit_test(reload_names_the_keys_that_need_a_restart),
         cmocka_unit_test(role_names_are_utf8),
         cmocka_unit_test(shipped_config_is_valid),
     };

@@ -231,12 +231,47 @@ int config_reload_print_keys(FILE *out)
     return 0;
 }
 
+unsigned config_reload_restart_keys(const struct gw_config *running,
+                                    const struct gw_config *next, char *out, size_t size)
+{
+    static const char more[] = ", ...";
+    unsigned count = 0;
+    size_t used = 0;
+    bool cut = false;
+
+    if (size)
+        out[0] = '\0';
+    for (size_t i = 0; i < config_key_count(); i++) {
+        const char *section = config_key_section(i), *key = config_key_name(i);
+        char name[80];
+        int n;
+
+        if (config_key_equal(running, next, i) || find_live(section, key))
+            continue;
+        n = snprintf(name, sizeof(name), "%s[%s] %s", count ? ", " : "", section, key);
+        count++;
+        /* Room is kept for ", ..." after any name that fits. */
+        if (cut || n < 0 || used + (size_t)n + sizeof(more) > size) {
+            if (!cut && used + sizeof(more) <= size && count > 1)
+                memcpy(out + used, more, sizeof(more));
+            cut = true;
+            continue;
+        }
+        memcpy(out + used, name, (size_t)n + 1);
+        used += (size_t)n;
+    }
+    return count;
+}
+
 int config_reload_apply(struct gateway *gw, const struct gw_config *next,
                         struct config_reload_result *result)
 {
     char was[CONFIG_TEXT_SHOWN], now[CONFIG_TEXT_SHOWN];
 
     memset(result, 0, sizeof(*result));
+    /* Named before any live key changes gw->cfg. */
+    config_reload_restart_keys(&gw->cfg, next, result->restart_keys,
+                               sizeof(result->restart_keys));
     /* Key by key, through the key table, each compared as its type has it. */
     for (size_t i = 0; i < config_key_count(); i++) {
         const char *section = config_key_section(i), *key = config_key_name(i);

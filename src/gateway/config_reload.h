@@ -37,10 +37,25 @@ bool config_reload_is_live(const char *section, const char *key);
  */
 int config_reload_print_keys(FILE *out);
 
+/* Room for the names of the keys that wait for a restart. */
+#define CONFIG_RELOAD_KEYS_TEXT 200
+
 struct config_reload_result {
     unsigned applied; /* live keys that changed and took effect */
     unsigned restart; /* changed keys that keep their value until a restart */
+    /* Those keys, "[robot] host, [modbus] port", for the summary line and
+     * the service's status line; "" when none. */
+    char restart_keys[CONFIG_RELOAD_KEYS_TEXT];
 };
+
+/*
+ * Writes into 'out' the names of the keys that differ between 'running'
+ * and 'next' and need a restart, "[section] key" separated by ", ", in
+ * the order of the key table; a list longer than 'size' ends with "...".
+ * Returns how many keys there are (all of them, even those cut off).
+ */
+unsigned config_reload_restart_keys(const struct gw_config *running,
+                                    const struct gw_config *next, char *out, size_t size);
 
 /*
  * Applies 'next', a configuration already validated, to the running

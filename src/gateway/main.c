@@ -16,6 +16,7 @@
 #include <errno.h>
 #include <getopt.h>
 #include <signal.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -33,6 +34,9 @@ struct service {
     bool watchdog_on;
     bool stopping;
     int exit_code;
+    /* Keys the last reload found changed that wait for a restart: shown in
+     * the status line until then (config_reload.h). */
+    char restart_keys[CONFIG_RELOAD_KEYS_TEXT];
 };
 
 static void usage(FILE *out)
@@ -196,9 +200,15 @@ static void on_signal(uv_signal_t *s, int signum)
 
 static void on_gateway_change(struct gateway *gw)
 {
+    const struct service *svc =
+        (const struct service *)((const char *)gw - offsetof(struct service, gw));
     char status[160];
+
     gateway_describe(gw, status, sizeof(status));
-    sd_notifyf(0, "STATUS=%s", status);
+    if (svc->restart_keys[0])
+        sd_notifyf(0, "STATUS=%s; restart needed for %s", status, svc->restart_keys);
+    else
+        sd_notifyf(0, "STATUS=%s", status);
 }
 
 /*
@@ -224,12 +234,15 @@ static void on_reload(uv_signal_t *s, int signum)
     } else {
         next.modbus_listen_fd = svc->gw.cfg.modbus_listen_fd;
         next.tls_listen_fd = svc->gw.cfg.tls_listen_fd;
-        if (config_reload_apply(&svc->gw, &next, &result) != 0)
+        if (config_reload_apply(&svc->gw, &next, &result) != 0) {
             log_err("reload: out of memory; the running configuration stays in force");
-        else
-            log_notice("reload: %s%s: %u changes applied, %u need a restart",
-                       file_read ? "" : "no file at ", path, result.applied,
-                       result.restart);
+        } else {
+            log_notice("reload: %s%s: %u changes applied, %u need a restart%s%s%s",
+                       file_read ? "" : "no file at ", path, result.applied, result.restart,
+                       result.restart ? " (" : "", result.restart_keys,
+                       result.restart ? "): systemctl restart" : "");
+            memcpy(svc->restart_keys, result.restart_keys, sizeof(svc->restart_keys));
+        }
     }
     on_gateway_change(&svc->gw);
     sd_notify(0, "READY=1");

@@ -300,22 +300,55 @@ def test_units_exposure():
     print("  systemd-analyze security: " + ", ".join(scores))
 
 
+def generate(*args):
+    """jakagw-generator as systemd runs it (here without /dev/kmsg, so its
+    lines go to stderr): what it wrote into a fresh output folder, and what
+    it said."""
+    shutil.rmtree(rootpath("/tmp/gen"), ignore_errors=True)
+    os.makedirs(rootpath("/tmp/gen"))
+    r = in_root("/lib/systemd/system-generators/jakagw-generator", *(args or (
+        "/tmp/gen", "/tmp/gen.early", "/tmp/gen.late")), ok=(0, 2))
+    made = []
+    for dirpath, dirnames, filenames in os.walk(rootpath("/tmp/gen")):
+        made += [os.path.relpath(os.path.join(dirpath, n), rootpath("/tmp/gen"))
+                 for n in filenames]
+    return sorted(made), r
+
+
+def test_packaged_configuration_names_no_robot():
+    """The installed file leaves [robot] host commented out (the units'
+    ExecCondition= then skips them), and is otherwise config/jakagw.conf."""
+    with open(os.path.join(ROOT, "config", "jakagw.conf")) as f:
+        shipped = f.read()
+    text = conf_text()
+    check(not re.search(r"^host\s*=", text, re.M) and re.search(r"^;host = ", text, re.M),
+          "the packaged file names a robot")
+    check([l for l in text.splitlines() if not l.startswith(";")] ==
+          [l for l in shipped.splitlines() if not l.startswith(";") and
+           not l.startswith("host =")], "the packaged file differs in more than [robot] host")
+    for unit in ("jakagw.service", "jakagw-socket.service", "jakagw@.service"):
+        with open(rootpath("/lib/systemd/system/" + unit)) as f:
+            check("ExecCondition=/bin/sh -c 'grep -Eq \"^host" in f.read(),
+                  "%s has no ExecCondition on [robot] host" % unit)
+
+
 def test_generator_follows_the_rtu_device():
     """jakagw-generator, run as systemd runs it, writes a drop-in giving
     jakagw@cell1 the one serial port its file's [rtu] device names (a by-id
     name's ':' escaped for BindPaths=), and none for jakagw.service, whose
-    file leaves [rtu] disabled."""
+    file leaves [rtu] disabled; the socket service gets the sockets of
+    jakagw.conf (502 alone: [tls] is off)."""
     device = "/dev/serial/by-id/usb-FTDI_FT232R_A1-0000:00:14.0-1-if00-port0"
     conf = rootpath("/etc/jakagw/cell1.conf")
     with open(conf, "w") as f:
         f.write("[rtu]\nenabled = true\ndevice = %s\n" % device)
     try:
-        in_root("/lib/systemd/system-generators/jakagw-generator", "/tmp/gen", "/tmp/gen.early",
-                "/tmp/gen.late")
-        made = sorted(os.listdir(rootpath("/tmp/gen")))
+        made, _ = generate()
         device_unit = sh(["systemd-escape", "--path", "--suffix=device", device]).stdout.strip()
-        check(made == sorted(["jakagw@cell1.service.d", device_unit + ".d"]),
-              "drop-ins for %s" % made)
+        check(made == sorted(["jakagw@cell1.service.d/50-jakagw-rtu.conf",
+                              device_unit + ".d/50-jakagw-rtu.conf",
+                              "jakagw-socket.service.d/50-jakagw-sockets.conf"]),
+              "drop-ins %s" % made)
         with open(rootpath("/tmp/gen/%s.d/50-jakagw-rtu.conf" % device_unit)) as f:
             check("JobRunningTimeoutSec=10s" in f.read(), "no bounded wait for the device")
         with open(rootpath("/tmp/gen/jakagw@cell1.service.d/50-jakagw-rtu.conf")) as f:
@@ -323,9 +356,37 @@ def test_generator_follows_the_rtu_device():
         for line in ("BindPaths=-" + device.replace(":", "\\:"), "DeviceAllow=%s rw" % device,
                      "SupplementaryGroups=dialout", "After=dev-serial-by\\x2did-usb"):
             check(line in text, "%r not in the drop-in:\n%s" % (line, text))
+        with open(rootpath("/tmp/gen/jakagw-socket.service.d/50-jakagw-sockets.conf")) as f:
+            sockets = re.findall(r"^Sockets=(.*)$", f.read(), re.M)
+        check(sockets == ["jakagw.socket"], "the socket service's sockets: %s" % sockets)
     finally:
         os.remove(conf)
         shutil.rmtree(rootpath("/tmp/gen"), ignore_errors=True)
+
+
+def test_generator_grants_serial_ports_only():
+    """Devices that are not serial ports get no drop-in and a line saying
+    so; with no output folder the generator fails and writes nothing."""
+    conf = rootpath("/etc/jakagw/cell1.conf")
+    try:
+        for device in ("/dev/mem", "/dev/sda", "/dev/kvm", "/dev/serial/by-id/../../mem",
+                       "/dev/ttyS1/../mem"):
+            with open(conf, "w") as f:
+                f.write("[rtu]\nenabled = true\ndevice = %s\n" % device)
+            made, r = generate()
+            check(not [m for m in made if "rtu" in m], "%s: drop-ins %s" % (device, made))
+            check(device in r.stderr and "cell1" in r.stderr, "%s: said %r" % (device, r.stderr))
+            # Nothing written outside the output folder: here, no /dev/kmsg
+            # file made where the root has no such device.
+            check(not os.path.exists(rootpath("/dev/kmsg")) or
+                  not os.path.isfile(rootpath("/dev/kmsg")), "the generator made a /dev/kmsg file")
+    finally:
+        os.remove(conf)
+    _, r = generate("")
+    check(r.returncode == 2 and "usage" in r.stderr, "no folder: %s %r" % (r.returncode, r.stderr))
+    r = in_root("/lib/systemd/system-generators/jakagw-generator", ok=(2,))
+    check("usage" in r.stderr, r.stderr)
+    shutil.rmtree(rootpath("/tmp/gen"), ignore_errors=True)
 
 
 def test_upgrades_keep_a_local_edit():
@@ -362,6 +423,13 @@ def test_upgrades_keep_a_local_edit():
 
 
 def test_remove_keeps_the_configuration_and_purge_removes_it():
+    """Without systemd running (dpkg's paths alone): remove keeps the
+    configuration; purge removes it, the instances' files and every
+    enablement, jakagw@NAME's made with systemctl too."""
+    wants = rootpath("/etc/systemd/system/multi-user.target.wants")
+    os.symlink("/lib/systemd/system/jakagw@.service", os.path.join(wants, "jakagw@cell1.service"))
+    with open(rootpath("/etc/jakagw/cell1.conf"), "w") as f:
+        f.write("[robot]\nhost = 10.0.0.1\n")
     in_root("dpkg", "-r", "jakagw")
     check(not os.path.exists(rootpath("/usr/sbin/jakagw")), "removed, /usr/sbin/jakagw stays")
     check(os.path.isfile(rootpath("/etc/jakagw/jakagw.conf")), "remove deleted the configuration")
@@ -369,6 +437,9 @@ def test_remove_keeps_the_configuration_and_purge_removes_it():
     check(not os.path.exists(rootpath("/etc/jakagw/jakagw.conf")), "purge left the configuration")
     check(not os.path.lexists(rootpath("/etc/systemd/system/multi-user.target.wants/"
                                        "jakagw.service")), "purge left the unit enabled")
+    left = sh(["find", rootpath("/etc/systemd/system"), rootpath("/etc/jakagw"), "-name",
+               "jakagw*", "-o", "-name", "cell1*"], ok=(0, 1)).stdout.split()
+    check(not left, "purge left %s" % left)
 
 
 def cleanup():
@@ -407,7 +478,8 @@ def main():
         run([test_make_deb_builds_the_package, test_package_contents,
              test_lintian_finds_no_error, test_installs_into_a_fresh_debian_12,
              test_installed_man_pages_render_without_warnings, test_units_verify,
-             test_units_exposure, test_generator_follows_the_rtu_device,
+             test_units_exposure, test_packaged_configuration_names_no_robot,
+             test_generator_follows_the_rtu_device, test_generator_grants_serial_ports_only,
              test_upgrades_keep_a_local_edit,
              test_remove_keeps_the_configuration_and_purge_removes_it])
     finally:

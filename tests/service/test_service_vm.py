@@ -79,9 +79,11 @@ class Vm:
         # mitigations=off: no Spectre sequences (retpolines, RSB fills) for
         # TCG to emulate in every system call and context switch (10 % of
         # qemu's CPU time and of the maintainer scripts' in one measure).
+        # No -no-reboot: a case that reboots the guest (both_enabled) keeps
+        # the same qemu, whose snapshot keeps what the cases wrote.
         argv = ["qemu-system-x86_64"] + accel + [
             "-nodefaults", "-m", "1024", "-smp", "2", "-display", "none", "-monitor", "none",
-            "-no-reboot", "-nic", "none",
+            "-nic", "none",
             "-kernel", kernel, "-initrd", initrd,
             "-append", "root=/dev/vda rw console=ttyS0 loglevel=4 audit=1 net.ifnames=0 "
                        "systemd.show_status=0 panic=-1 norandmaps tsc=reliable mitigations=off",
@@ -124,6 +126,21 @@ class Vm:
         hello = self._read_line(240, "the agent's hello (the VM's boot)")
         self.boot_s = time.monotonic() - self.start
         self.hello_uptime = hello["hello"]
+
+    def reboot(self):
+        """systemctl reboot, then the agent's hello from the next boot (in
+        the same qemu); the Python preludes the cases use are loaded again.
+        Returns the seconds from the request to the hello."""
+        start = time.monotonic()
+        # Forced (-f): the units are not stopped one by one, which nothing
+        # checks and which took half of each reboot under TCG; the file
+        # systems are synced and unmounted as in any reboot.
+        self.sock.sendall((json.dumps({"id": 0, "sh": "systemctl reboot -f"}) + "\n").encode())
+        while "hello" not in self._read_line(240, "the agent's hello after a reboot"):
+            pass
+        for code in state["preludes"]:
+            self.py(code)
+        return time.monotonic() - start
 
     def qemu_log(self):
         with open(self.stderr_path, errors="replace") as f:
@@ -372,7 +389,9 @@ def set_conf(changes, path="/etc/jakagw/jakagw.conf"):
 def restart(unit="jakagw.service", daemon_reload=False):
     if daemon_reload:
         vm().sh("systemctl daemon-reload")
-    vm().sh("systemctl restart %s" % unit, timeout=60)
+    code, out = vm().rc("systemctl restart %s" % unit, timeout=60)
+    check(code == 0, "systemctl restart %s: %s\n%s\n%s" % (
+        unit, out, unit_story(unit), vm().sh("ls -l /etc/systemd/system/*.wants", ok=None)))
     check(active(unit), "%s is not active after a restart: %s" % (
         unit, vm().sh("systemctl status --no-pager -l %s" % unit, ok=None)))
 
@@ -403,11 +422,11 @@ def seccomp_kills(exclude=()):
     """SIGSYS kills and 'audit: type=1326' (seccomp) lines of this boot:
     the kernel's and systemd's own words for a filtered system call."""
     found = []
-    kmsg = vm().sh("journalctl --no-pager -k -b -o cat; dmesg", ok=None)
+    kmsg = vm().sh("journalctl --no-pager -k -o cat; dmesg", ok=None)
     for line in kmsg.splitlines():
         if "type=1326" in line and not any(e in line for e in exclude):
             found.append(line.strip())
-    for e in journal("-b _PID=1"):
+    for e in journal("_PID=1"):
         msg = e.get("MESSAGE", "")
         if isinstance(msg, str) and ("status=31/SYS" in msg or "signal=SYS" in msg) and \
                 not any(x in (e.get("UNIT", "") + msg) for x in exclude):
@@ -444,8 +463,13 @@ def case_boot():
                    if os.path.isfile("/boot/initrd.img-" + k[len("/boot/vmlinuz-"):]))
     v = Vm(image, "/boot/vmlinuz-" + version, "/boot/initrd.img-" + version)
     state["booted"] = True
-    v.py(GUEST_PRELUDE)
-    state["conf"] = v.sh("cat /etc/jakagw/jakagw.conf")
+    state["preludes"] = [GUEST_PRELUDE, IDLE_PROBE, TLS_MASTER]
+    for code in state["preludes"]:
+        v.py(code)
+    # The file as the package installs it, and the same with the robot
+    # named, which every case from fresh_install on runs with.
+    state["packaged"] = v.sh("cat /etc/jakagw/jakagw.conf")
+    state["conf"] = conf_with(state["packaged"], {"robot": {"host": "127.0.0.1"}})
     global COIL_POWER_ON, IR_INTERP, IR_HANDLE
     import csv
     import io
@@ -472,19 +496,51 @@ def case_boot():
     state["seccomp_exclude"] = ('comm="uname"', "seccomp-probe")
 
 
-def case_ready():
-    """Enabled at install, active after boot; READY (Type=notify) came once
-    the Modbus listener was bound; a status line with links and clients."""
+def listening_ports():
+    """The TCP ports something listens on in the VM."""
+    return sorted({int(line.split()[3].rsplit(":", 1)[1])
+                   for line in vm().sh("ss -ltnH").splitlines() if line.strip()})
+
+
+def case_fresh_install():
+    """The package as apt installed it: jakagw.service enabled, and at boot
+    skipped (ExecCondition=), since the packaged file names no robot:
+    nothing listens on 502 or 802, no jakagw process, the robot saw no
+    connection; the journal says why. With [robot] host named and a
+    restart (the guide's steps), it runs."""
     v = vm()
     check(v.sh("systemctl is-enabled jakagw.service", ok=None).strip() == "enabled",
           "jakagw.service is not enabled by the package")
+    p = show("jakagw.service", "ActiveState", "ExecMainPID")
+    check(p["ActiveState"] != "active", "jakagw.service runs with the packaged file: %s" % p)
+    check(v.rc("pgrep -x jakagw")[0] == 1, "a jakagw process runs: %s" % v.sh("ps -ef"))
+    ports = listening_ports()
+    check(502 not in ports and 802 not in ports, "listening before configured: %s" % ports)
+    check(not sim_commands(), "the robot received before configured: %s" % sim_commands())
+    why = [e["MESSAGE"] for e in journal("-b -u jakagw.service")
+           if "names no robot" in str(e.get("MESSAGE", ""))]
+    check(why, "no journal line says why jakagw.service did not start")
+    state["configured_at"] = mark()
+    v.write("/etc/jakagw/jakagw.conf", state["conf"])
+    restart()
+    wait_robot_link()
+    figure("fresh_install: enabled, not started at boot (%r); listening %s; robot received "
+           "nothing; with [robot] host named and a restart: active" % (why[0], ports))
+
+
+def case_ready():
+    """Once configured (fresh_install), active; READY (Type=notify) came
+    once the Modbus listener was bound; a status line with links and
+    clients."""
+    v = vm()
+    check("configured_at" in state, "not run: fresh_install did not configure the service")
     p = show("jakagw.service", "ActiveState", "SubState", "Type", "NRestarts", "StatusText",
              "MainPID", "ActiveEnterTimestampMonotonic", "ExecMainStartTimestampMonotonic")
     check(p["ActiveState"] == "active" and p["SubState"] == "running" and p["Type"] == "notify",
           "jakagw.service after boot: %s" % p)
     check(p["NRestarts"] == "0", "restarted during boot: %s" % p)
     # The listener's log line comes before systemd's "Started" (READY).
-    entries = journal("-b -u jakagw.service")
+    entries = journal("-u jakagw.service", state["configured_at"])
     listen = [e for e in entries if e.get("_PID") == p["MainPID"] and
               "listening on" in str(e.get("MESSAGE", "")) and "502" in str(e.get("MESSAGE"))]
     started = [e for e in entries if e.get("_PID") == "1" and e.get("JOB_TYPE") == "start"
@@ -542,7 +598,6 @@ def case_reload():
     connection is closed after 0.5 s instead of 60 s); a bad file is
     refused and the running configuration kept, in the same process."""
     v = vm()
-    v.py(IDLE_PROBE)
     pid = show("jakagw.service", "MainPID")["MainPID"]
     check(v.py("result = idle_closed(502, 2)") is None, "closed before the reload")
     set_conf({"modbus": {"idle_timeout_ms": "500"}})
@@ -558,11 +613,26 @@ def case_reload():
     again = v.py("result = idle_closed(502, 3)")
     check(again is not None and again <= 2.5, "the bad file changed the running "
           "configuration: idle connection closed after %s" % again)
+    # A key that needs a restart ([robot] host, the guide's first edit):
+    # the summary line and the status line name it until it is undone.
+    set_conf({"robot": {"host": "localhost"}})
+    c = mark()
+    reload_and_wait("need a restart")
+    summary = [e["MESSAGE"] for e in journal("-u jakagw.service", c)
+               if "need a restart" in str(e.get("MESSAGE", ""))][0]
+    check("[robot] host" in summary and "systemctl restart" in summary,
+          "the summary does not name the key: %s" % summary)
+    status = show("jakagw.service", "StatusText")["StatusText"]
+    check("restart needed for [robot] host" in status, "status line: %s" % status)
+    check(show("jakagw.service", "MainPID")["MainPID"] == pid, "the reload restarted it")
     set_conf({})
     reload_and_wait("changes applied")
+    status_after = show("jakagw.service", "StatusText")["StatusText"]
+    check("restart needed" not in status_after, "status line once undone: %s" % status_after)
     figure("reload: %.3f s from systemctl reload to the gateway's summary line; idle "
-           "connection closed %.2f s after the reload set 500 ms, %.2f s after a refused one"
-           % (took, closed, again))
+           "connection closed %.2f s after the reload set 500 ms, %.2f s after a refused one; "
+           "a new [robot] host: %r, status %r"
+           % (took, closed, again, summary, status))
 
 
 def case_watchdog():
@@ -730,6 +800,12 @@ install -m 0644 ca.crt gateway.crt /etc/jakagw/tls/
 install -m 0600 gateway.key /etc/jakagw/tls/
 """
 
+# [tls] on, its key the credential mbaps.key; role operator may power on.
+TLS_CHANGES = {"tls": {"enabled": "true", "certificate": "/etc/jakagw/tls/gateway.crt",
+                       "private_key": "mbaps.key", "client_ca": "/etc/jakagw/tls/ca.crt"},
+               "roles": {"operator": "power"}}
+CREDENTIAL = "[Service]\nLoadCredential=mbaps.key:/etc/jakagw/tls/gateway.key\n"
+
 TLS_MASTER = r"""
 def tls_requests(port, pdus):
     # Modbus/TCP Security: MBAP frames inside TLS, with the operator's
@@ -765,15 +841,11 @@ def case_credential():
     v = vm()
     v.sh(TLS_SETUP)
     v.sh("mkdir -p /etc/systemd/system/jakagw.service.d")
-    v.write("/etc/systemd/system/jakagw.service.d/credential.conf",
-            "[Service]\nLoadCredential=mbaps.key:/etc/jakagw/tls/gateway.key\n")
-    set_conf({"tls": {"enabled": "true", "certificate": "/etc/jakagw/tls/gateway.crt",
-                      "private_key": "mbaps.key", "client_ca": "/etc/jakagw/tls/ca.crt"},
-              "roles": {"operator": "power"}})
+    v.write("/etc/systemd/system/jakagw.service.d/credential.conf", CREDENTIAL)
+    set_conf(TLS_CHANGES)
     restart(daemon_reload=True)
     mode = v.sh("stat -c '%a %U' /etc/jakagw/tls/gateway.key").strip()
     check(mode == "600 root", "the key's mode changed: %s" % mode)
-    v.py(TLS_MASTER)
     magic, version = wait_vm(lambda: v.py("result = tls_ir(802, 0)"), 10, "a TLS answer")
     check(magic == MAGIC, "magic over TLS: %#x" % magic)
     logs = v.sh("journalctl --no-pager -o cat -u jakagw.service -n 200")
@@ -781,6 +853,80 @@ def case_credential():
     state["tls"] = True  # left configured for the journal case
     figure("credential: key 0600 root, read through LoadCredential=; TLS master (%s, client "
            "certificate with role operator) read the magic on port 802" % version)
+
+
+def refused(port):
+    """Whether a connection to 'port' in the VM is refused."""
+    return vm().py("try:\n    socket.create_connection(('127.0.0.1', %d), timeout=5).close()\n"
+                   "    result = False\nexcept ConnectionRefusedError:\n    result = True"
+                   % port)
+
+
+def case_tls_only():
+    """Socket mode for Modbus/TCP Security alone ([modbus] enabled = false,
+    [tls] on, its key a credential): the documented command (systemctl
+    enable --now jakagw-socket.service) holds port 802 alone, where a TLS
+    master is served; 502 refuses connections. The documented command back
+    leaves jakagw.service alone running."""
+    v = vm()
+    check(state.get("tls"), "not run: the credential case did not set up TLS")
+    v.sh("mkdir -p /etc/systemd/system/jakagw-socket.service.d")
+    v.write("/etc/systemd/system/jakagw-socket.service.d/credential.conf", CREDENTIAL)
+    set_conf(dict(TLS_CHANGES, modbus={"enabled": "false"}))
+    try:
+        code, out = v.rc("systemctl enable --now jakagw-socket.service", timeout=120)
+        check(code == 0, "enable --now jakagw-socket.service: %s\n%s" % (
+            out, unit_story("jakagw-socket.service")))
+        wait_vm(lambda: active("jakagw-socket.service"), 20, "jakagw-socket.service active")
+        ports = listening_ports()
+        ss = v.sh("ss -ltnpH 'sport = :802'")
+        check(ports.count(802) == 1 and 502 not in ports, "listening: %s" % ports)
+        check("systemd" in ss, "port 802 is not systemd's socket: %s" % ss)
+        magic, version = wait_vm(lambda: v.py("result = tls_ir(802, 0)"), 10, "a TLS answer")
+        check(magic == MAGIC, "magic over TLS: %#x" % magic)
+        check(refused(502), "port 502 accepts connections in a TLS-only set-up")
+        check(not active("jakagw.service"), "jakagw.service runs beside the socket service")
+    finally:
+        set_conf(TLS_CHANGES)
+        v.sh("systemctl disable jakagw-socket.service && systemctl restart jakagw.service",
+             timeout=120)
+    check(active("jakagw.service") and not active("jakagw-socket.service") and
+          not active("jakagw.socket") and not active("jakagw-mbaps.socket"),
+          "back to jakagw.service: %s" % v.sh("systemctl list-units --all --no-legend 'jakagw*'"))
+    figure("tls_only: listening on %s (802 systemd's), TLS master (%s) read the magic; 502 "
+           "refused; back to jakagw.service with one command" % (ports, version))
+
+
+def case_credential_rtu():
+    """The TLS key as a credential (LoadCredential=, as documented) and
+    [rtu] on /dev/ttyS1: jakagw-generator reads the file with the
+    credential, as the service does, and gives the unit the port; a master
+    on this machine's end of the line reads the magic and triggers power_on
+    once."""
+    v = vm()
+    check(state.get("tls"), "not run: the credential case did not set up TLS")
+    set_conf(dict(TLS_CHANGES, rtu={"enabled": "true", "device": "/dev/ttyS1",
+                                    "rights": "power"}))
+    c = mark()
+    restart(daemon_reload=True)
+    dropin = v.rc("cat /run/systemd/generator/jakagw.service.d/50-jakagw-rtu.conf")
+    check(dropin[0] == 0 and "DeviceAllow=/dev/ttyS1 rw" in dropin[1],
+          "no drop-in for /dev/ttyS1: %s; generator: %s" % (dropin[1], [
+              e.get("MESSAGE") for e in journal("-t jakagw-generator", c)]))
+    wait_vm(lambda: "rtu: " in v.sh("journalctl --no-pager -o cat -u jakagw.service -n 50"),
+            10, "the RTU line's log")
+    logs = v.sh("journalctl --no-pager -o cat -u jakagw.service -n 50")
+    check("No such file" not in logs and "Permission denied" not in logs,
+          "the service cannot open /dev/ttyS1:\n%s" % logs[-2000:])
+    wait_robot_link()
+    rtu_master(v.ptys["rtu"], mark())
+    # The test's own files go (a purge keeps files the package never had).
+    v.sh("rm -rf /etc/systemd/system/jakagw.service.d /etc/systemd/system/jakagw-socket.service.d"
+         " /etc/jakagw/tls")
+    state["tls"] = False
+    restore(daemon_reload=True)
+    figure("credential_rtu: key as credential mbaps.key, [rtu] /dev/ttyS1: the generator's "
+           "drop-in, the master read the magic and power_on reached the robot once")
 
 
 def mbpoll(dev, args, values=()):
@@ -899,17 +1045,13 @@ def case_journal():
     check(e["JAKAGW_ROLE"] == "operator" and e["JAKAGW_RESULT"] == "done" and
           e.get("JAKAGW_TRANSPORT") == "mbaps", "audit entry: %s" % e)
     check(len(sim_commands(after=c, name="power_on")) == 1, "power_on not delivered once")
-    # The test's own files go (a purge keeps files the package never had).
-    v.sh("rm -rf /etc/systemd/system/jakagw.service.d /etc/jakagw/tls")
-    restore(daemon_reload=True)
     figure("journal: " + ", ".join("%s=%s" % (k, e[k]) for k in sorted(e)
                                    if k.startswith("JAKAGW_")))
 
 
 def case_upgrade():
     """apt install of a newer build while the service runs: restarted once,
-    the edited configuration kept, nothing delivered twice; then apt purge
-    removes the units, the configuration and every file of the dynamic user."""
+    the edited configuration kept, nothing delivered twice."""
     v = vm()
     edited = conf_with(state["conf"], {"modbus": {"idle_timeout_ms": "30000"}}) + \
         "; edited on site\n"
@@ -945,11 +1087,190 @@ def case_upgrade():
             "the upgraded gateway to reconnect")
     time.sleep(2)
     check(delivered(after=c) == sent, "delivered again: %s" % delivered(after=c))
-    # Purge: nothing of the package or its dynamic user is left.
+    figure("upgrade: apt install %s in %.1f s (the service stopping at %.1f s, started again "
+           "at %.1f s), one restart, edited file kept; commands delivered %d, none again"
+           % (version, took, stopped_at, started_at, len(sent)))
+
+
+def gateways():
+    """The running jakagw processes: {pid: executable}, ' (deleted)' marking
+    one that runs a binary the package has replaced or removed."""
+    out = vm().sh("for p in $(pgrep -x jakagw); do echo $p $(readlink /proc/$p/exe); done",
+                  ok=None)
+    return {int(line.split()[0]): line.split(None, 1)[1] for line in out.splitlines()
+            if line.strip()}
+
+
+def start_instance(name="a", port=1502, base=11000):
+    """jakagw@NAME for a jakasim of its own (robot-NAME), on Modbus port
+    'port': started, its map read."""
+    v = vm()
+    if not active("robot-%s.service" % name):
+        v.sh("systemd-run -q --unit=robot-%s /usr/bin/jakasim --log-commands --auto-run "
+             "--status-port %d --command-port %d" % (name, base, base + 1))
+    v.write("/etc/jakagw/%s.conf" % name, conf_with(state["conf"], {
+        "robot": {"status_port": str(base), "command_port": str(base + 1)},
+        "modbus": {"port": str(port)}}))
+    v.sh("systemctl start jakagw@%s.service" % name)
+    wait_robot_link(port)
+
+
+def unit_story(unit):
+    """What systemd and the generator said, for a failure message."""
+    return vm().sh("systemctl status --no-pager -l %s; journalctl --no-pager -b -n 30 -u %s "
+                   "-t jakagw-generator" % (unit, unit), ok=None)[-3000:]
+
+
+def socket_mode():
+    """Socket mode by its documented command, served on 502."""
+    v = vm()
+    code, out = v.rc("systemctl enable --now jakagw-socket.service", timeout=120)
+    check(code == 0, "enable --now jakagw-socket.service: %s\n%s" % (
+        out, unit_story("jakagw-socket.service")))
+    wait_vm(lambda: active("jakagw-socket.service"), 20, "jakagw-socket.service active")
+    wait_robot_link()
+
+
+def case_upgrade_socket():
+    """Socket mode (the documented command, jakagw.service left enabled) and
+    an instance (jakagw@a, port 1502) running, dpkg -i of a newer build:
+    exactly those two services are restarted, once each, on the new binary;
+    jakagw.service is not started; 502 and 1502 are served."""
+    v = vm()
+    socket_mode()
+    start_instance()
+    units = ("jakagw-socket.service", "jakagw@a.service")
+    before = {u: show(u, "MainPID", "InvocationID") for u in units}
+    c = mark()
+    newer = v.sh("ls /root/debs/*+upgrade2.deb").strip()
+    t0 = time.monotonic()
+    v.sh("dpkg -i %s" % newer, timeout=300)
+    took = time.monotonic() - t0
+    check(v.sh("dpkg-query -W -f='${Version}' jakagw").endswith("+upgrade2"), "not upgraded")
+    after = {u: show(u, "MainPID", "InvocationID", "ActiveState") for u in units}
+    running = gateways()
+    state["upgrade2"] = {"before": before, "after": after, "running": running, "mark": c}
+    starts = {u: len([e for e in journal("-u %s" % u, c) if e.get("_PID") == "1" and
+                      e.get("JOB_TYPE") == "start" and e.get("JOB_RESULT") == "done"])
+              for u in units + ("jakagw.service",)}
+    state["upgrade2"]["starts"] = starts
+    u = "jakagw-socket.service"
+    check(after[u]["ActiveState"] == "active" and
+          after[u]["InvocationID"] != before[u]["InvocationID"],
+          "%s after the upgrade: %s (before %s)" % (u, after[u], before[u]))
+    check(starts[u] == 1, "%s started %d times" % (u, starts[u]))
+    check(starts["jakagw.service"] == 0 and not active("jakagw.service"),
+          "jakagw.service started by the upgrade")
+    check("deleted" not in running.get(int(after[u]["MainPID"]), "deleted"),
+          "%s runs the old binary: %s" % (u, running))
+    wait_robot_link()
+    check(v.py("result = ir(502, 0)[0]") == MAGIC, "502 after the upgrade")
+    figure("upgrade_socket: dpkg -i in %.1f s; jakagw-socket.service restarted once (pid %s -> "
+           "%s, %s); jakagw.service not started" % (took, before[u]["MainPID"],
+                                                    after[u]["MainPID"],
+                                                    running.get(int(after[u]["MainPID"]))))
+
+
+def case_upgrade_instance():
+    """The same upgrade (upgrade_socket): jakagw@a, started by hand, is
+    restarted once on the new binary and serves 1502."""
+    up = state.get("upgrade2")
+    check(up, "not run: upgrade_socket did not upgrade")
+    u = "jakagw@a.service"
+    before, after = up["before"][u], up["after"][u]
+    check(after["ActiveState"] == "active" and after["InvocationID"] != before["InvocationID"],
+          "%s after the upgrade: %s (before %s)" % (u, after, before))
+    check(up["starts"][u] == 1, "%s started %d times" % (u, up["starts"][u]))
+    exe = up["running"].get(int(after["MainPID"]), "deleted")
+    check("deleted" not in exe, "%s runs the old binary: %s" % (u, up["running"]))
+    wait_robot_link(1502)
+    check(vm().py("result = ir(1502, 0)[0]") == MAGIC, "1502 after the upgrade")
+    vm().sh("systemctl stop jakagw@a.service")
+    figure("upgrade_instance: jakagw@a restarted once (pid %s -> %s, %s)"
+           % (before["MainPID"], after["MainPID"], exe))
+
+
+def case_both_enabled():
+    """jakagw.service and jakagw-socket.service both enabled (socket mode
+    switched on by its command, the default never disabled): after each of
+    two reboots, one gateway, the socket service, serving 502 through
+    systemd's socket; jakagw.service not started."""
+    v = vm()
+    if not active("jakagw-socket.service"):
+        socket_mode()
+    for unit in ("jakagw.service", "jakagw-socket.service"):
+        check(v.rc("test -L /etc/systemd/system/multi-user.target.wants/%s" % unit)[0] == 0,
+              "%s is not enabled" % unit)
+    seen = []
+    for boot in (1, 2):
+        took = v.reboot()
+        wait_vm(lambda: active("jakagw-socket.service"), 60,
+                "jakagw-socket.service after reboot %d (units: %s)" % (
+                    boot, v.sh("systemctl list-units --all --no-legend 'jakagw*'")))
+        p = show("jakagw-socket.service", "MainPID")
+        running = gateways()
+        check(list(running) == [int(p["MainPID"])],
+              "boot %d: jakagw processes %s, the socket service's %s" % (boot, running,
+                                                                         p["MainPID"]))
+        check(not active("jakagw.service"), "boot %d: jakagw.service active" % boot)
+        ss = v.sh("ss -ltnpH 'sport = :502'")
+        check("systemd" in ss, "boot %d: 502 is not systemd's socket: %s" % (boot, ss))
+        wait_robot_link()
+        seen.append("boot %d (%.0f s): jakagw-socket.service pid %s alone" % (
+            boot, took, p["MainPID"]))
+    figure("both_enabled: " + "; ".join(seen))
+
+
+def nothing_left(ports=(502, 802, 1502)):
+    """No jakagw process, no port of a gateway listening, no unit active."""
+    v = vm()
+    check(not gateways(), "jakagw still runs: %s" % gateways())
+    listening = [p for p in listening_ports() if p in ports]
+    check(not listening, "still listening on %s" % listening)
+    units = v.sh("systemctl list-units --no-legend --plain --state=active,activating 'jakagw*'",
+                 ok=None).strip()
+    check(not units, "units still active: %s" % units)
+
+
+def case_remove():
+    """dpkg -r with socket mode and an instance running: no jakagw process
+    is left and nothing listens on 502, 802 or 1502. (The default mode's
+    removal is purge's: a purge runs the same prerm first.) The package
+    installed again, socket mode is back as it was."""
+    v = vm()
+    if not active("jakagw-socket.service"):
+        socket_mode()
+    start_instance()
+    t0 = time.monotonic()
+    v.sh("dpkg -r jakagw", timeout=300)
+    took = time.monotonic() - t0
+    nothing_left()
+    v.sh("dpkg -i %s" % v.sh("ls /root/debs/*+upgrade2.deb").strip(), timeout=300)
+    check(active("jakagw-socket.service"), "socket mode not back after the reinstall")
+    figure("remove: dpkg -r in %.1f s with jakagw-socket.service and jakagw@a running: nothing "
+           "left running or listening" % took)
+
+
+def case_purge():
+    """jakagw@a enabled with systemctl and jakagw.service running (the
+    default mode, by its documented command back from socket mode), then
+    apt purge: nothing runs or listens (prerm's removal), no enablement is left (jakagw@a's
+    too), nor a file of the package or of its dynamic user. A reinstall
+    enables jakagw.service alone, which stays down (the packaged file names
+    no robot), and nothing else starts or is enabled."""
+    v = vm()
+    if not active("jakagw.service"):
+        v.sh("systemctl disable jakagw-socket.service && systemctl restart jakagw.service",
+             timeout=120)
+    wait_robot_link()
+    start_instance()
+    v.sh("systemctl enable jakagw@a.service")
     v.sh("DEBIAN_FRONTEND=noninteractive apt-get purge -y jakagw", timeout=300)
+    nothing_left()
     left = v.sh("ls -d /lib/systemd/system/jakagw* /etc/jakagw /var/lib/jakagw "
                 "/var/lib/private/jakagw /run/systemd/generator*/jakagw* "
-                "/etc/systemd/system/*/jakagw* /usr/sbin/jakagw 2>/dev/null", ok=None).split()
+                "/usr/sbin/jakagw 2>/dev/null; find /etc/systemd/system -name 'jakagw*'",
+                ok=None).split()
     check(not left, "left after purge: %s" % left)
     units = v.sh("systemctl list-units --all --no-legend 'jakagw*'", ok=None).strip()
     check(not units or "not-found" in units and "active" not in units.replace("inactive", ""),
@@ -957,10 +1278,57 @@ def case_upgrade():
     owned = v.sh("find / -xdev \\( -uid +61183 -a -uid -65520 \\) -print 2>/dev/null | head",
                  ok=None).strip()
     check(not owned, "files of a dynamic user: %s" % owned)
-    check(v.rc("pgrep -x jakagw")[0] == 1, "jakagw still runs after purge")
-    figure("upgrade: apt install %s in %.1f s (the service stopping at %.1f s, started again "
-           "at %.1f s), one restart, edited file kept; commands delivered %d, none again; purge "
-           "left nothing" % (version, took, stopped_at, started_at, len(sent)))
+    first = v.sh("ls /root/debs/jakagw_*.deb | grep -v upgrade").strip()
+    v.sh("dpkg -i %s" % first, timeout=300)
+    enabled = v.sh("find /etc/systemd/system -name 'jakagw*'").split()
+    check(enabled == ["/etc/systemd/system/multi-user.target.wants/jakagw.service"],
+          "enabled after the reinstall: %s" % enabled)
+    check(not gateways() and v.sh("systemctl is-enabled jakagw@a.service", ok=None).strip()
+          != "enabled", "after the reinstall: running %s" % gateways())
+    check(v.rc("test -e /etc/jakagw/a.conf")[0] != 0, "a.conf came back")
+    figure("purge: nothing left running, enabled or on disk; the reinstall enabled %s alone "
+           "and started nothing" % enabled)
+
+
+def case_generator():
+    """jakagw-generator, in one daemon-reload: a device that is no serial
+    port (/dev/mem, an instance's file) gets no drop-in and a journal line;
+    a FIFO among the files the check of jakagw.conf reads is bounded (its
+    journal line, the reload not held). Run with no output folder it fails
+    and writes nothing."""
+    v = vm()
+    c = mark()
+    v.write("/etc/jakagw/probe.conf", conf_with(state["conf"], {
+        "rtu": {"enabled": "true", "device": "/dev/mem"}}))
+    v.sh("mkfifo /etc/jakagw/hang.pem")
+    try:
+        set_conf({"rtu": {"enabled": "true", "device": "/dev/ttyS1"},
+                  "tls": {"enabled": "true", "certificate": "/etc/jakagw/hang.pem",
+                          "private_key": "/etc/jakagw/hang.pem",
+                          "client_ca": "/etc/jakagw/hang.pem"}})
+        t0 = time.monotonic()
+        v.sh("systemctl daemon-reload", timeout=120)
+        took = time.monotonic() - t0
+        made = v.sh("ls /run/systemd/generator/", ok=None).split()
+    finally:
+        v.sh("rm -f /etc/jakagw/hang.pem /etc/jakagw/probe.conf")
+    check("jakagw@probe.service.d" not in made and "jakagw.service.d" not in made,
+          "drop-ins for /dev/mem or past the FIFO: %s" % made)
+    said = lambda: [e.get("MESSAGE") for e in journal("-t jakagw-generator", c)]  # noqa: E731
+    mem = wait_vm(lambda: [m for m in said() if "/dev/mem" in str(m)], 10,
+                  "the generator's line for /dev/mem (it said %s)" % said())
+    fifo = wait_vm(lambda: [m for m in said() if "did not finish" in str(m)], 10,
+                   "the generator's line for the FIFO (it said %s)" % said())
+    check(took < 20, "daemon-reload took %.1f s with a FIFO" % took)
+    before = v.sh("ls -A /tmp")
+    code, out = v.rc("/lib/systemd/system-generators/jakagw-generator")
+    check(code != 0 and "usage" in out, "no argument: exit %d, %r" % (code, out))
+    check(v.sh("ls -A /tmp") == before, "it wrote into /tmp")
+    # The file as jakagw.service runs it, and the generator's output again.
+    set_conf({})
+    v.sh("systemctl daemon-reload")
+    figure("generator: %r; FIFO: daemon-reload %.1f s, %r; no argument: exit %d"
+           % (mem[0], took, fifo[0], code))
 
 
 def case_seccomp():
@@ -991,8 +1359,10 @@ def main():
 
 
 def run_all():
-    cases = [case_boot, case_ready, case_reload, case_watchdog, case_socket, case_instances,
-             case_credential, case_journal, case_rtu, case_can, case_upgrade, case_seccomp]
+    cases = [case_boot, case_fresh_install, case_ready, case_reload, case_watchdog, case_socket,
+             case_instances, case_credential, case_journal, case_tls_only, case_credential_rtu,
+             case_rtu, case_can, case_generator, case_upgrade, case_upgrade_socket,
+             case_upgrade_instance, case_both_enabled, case_remove, case_purge, case_seccomp]
     only = os.environ.get("JAKAGW_SERVICE_CASES")
     if only:
         cases = [c for c in cases if c is case_boot or c.__name__[5:] in only.split()]
