@@ -1175,7 +1175,8 @@ def test_page_shows_unknown_during_an_outage():
             # fault tile is grey "unknown", not a green "none".
             check(text_of(driver, "fault-tile") == "unknown" and
                   tile_class(driver, "policy").split() == ["tile"],
-                  "fault tile %r %r" % (text_of(driver, "fault-tile"), tile_class(driver, "policy")))
+                  "fault tile %r %r" % (text_of(driver, "fault-tile"),
+                                        tile_class(driver, "policy")))
             wait_until(lambda: re.search(r"status link (stale|silent)", text_of(driver, "outage")),
                        10, "the outage banner")
             check("sends no status" in text_of(driver, "outage"), "what to check: %r"
@@ -1193,7 +1194,8 @@ def test_page_shows_unknown_during_an_outage():
             cut, scroll, inner = tiles_fit(driver)
             check(not cut and scroll <= inner, "cut off %r, page %d wide in %d"
                   % (cut, scroll, inner))
-            check(not words_broken(driver), "390 px, words broken inside: %r" % words_broken(driver))
+            check(not words_broken(driver),
+                  "390 px, words broken inside: %r" % words_broken(driver))
             check(all(text_of(driver, t) == "unknown" for t in ROBOT_TILES), "tiles while down")
             check(text_of(driver, "fault-tile") == "unknown", "fault tile while down")
             outage = text_of(driver, "outage")
