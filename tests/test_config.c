@@ -74,6 +74,24 @@ static void defaults(void **state)
     assert_int_equal(c.unit_id, -1);
     assert_int_equal(c.word_order, REGMAP_HIGH_WORD_FIRST);
     assert_int_equal(c.max_document_bytes, 65536);
+    /* The PLC contract: the owner is a PLC, no motion without a heartbeat. */
+    assert_int_equal(c.ne_owner, 0);
+    assert_true(c.ne_require_heartbeat);
+}
+
+static void owner_and_require_heartbeat(void **state)
+{
+    (void)state;
+    struct gw_config c;
+    static const char bad_owner[] = "[network_exception]\nowner = socket\n";
+    static const char bad_bool[] = "[network_exception]\nrequire_heartbeat = maybe\n";
+    expect_loaded("[network_exception]\nowner = connection\nrequire_heartbeat = false\n", &c);
+    assert_int_equal(c.ne_owner, 1);
+    assert_false(c.ne_require_heartbeat);
+    expect_loaded("[network_exception]\nowner = host\n", &c);
+    assert_int_equal(c.ne_owner, 0);
+    expect_refused(bad_owner, sizeof(bad_owner) - 1, "[network_exception] owner");
+    expect_refused(bad_bool, sizeof(bad_bool) - 1, "[network_exception] require_heartbeat");
 }
 
 static void file_overrides_defaults(void **state)
@@ -495,6 +513,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(defaults),
+        cmocka_unit_test(owner_and_require_heartbeat),
         cmocka_unit_test(file_overrides_defaults),
         cmocka_unit_test(bad_values_name_key_and_line),
         cmocka_unit_test(missing_file),

@@ -51,6 +51,8 @@ static struct plc_commands pc;
 static struct fake_robot robot;
 static struct plc_commands_config cfg;
 static const char *client = "192.0.2.10";
+/* The connection writes come from (the server's client id). */
+static uint64_t connection = 1;
 /* The write transaction the server uses, with a policy that watches nothing. */
 static struct policy policy;
 static struct plc_write writes;
@@ -115,6 +117,7 @@ static int setup(void **state)
 
     log_set_level(LOG_LEVEL_WARNING);
     memset(&robot, 0, sizeof(robot));
+    connection = 1;
     robot.now = 50000;
     assert_int_equal(regmap_init(&map), 0);
     assert_int_equal(regmap_image_init(&img, &map, REGMAP_HIGH_WORD_FIRST), 0);
@@ -176,7 +179,7 @@ static int write_from(const char *who, enum regmap_table table, unsigned address
                       unsigned count, const uint16_t *values)
 {
     struct mb_write w = {.table = table, .address = address, .count = count,
-                         .values = values, .client = who, .client_id = 1,
+                         .values = values, .client = who, .client_id = connection,
                          .rights = REGMAP_RIGHTS_ALL};
 
     assert_int_equal(ip_addr_parse(who, &w.client_addr), 0);
@@ -392,6 +395,7 @@ static void motion_trigger_with_every_parameter(void **state)
     write_f32(cmd_row("moveL.speed"), 0, 50);
     write_f32(cmd_row("moveL.accel"), 0, 500);
     write_f32(cmd_row("moveL.tol"), 0, 0.5);
+    write_u16(cmd_row("moveL.relFlag"), 0, 0);
     assert_int_equal(trigger("moveL"), EX_NONE);
     expect_last_sent("{\"cmdName\":\"moveL\",\"cartPosition\":[0,0,300.125,0,0,0],"
                      "\"speed\":50,\"accel\":500,\"relFlag\":0,\"tol\":0.5}");
@@ -1412,6 +1416,263 @@ static void own_command_with_outcome_unknown_is_told(void **state)
     assert_string_equal(own_unknown_name, "pause_program");
 }
 
+
+/* ---- the PLC contract: counts, triggers left at 1, targets, reasons ---- */
+
+static double count_of(const char *path)
+{
+    return gw_number(path);
+}
+
+/* A refusal as the PLC reads it: the exception, the result's reason whole
+ * (at most 40 bytes: 20 registers), and the count moved on. */
+#define expect_refused(ex_got, ex, cmd, why)                                   \
+    do {                                                                       \
+        assert_int_equal((ex_got), (ex));                                      \
+        assert_true(strlen(why) <= 40);                                        \
+        assert_string_equal(result_text(cmd), (why));                          \
+    } while (0)
+
+static void count_changes_with_every_trigger(void **state)
+{
+    (void)state;
+    assert_int_equal(count_of("result.power_on.count"), 0);
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    assert_int_equal(count_of("result.power_on.count"), 1);
+    reply_ok();
+    /* The same connection's 1 again: a retransmission, nothing sent and
+     * nothing counted (the count changed with the first). */
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    assert_int_equal(count_of("result.power_on.count"), 1);
+    assert_int_equal(robot.sent_count, 1);
+    /* Another connection (a PLC restarted mid-handshake) writes 1 onto the
+     * trigger left at 1: refused, the count changes, the old result (done)
+     * is no longer there to be taken for its own. */
+    connection = 2;
+    expect_refused(trigger("power_on"), EX_NOT_PERMITTED, "power_on",
+                   "trigger still 1: write 0 first");
+    assert_int_equal(count_of("result.power_on.count"), 2);
+    assert_int_equal(result_state("power_on"), CMD_REFUSED);
+    assert_int_equal(robot.sent_count, 1);
+    assert_int_equal(regmap_get_number(&img, cmd_row("power_on"), 0), 1);
+    /* 0 then 1, as the guide says: sent, counted. */
+    assert_int_equal(rearm("power_on"), EX_NONE);
+    assert_int_equal(count_of("result.power_on.count"), 2); /* a 0 is no trigger */
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    assert_int_equal(count_of("result.power_on.count"), 3);
+    assert_int_equal(robot.sent_count, 2);
+    reply_ok();
+    /* A refused trigger counts too (motion is off). */
+    expect_refused(trigger("joint_move"), EX_NOT_PERMITTED, "joint_move",
+                   "motion off: [commands] motion");
+    assert_int_equal(count_of("result.joint_move.count"), 1);
+    /* The mailboxes count the same way. */
+    assert_int_equal(mailbox(1, NULL, 0, 7), EX_NONE);
+    reply_ok();
+    assert_int_equal(count_of("mailbox.count"), 1);
+    assert_int_equal(mailbox(1, NULL, 0, 7), EX_NONE); /* the same number: done */
+    assert_int_equal(count_of("mailbox.count"), 1);
+    assert_int_equal(mailbox(99, NULL, 0, 8), EX_INVALID);
+    assert_int_equal(count_of("mailbox.count"), 2);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_version\"}"), EX_NONE);
+    reply_ok();
+    assert_int_equal(json_mailbox("nonsense"), EX_INVALID);
+    assert_int_equal(count_of("json.count"), 2);
+    assert_int_equal(robot.sent_count, 4);
+}
+
+static void count_wraps(void **state)
+{
+    (void)state;
+    regmap_set_number(&img, gw_row("result.power_on.count"), 0, 65535, true);
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    assert_int_equal(count_of("result.power_on.count"), 0);
+}
+
+/* Every motion parameter of joint_move, relative. */
+static void write_relative_joint_move(void)
+{
+    const struct regmap_row *pos = cmd_row("joint_move.jointPosition[*]");
+    for (unsigned i = 0; i < 6; i++)
+        assert_int_equal(write_f32(pos, i, i == 0 ? 10 : 0), EX_NONE);
+    assert_int_equal(write_f32(cmd_row("joint_move.speed"), 0, 20), EX_NONE);
+    assert_int_equal(write_f32(cmd_row("joint_move.accel"), 0, 100), EX_NONE);
+    assert_int_equal(write_u16(cmd_row("joint_move.relFlag"), 0, 1), EX_NONE);
+}
+
+static void relative_move_never_sent_twice_across_a_reconnect(void **state)
+{
+    (void)state;
+    struct plc_commands_config on = {.motion = true};
+    start(&on);
+    write_relative_joint_move();
+    assert_int_equal(trigger("joint_move"), EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+    reply_ok();
+    /* The connection drops; the PLC reconnects and repeats its last
+     * request: refused, never a second relative move. */
+    connection = 3;
+    expect_refused(trigger("joint_move"), EX_NOT_PERMITTED, "joint_move",
+                   "trigger still 1: write 0 first");
+    assert_int_equal(robot.sent_count, 1);
+    assert_int_equal(count_of("result.joint_move.count"), 2);
+}
+
+static void motion_trigger_refused_until_its_target_is_written(void **state)
+{
+    (void)state;
+    struct plc_commands_config on = {.motion = true};
+    start(&on);
+    /* A fresh gateway: nothing written, nothing sent. */
+    expect_refused(trigger("moveL"), EX_INVALID, "moveL", "target not written");
+    assert_int_equal(result_state("moveL"), CMD_INVALID);
+    assert_int_equal(count_of("result.moveL.count"), 1);
+    /* All but one parameter: still refused. */
+    const struct regmap_row *pos = cmd_row("joint_move.jointPosition[*]");
+    for (unsigned i = 0; i < 5; i++)
+        write_f32(pos, i, 1);
+    write_f32(cmd_row("joint_move.speed"), 0, 20);
+    write_f32(cmd_row("joint_move.accel"), 0, 100);
+    write_u16(cmd_row("joint_move.relFlag"), 0, 0);
+    expect_refused(trigger("joint_move"), EX_INVALID, "joint_move", "target not written");
+    write_f32(pos, 5, 1);
+    assert_int_equal(trigger("joint_move"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"joint_move\",\"jointPosition\":[1,1,1,1,1,1],"
+                     "\"speed\":20,\"accel\":100,\"relFlag\":0}");
+    reply_ok();
+    rearm("joint_move");
+    /* A refused write to the target (not finite): the old target is not
+     * what the PLC meant, so it is not sent either. */
+    uint16_t nan_regs[2];
+    put_f32(nan_regs, NAN);
+    assert_int_equal(write_raw(REGMAP_HOLDING_REGISTER, regmap_element_address(pos, 2), 2,
+                               nan_regs),
+                     EX_INVALID);
+    expect_refused(trigger("joint_move"), EX_INVALID, "joint_move", "target not written");
+    assert_int_equal(robot.sent_count, 1);
+    write_f32(pos, 2, 3);
+    assert_int_equal(trigger("joint_move"), EX_NONE);
+    assert_int_equal(robot.sent_count, 2);
+}
+
+static void parameter_block_in_one_write_across_its_gap(void **state)
+{
+    (void)state;
+    struct plc_commands_config on = {.motion = true};
+    start(&on);
+    const struct regmap_row *cart = cmd_row("moveL.cartPosition[*]");
+    const struct regmap_row *tol = cmd_row("moveL.tol");
+    unsigned first = cart->address, count = tol->address + 2 - first;
+    uint16_t regs[32] = {0};
+    assert_true(count <= 32);
+    for (unsigned i = 0; i < 6; i++)
+        put_f32(&regs[regmap_element_address(cart, i) - first], 100 + i);
+    put_f32(&regs[cmd_row("moveL.speed")->address - first], 50);
+    put_f32(&regs[cmd_row("moveL.accel")->address - first], 500);
+    regs[cmd_row("moveL.relFlag")->address - first] = 1;
+    put_f32(&regs[tol->address - first], 0.5);
+    /* The unassigned register inside the block (HR 357): ignored. */
+    unsigned gap = cmd_row("moveL.relFlag")->address + 1;
+    assert_null(regmap_find(&map, REGMAP_HOLDING_REGISTER, gap));
+    regs[gap - first] = 0x1234;
+    assert_int_equal(write_raw(REGMAP_HOLDING_REGISTER, first, count, regs), EX_NONE);
+    assert_int_equal(img.mb->tab_registers[gap], 0);
+    assert_int_equal(trigger("moveL"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"moveL\",\"cartPosition\":[100,101,102,103,104,105],"
+                     "\"speed\":50,\"accel\":500,\"relFlag\":1,\"tol\":0.5}");
+    /* Alone, or at an end of a write, it is no parameter: 02. */
+    uint16_t one = 1;
+    assert_int_equal(write_raw(REGMAP_HOLDING_REGISTER, gap, 1, &one),
+                     MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
+    uint16_t zeros[2] = {0, 0};
+    assert_int_equal(write_raw(REGMAP_HOLDING_REGISTER, gap - 1, 2, zeros),
+                     MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS);
+    assert_false(regmap_write_skips(&map, REGMAP_HOLDING_REGISTER, gap, gap, 3));
+    assert_true(regmap_write_skips(&map, REGMAP_HOLDING_REGISTER, gap, gap - 1, 3));
+}
+
+static void mailbox_sequence_alone_is_refused(void **state)
+{
+    (void)state;
+    /* rapid_rate 0.8 through the mailbox, whole. */
+    const double rate[] = {0.8};
+    unsigned code = cmd_find("rapid_rate")->code;
+    assert_int_equal(mailbox(code, rate, 1, 1), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"rapid_rate\",\"rate_value\":0.8}");
+    reply_ok();
+    /* The code written on its own, then the sequence on its own: the
+     * arguments would be whatever an older command left. */
+    uint16_t v = (uint16_t)code;
+    assert_int_equal(write_u16(gw_row("mailbox.code"), 0, v), EX_NONE);
+    assert_int_equal(write_u16(gw_row("mailbox.seq"), 0, 2), EX_INVALID);
+    assert_string_equal(gw_text("mailbox.error_msg"), "write code, args and seq in one write");
+    assert_true(strlen(gw_text("mailbox.error_msg")) <= 40);
+    assert_int_equal(gw_number("mailbox.state"), CMD_INVALID);
+    assert_int_equal(gw_number("mailbox.ack_seq"), 1);
+    assert_int_equal(count_of("mailbox.count"), 2);
+    assert_int_equal(robot.sent_count, 1);
+    /* Code and sequence without the argument it takes: refused too. */
+    const struct regmap_row *code_row = gw_row("mailbox.code");
+    const struct regmap_row *seq_row = gw_row("mailbox.seq");
+    uint16_t regs[2] = {v, 3};
+    assert_int_equal(seq_row->address, code_row->address + 25);
+    assert_int_equal(write_raw(REGMAP_HOLDING_REGISTER, code_row->address, 1, regs), EX_NONE);
+    assert_int_equal(write_raw(REGMAP_HOLDING_REGISTER, seq_row->address, 1, regs + 1),
+                     EX_INVALID);
+    assert_int_equal(robot.sent_count, 1);
+}
+
+static void json_refusal_clears_the_reply(void **state)
+{
+    (void)state;
+    assert_int_equal(json_mailbox("{\"cmdName\":\"get_version\"}"), EX_NONE);
+    reply("{\"cmdName\":\"get_version\",\"errorCode\":\"0\",\"version\":\"1.7.2\"}");
+    assert_non_null(strstr(gw_text("json.reply"), "1.7.2"));
+    assert_true(gw_number("json.reply_length") > 0);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"shutdown\"}"), EX_NOT_PERMITTED);
+    assert_string_equal(gw_text("json.reply"), "");
+    assert_int_equal(gw_number("json.reply_length"), 0);
+    assert_string_equal(gw_text("json.error_msg"), "shutdown off: [commands] allow_shutdown");
+}
+
+/* Every reason the gateway gives in a result fits its 40 bytes whole. */
+static void every_reason_fits_its_registers(void **state)
+{
+    (void)state;
+    const struct regmap_row *msg = gw_row("result.power_on.error_msg");
+    assert_int_equal(msg->str_regs * 2, 40);
+    expect_refused(trigger("joint_move"), EX_NOT_PERMITTED, "joint_move",
+                   "motion off: [commands] motion");
+    expect_refused(trigger("shutdown"), EX_NOT_PERMITTED, "shutdown",
+                   "shutdown off: [commands] allow_shutdown");
+    write_text(cmd_row("load_program.programName"), "");
+    expect_refused(trigger("load_program"), EX_INVALID, "load_program", "invalid parameters");
+    cmd_queue_set_connected(&queue, false);
+    expect_refused(trigger("power_on"), EX_LINK_DOWN, "power_on",
+                   "not sent: the command link is down");
+    cmd_queue_set_connected(&queue, true);
+    struct plc_commands_config handler = {.robot_handle = true, .require_robot_handle = true,
+                                          .robot_time_limit_ms = 1000};
+    start(&handler);
+    expect_refused(trigger("power_off"), EX_NOT_PERMITTED, "power_off",
+                   "robot has not accepted its handler");
+    start(&(struct plc_commands_config){.motion = true});
+    expect_refused(trigger("end_move"), EX_INVALID, "end_move", "target not written");
+    /* The policy's reasons (policy.c) and this module's own. */
+    const char *reasons[] = {
+        "fault 1 latched: reset it first", "PLC heartbeat lost: fault 1 latched",
+        "no Modbus client: fault 2 latched", "motion enable dropped: fault 3 latched",
+        "gateway loop stalled: fault 4 latched", "heartbeat not started",
+        "motion enable is 0", "trigger still 1: write 0 first",
+        "write code, args and seq in one write", "not in the command table: motion is off",
+        "not a JSON command with a cmdName", "unknown command code",
+        "out of memory: nothing sent", "not sent: the command queue is full"};
+    for (unsigned i = 0; i < sizeof(reasons) / sizeof(reasons[0]); i++) {
+        regmap_set_text(&img, msg, 0, reasons[i]);
+        assert_string_equal(gw_text("result.power_on.error_msg"), reasons[i]);
+    }
+}
+
 int main(void)
 {
 #define T(name) cmocka_unit_test_setup_teardown(name, setup, teardown)
@@ -1444,6 +1705,14 @@ int main(void)
         T(json_mailbox_refuses_names_outside_the_table),
         T(parameter_rows_are_checked_against_the_command_table),
         T(allocation_failures_refuse_with_04_and_never_hang),
+        T(count_changes_with_every_trigger),
+        T(count_wraps),
+        T(relative_move_never_sent_twice_across_a_reconnect),
+        T(motion_trigger_refused_until_its_target_is_written),
+        T(parameter_block_in_one_write_across_its_gap),
+        T(mailbox_sequence_alone_is_refused),
+        T(json_refusal_clears_the_reply),
+        T(every_reason_fits_its_registers),
     };
 #undef T
     return cmocka_run_group_tests(tests, NULL, NULL);

@@ -598,7 +598,7 @@ static void gate_start_while_a_signal_is_lost(void **state)
     policy_motion_enable(&p, T0 + 10, false, IDLE);
     assert_int_equal(policy_gate_command(&p, T0 + 20, power_on, why, sizeof(why)), 0);
     assert_int_equal(policy_gate_command(&p, T0 + 20, play, why, sizeof(why)), 1);
-    assert_string_equal(why, "motion enable lost: fault 3 latched");
+    assert_string_equal(why, "motion enable dropped: fault 3 latched");
     expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
 
     /* The heartbeat lost, the robot idle: a start latches fault 1 and the
@@ -609,7 +609,7 @@ static void gate_start_while_a_signal_is_lost(void **state)
     assert_int_equal(sent.calls, 0);
     assert_int_equal(policy_gate_command(&p, T0 + 2 * LIMIT, power_on, why, sizeof(why)), 0);
     assert_int_equal(policy_gate_command(&p, T0 + 2 * LIMIT, NULL, why, sizeof(why)), 1);
-    assert_string_equal(why, "the PLC heartbeat lost: fault 1 latched");
+    assert_string_equal(why, "PLC heartbeat lost: fault 1 latched");
     expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
 }
 
@@ -851,7 +851,7 @@ static void gate_refuses_under_a_fault_and_without_motion_enable(void **state)
     policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
     policy_check(&p, T0 + LIMIT, MOVING);
     assert_int_equal(policy_gate_command(&p, T0 + LIMIT, power_on, why, sizeof(why)), 1);
-    assert_string_equal(why, "network-exception fault 1 latched: reset it first");
+    assert_string_equal(why, "fault 1 latched: reset it first");
     assert_int_equal(policy_gate_command(&p, T0 + LIMIT, NULL, why, sizeof(why)), 1);
     assert_int_equal(policy_gate_command(&p, T0 + LIMIT, stop, why, sizeof(why)), 0);
 }
@@ -1070,6 +1070,90 @@ static void stall_judged_with_the_status_read_after_it(void **state)
     expect_one(POLICY_PAUSE, POLICY_FAULT_GATEWAY_STALL);
 }
 
+
+/* ---- the PLC contract: the owner is a PLC, no motion without a heartbeat ---- */
+
+#define ADDR_A2 "192.0.2.10:50009" /* PLC A's second connection */
+#define PLC_A2 3
+
+static void start_owner(bool by_connection, bool require_heartbeat)
+{
+    struct policy_config cfg = {.time_limit_ms = LIMIT, .action = POLICY_PAUSE,
+                                .watch = POLICY_WATCH_HEARTBEAT, .single_owner = true,
+                                .owner_by_connection = by_connection,
+                                .require_heartbeat = require_heartbeat};
+    struct policy_sink sink = {.send_action = record_action, .user = &sent};
+
+    memset(&sent, 0, sizeof(sent));
+    policy_init(&p, &cfg, &sink);
+}
+
+static void owner_host_lets_every_connection_of_the_plc_write(void **state)
+{
+    (void)state;
+    start_owner(false, false);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    /* Its address and port, as IR 66 shows it. */
+    assert_string_equal(p.owner_address, ADDR_A);
+    /* The same PLC's other connection (reads on one, writes on another). */
+    assert_int_equal(policy_may_write_from(&p, PLC_A2, ADDR_A2), 0);
+    assert_int_equal(policy_may_write_from(&p, PLC_B, ADDR_B), MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    /* An address that only starts like the owner's is another host. */
+    assert_int_equal(policy_may_write_from(&p, PLC_B, "192.0.2.100:50001"),
+                     MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    /* IPv6, colons and all. */
+    start_owner(false, false);
+    policy_heartbeat(&p, T0, PLC_A, "2001:db8::7:40122", 1);
+    assert_int_equal(policy_may_write_from(&p, PLC_A2, "2001:db8::7:40200"), 0);
+    assert_int_equal(policy_may_write_from(&p, PLC_B, "2001:db8::8:40122"),
+                     MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    /* owner = connection: only the heartbeat's own connection. */
+    start_owner(true, false);
+    policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+    assert_int_equal(policy_may_write_from(&p, PLC_A, ADDR_A), 0);
+    assert_int_equal(policy_may_write_from(&p, PLC_A2, ADDR_A2),
+                     MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+}
+
+static void no_start_before_the_heartbeat_changed(void **state)
+{
+    (void)state;
+    char why[96];
+    const struct cmd_def *play = cmd_find("play_program");
+    const struct cmd_def *resume = cmd_find("resume_program");
+    const struct cmd_def *joint_move = cmd_find("joint_move");
+    const char *free_to_go[] = {"power_on", "enable_robot", "set_digital_output", "rapid_rate",
+                                "stop_program", "pause_program", "load_program"};
+
+    start_owner(false, true);
+    assert_int_equal(policy_heartbeat_state(&p, T0), POLICY_HEARTBEAT_NEVER);
+    assert_int_equal(policy_gate_command(&p, T0, play, why, sizeof(why)), 1);
+    assert_string_equal(why, "heartbeat not started");
+    assert_int_equal(policy_gate_command(&p, T0, resume, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0, joint_move, why, sizeof(why)), 1);
+    assert_int_equal(policy_gate_command(&p, T0, NULL, why, sizeof(why)), 1);
+    for (unsigned i = 0; i < sizeof(free_to_go) / sizeof(free_to_go[0]); i++)
+        assert_int_equal(policy_gate_command(&p, T0, cmd_find(free_to_go[i]), why, sizeof(why)),
+                         0);
+    assert_int_equal(sent.calls, 0); /* a refusal, no fault */
+    assert_int_equal(p.fault, POLICY_FAULT_NONE);
+    /* The same value (0, as the register reads at start) is no change. */
+    policy_heartbeat(&p, T0 + 10, PLC_A, ADDR_A, 0);
+    assert_int_equal(policy_heartbeat_state(&p, T0 + 10), POLICY_HEARTBEAT_NEVER);
+    assert_int_equal(policy_gate_command(&p, T0 + 10, play, why, sizeof(why)), 1);
+    policy_heartbeat(&p, T0 + 20, PLC_A, ADDR_A, 1);
+    assert_int_equal(policy_heartbeat_state(&p, T0 + 20), POLICY_HEARTBEAT_RUNNING);
+    assert_int_equal(policy_gate_command(&p, T0 + 20, play, why, sizeof(why)), 0);
+    /* Lost: the state says so (and the loss rule takes over). */
+    assert_int_equal(policy_heartbeat_state(&p, T0 + 20 + LIMIT - 1), POLICY_HEARTBEAT_RUNNING);
+    assert_int_equal(policy_heartbeat_state(&p, T0 + 20 + LIMIT), POLICY_HEARTBEAT_LOST);
+    policy_heartbeat(&p, T0 + 30 + LIMIT, PLC_A, ADDR_A, 2);
+    assert_int_equal(policy_heartbeat_state(&p, T0 + 30 + LIMIT), POLICY_HEARTBEAT_RUNNING);
+    /* require_heartbeat = false: a start goes without one. */
+    start_owner(false, false);
+    assert_int_equal(policy_gate_command(&p, T0, play, why, sizeof(why)), 0);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1118,6 +1202,8 @@ int main(void)
         cmocka_unit_test(late_turn_waits_for_its_input),
         cmocka_unit_test(loop_late_on_every_turn_still_judges),
         cmocka_unit_test(stall_judged_with_the_status_read_after_it),
+        cmocka_unit_test(owner_host_lets_every_connection_of_the_plc_write),
+        cmocka_unit_test(no_start_before_the_heartbeat_changed),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

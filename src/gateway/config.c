@@ -68,6 +68,8 @@ struct key_info {
 static const char *const action_names[] = {"keep", "pause", "stop", NULL};
 /* [network_exception] watch: index + 1 is enum policy_watch. */
 static const char *const watch_names[] = {"heartbeat", "connection", "both", NULL};
+/* [network_exception] owner: index 1 is owner_by_connection. */
+static const char *const owner_names[] = {"host", "connection", NULL};
 /* [tls] min_version. */
 static const char *const tls_version_names[] = {"1.2", "1.3", NULL};
 /* [rtu] parity: the index is enum mb_rtu_parity. */
@@ -110,6 +112,8 @@ static const struct key_info keys[] = {
     KEY_C("network_exception", "watch", ne_watch, watch_names, "heartbeat"),
     KEY("network_exception", "motion_enable", KEY_BOOL, ne_motion_enable, 0, 1, "false"),
     KEY("network_exception", "single_owner", KEY_BOOL, ne_single_owner, 0, 1, "true"),
+    KEY_C("network_exception", "owner", ne_owner, owner_names, "host"),
+    KEY("network_exception", "require_heartbeat", KEY_BOOL, ne_require_heartbeat, 0, 1, "true"),
     KEY("network_exception", "robot_time_limit_ms", KEY_UINT, ne_robot_time_limit_ms, 0, 600000, "1000"),
     KEY_C("network_exception", "robot_action", ne_robot_action, action_names, "pause"),
     KEY("network_exception", "require_robot_handle", KEY_BOOL, ne_require_robot_handle, 0, 1, "true"),

@@ -67,6 +67,8 @@ struct gw_config {
     uint32_t ne_watch;       /* enum policy_watch - 1 */
     bool ne_motion_enable;
     bool ne_single_owner;
+    uint32_t ne_owner;       /* 0 host, 1 connection */
+    bool ne_require_heartbeat;
     uint32_t ne_robot_time_limit_ms;
     uint32_t ne_robot_action; /* motType: 0 keep, 1 pause, 2 stop */
     bool ne_require_robot_handle;

@@ -225,6 +225,8 @@ static void show_policy(struct gateway *gw)
     regmap_set_number(img, rows->faults, 0, (double)(p->faults & 0xFFFF), true);
     regmap_set_number(img, rows->motion_enabled, 0, p->motion_enabled, true);
     regmap_set_text(img, rows->write_owner, 0, p->owner_address);
+    regmap_set_number(img, rows->heartbeat_state, 0,
+                      policy_heartbeat_state(p, uv_now(gw->loop)), true);
 }
 
 /* The serial line's state and counters. */
@@ -490,7 +492,9 @@ static int on_write(void *user, const struct mb_write *w)
 /* A write the map refused before it could be judged: audited the same. */
 static void on_write_refused(void *user, const struct mb_write *w, int ex)
 {
-    audit_refusal(user, w, ex, false);
+    struct gateway *gw = user;
+    plc_write_refused_unjudged(&gw->writes, w);
+    audit_refusal(gw, w, ex, false);
 }
 
 static void on_client(void *user, uint64_t client, bool open, unsigned clients)
@@ -654,6 +658,8 @@ static int start_policy(struct gateway *gw)
         .watch = (enum policy_watch)(cfg->ne_watch + 1),
         .motion_enable = cfg->ne_motion_enable,
         .single_owner = cfg->ne_single_owner,
+        .owner_by_connection = cfg->ne_owner == 1,
+        .require_heartbeat = cfg->ne_require_heartbeat,
         .start_unshown_max_ms = cfg->status_timeout_ms,
     };
     struct policy_sink sink = {
@@ -664,8 +670,10 @@ static int start_policy(struct gateway *gw)
     rows->faults = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "faults");
     rows->write_owner = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "write_owner");
     rows->motion_enabled = regmap_find_path(&gw->map, REGMAP_SRC_PATH, "motion_enabled");
+    rows->heartbeat_state =
+        regmap_find_path(&gw->map, REGMAP_SRC_PATH, "plc_heartbeat_state");
     if (!rows->fault || !rows->fault_age_ms || !rows->faults || !rows->write_owner ||
-        !rows->motion_enabled)
+        !rows->motion_enabled || !rows->heartbeat_state)
         return -EINVAL;
     /* A tenth of the limit, 10..100 ms: reactions within limit + period. */
     uint64_t period = cfg->ne_time_limit_ms / 10;

@@ -59,6 +59,7 @@ enum {
 /* The policy's rows, as PLCs read its state. */
 struct gateway_policy_rows {
     const struct regmap_row *fault, *fault_age_ms, *faults, *write_owner, *motion_enabled;
+    const struct regmap_row *heartbeat_state; /* plc_heartbeat_state */
 };
 
 struct gateway {

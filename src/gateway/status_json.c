@@ -149,6 +149,11 @@ static void add_policy(cJSON *root, const struct gateway *gw)
     cJSON_AddNumberToObject(o, "faults", (double)p->faults);
     cJSON_AddStringToObject(o, "handler", handler < 4 ? handler_names[handler] : "?");
     cJSON_AddStringToObject(o, "write_owner", p->owner_address);
+    /* "never" until the PLC heartbeat was seen changing: motion is
+     * refused then (require_heartbeat), and the page says why. */
+    static const char *const beat_states[] = {"never", "running", "lost"};
+    cJSON_AddStringToObject(o, "plc_heartbeat_state",
+                            beat_states[policy_heartbeat_state(p, uv_now(gw->loop))]);
     cJSON_AddBoolToObject(o, "motion_enabled", p->motion_enabled);
     cJSON_AddNumberToObject(o, "time_limit_ms", p->cfg.time_limit_ms);
 }

@@ -30,7 +30,7 @@ static int check_write_range(const struct regmap *map, enum regmap_table table,
         return ILLEGAL_ADDRESS;
     for (unsigned a = address; a < address + count; a++) {
         const struct regmap_row *row = regmap_find(map, table, a);
-        if (!row || !row->writable)
+        if ((!row || !row->writable) && !regmap_write_skips(map, table, a, address, count))
             return ILLEGAL_ADDRESS;
     }
     return 0;
@@ -40,6 +40,8 @@ static int check_values(const struct regmap *map, enum regmap_table table,
                         unsigned address, const uint16_t *values, unsigned count)
 {
     for (unsigned i = 0; i < count; i++) {
+        if (regmap_write_skips(map, table, address + i, address, count))
+            continue; /* inside a command's parameters: ignored */
         int ex = regmap_check_write(map, table, address + i, values[i]);
         if (ex)
             return ex;

@@ -389,7 +389,38 @@ static void print_md_intro(const struct regmap *map, FILE *out)
             REGMAP_VERSION, map->crc);
 }
 
-static void print_element(const struct regmap_row *row, unsigned i,
+/*
+ * An output coil's description ends with the discrete input it reads back
+ * at, found by its name in the table: a PLC checks that the output is set
+ * without a second table to keep in step.
+ */
+static void add_readback(const struct regmap *map, const struct regmap_row *row, unsigned i,
+                         struct element_text *t)
+{
+    char want[96];
+    struct element_text di;
+
+    if (!row->readback)
+        return;
+    regmap_expand(want, sizeof(want), row->readback, row->index + i, i);
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const struct regmap_row *in = &map->rows[r];
+        if (in->table != REGMAP_DISCRETE_INPUT || strcmp(in->name, row->readback) != 0)
+            continue;
+        for (unsigned k = 0; k < in->elements; k++) {
+            describe_element(in, k, &di);
+            if (strcmp(di.name, want) != 0)
+                continue;
+            size_t n = strlen(t->description);
+            snprintf(t->description + n, sizeof(t->description) - n,
+                     "; reads back at discrete input %u (%s)",
+                     regmap_element_address(in, k), di.name);
+            return;
+        }
+    }
+}
+
+static void print_element(const struct regmap *map, const struct regmap_row *row, unsigned i,
                           enum regmap_format format, FILE *out)
 {
     struct element_text t;
@@ -398,6 +429,7 @@ static void print_element(const struct regmap_row *row, unsigned i,
     double scale = row->scale != 0 ? row->scale : 1;
 
     describe_element(row, i, &t);
+    add_readback(map, row, i, &t);
     if (format == REGMAP_FORMAT_CSV) {
         fprintf(out, "%s,%u,%u,%s,%g,", table_names[row->table], address,
                 regmap_element_width(row), type_names[row->type], scale);
@@ -452,7 +484,7 @@ int regmap_print(const struct regmap *map, enum regmap_format format, FILE *out)
                 continue;
             for (unsigned i = 0; i < row->elements; i++) {
                 if (regmap_element_address(row, i) == a)
-                    print_element(row, i, format, out);
+                    print_element(map, row, i, format, out);
             }
         }
     }
@@ -731,6 +763,34 @@ void regmap_encode_gw(struct regmap_image *img, const double gw[GW_VALUE_COUNT])
     sh->gw_valid = true;
 }
 
+/* A command's parameter row ("<cmdName>.<param>", not a setpoint). */
+static bool is_parameter(const struct regmap_row *row)
+{
+    return row && row->writable && row->source == REGMAP_SRC_CMD && !row->fixed &&
+           strchr(row->path, '.');
+}
+
+/* Do two parameter rows belong to the same command? */
+static bool same_command(const struct regmap_row *a, const struct regmap_row *b)
+{
+    size_t n = strcspn(a->path, ".");
+    return strncmp(a->path, b->path, n) == 0 && b->path[n] == '.';
+}
+
+bool regmap_write_skips(const struct regmap *map, enum regmap_table table,
+                        unsigned address, unsigned first, unsigned count)
+{
+    const struct regmap_row *below = NULL, *above = NULL;
+
+    if (regmap_find(map, table, address) || address <= first || address + 1 >= first + count)
+        return false;
+    for (unsigned a = address; a-- > first && !below;)
+        below = regmap_find(map, table, a);
+    for (unsigned a = address + 1; a < first + count && !above; a++)
+        above = regmap_find(map, table, a);
+    return is_parameter(below) && is_parameter(above) && same_command(below, above);
+}
+
 int regmap_check_write(const struct regmap *map, enum regmap_table table,
                        unsigned address, uint16_t value)
 {
@@ -932,6 +992,10 @@ int regmap_decode_write(const struct regmap_image *img, enum regmap_table table,
 
     while (a < address + count) {
         const struct regmap_row *row = regmap_find(map, table, a);
+        if (regmap_write_skips(map, table, a, address, count)) {
+            a++; /* inside a command's parameters: ignored */
+            continue;
+        }
         if (!row || !row->writable)
             return MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS;
         unsigned width = regmap_element_width(row);

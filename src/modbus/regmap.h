@@ -211,6 +211,10 @@ struct regmap_row {
     /* REGMAP_SRC_CMD rows that send when written: JSON members sent along
      * with the value, as a template ("\"type\": 0, \"index\": *"). */
     const char *fixed;
+    /* An output's coil: the name template of the discrete input where the
+     * robot's status shows the output ("dout_*"), element for element;
+     * the register map's docs name that input's address. NULL: none. */
+    const char *readback;
     /* Writable rows: the class a role needs to write it. */
     enum regmap_write_class write_class;
 };
@@ -332,7 +336,8 @@ typedef int (*regmap_written_cb)(void *user, const struct regmap_written *w);
  * 'old_values' (the same range before the write), or from the image when
  * 'old_values' is NULL.
  * A multi-register value (u32, i32, f32, a text) is one unit: the write
- * must cover all of it. Returns 0, or a Modbus exception code: 02 when the
+ * must cover all of it; a register regmap_write_skips() accepts is passed
+ * over. Returns 0, or a Modbus exception code: 02 when the
  * write splits a value or touches an address no writable row owns; 03 for
  * a number outside the row's range, a float that is not finite, or a text
  * that is not valid UTF-8 or holds control characters; or the first
@@ -348,6 +353,17 @@ void regmap_save(const struct regmap_image *img, enum regmap_table table,
                  unsigned address, unsigned count, uint16_t *out);
 void regmap_load(struct regmap_image *img, enum regmap_table table,
                  unsigned address, unsigned count, const uint16_t *values);
+
+/*
+ * Is 'address' a register no row owns inside one command's parameters
+ * (HR 357 in moveL's block), in a write of 'count' from 'first' that
+ * reaches that command's parameters on both sides of it? Such a write sets
+ * the command's parameters from its first to its last register in one
+ * request, as PLCs write a block: the unassigned register is accepted and
+ * ignored. Alone, or at either end of a write, it is refused (02).
+ */
+bool regmap_write_skips(const struct regmap *map, enum regmap_table table,
+                        unsigned address, unsigned first, unsigned count);
 
 /*
  * Checks that 'value' may be written at 'address' of a writable table.

@@ -64,6 +64,13 @@
      .type = (type_), .scale = (scale_), .unit = (unit_), .writable = true,    \
      .min = (min_), .max = (max_), .name = (name_), .description = (desc),     \
      .source = REGMAP_SRC_CMD, .path = (path_), .fixed = (fixed_)}
+/* An output's coil: a setpoint that reads back at discrete input 'rb_'. */
+#define C_OUT(addr, n, first, name_, fixed_, desc, rb_)                        \
+    {.table = REGMAP_COIL, .address = (addr), .elements = (n), .index = (first), \
+     .write_class = REGMAP_CLASS_OUTPUTS, .type = REGMAP_BOOL, .scale = 1,     \
+     .unit = "", .writable = true, .min = 0, .max = 1, .name = (name_),        \
+     .description = (desc), .source = REGMAP_SRC_CMD,                          \
+     .path = "set_digital_output.value", .fixed = (fixed_), .readback = (rb_)}
 /* A gateway value by name ("gw:<path>"), read-only or written by the PLC. */
 #define P_ROW(tbl, addr, n, type_, regs, unit_, name_, path_, desc)           \
     {.table = (tbl), .address = (addr), .elements = (n), .type = (type_),     \
@@ -144,15 +151,12 @@ const struct regmap_row regmap_table_rows[] = {
      .description = "Hold at 1 for the robot to run (with [network_exception] "
                     "motion_enable); dropping it pauses the program at once"},
     /* ---- coils: outputs; each write sends set_digital_output (4.25) ---- */
-    C_SET(REGMAP_COIL, 200, OUTPUTS, 16, 1, REGMAP_BOOL, 1, 0, 1, "", "cabinet_do_*",
-          "set_digital_output.value", "\"type\": 0, \"index\": *",
-          "Cabinet digital output * (type 0, index *)"),
-    C_SET(REGMAP_COIL, 216, OUTPUTS, 2, 0, REGMAP_BOOL, 1, 0, 1, "", "tool_do_*",
-          "set_digital_output.value", "\"type\": 1, \"index\": *",
-          "Tool digital output * (type 1, index *)"),
-    C_SET(REGMAP_COIL, 224, OUTPUTS, 16, 0, REGMAP_BOOL, 1, 0, 1, "", "extio_do_*",
-          "set_digital_output.value", "\"type\": 2, \"index\": *",
-          "Extension IO digital output * (type 2, index *)"),
+    C_OUT(200, 16, 1, "cabinet_do_*", "\"type\": 0, \"index\": *",
+          "Cabinet digital output * (type 0, index *)", "dout_*"),
+    C_OUT(216, 2, 0, "tool_do_*", "\"type\": 1, \"index\": *",
+          "Tool digital output * (type 1, index *)", "tio_dout_*"),
+    C_OUT(224, 16, 0, "extio_do_*", "\"type\": 2, \"index\": *",
+          "Extension IO digital output * (type 2, index *)", "extio_do_*"),
 
     /* ---- holding registers ---- */
     {.table = REGMAP_HOLDING_REGISTER, .address = 0, .elements = 1,

@@ -82,7 +82,8 @@ static int bind_slot(struct plc_commands *pc, struct plc_slot *slot,
     slot->state = path_row(pc, prefix, "state");
     slot->error_code = path_row(pc, prefix, "error_code");
     slot->error_msg = path_row(pc, prefix, "error_msg");
-    if (!slot->state || !slot->error_code || !slot->error_msg) {
+    slot->count = path_row(pc, prefix, "count");
+    if (!slot->state || !slot->error_code || !slot->error_msg || !slot->count) {
         log_err("register map: no result rows for %s", prefix);
         return -EINVAL;
     }
@@ -91,6 +92,12 @@ static int bind_slot(struct plc_commands *pc, struct plc_slot *slot,
 
 static const struct cmd_def *command_of(const char *path);
 static bool is_param_of(const struct regmap_row *row, const char *name);
+
+/* A command's parameter row ("<cmdName>.<param>", not a setpoint's). */
+static bool is_param_row(const struct regmap_row *row)
+{
+    return row->source == REGMAP_SRC_CMD && !row->fixed && strchr(row->path, '.');
+}
 
 /*
  * Finds 'member' among a command's mailbox arguments ("name[N]" takes N,
@@ -198,6 +205,15 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
     pc->refuse_log_limit.interval_ms = 5000;
     if (cmd_table_count > PLC_MAX_COMMANDS || check_parameter_rows(img->map) != 0)
         return -EINVAL;
+    for (unsigned r = 0; r < img->map->row_count; r++)
+        if (is_param_row(&img->map->rows[r]) && img->map->rows[r].elements > 32) {
+            log_err("register map: parameter row %s has more than 32 elements",
+                    img->map->rows[r].name);
+            return -EINVAL;
+        }
+    pc->params_written = calloc(img->map->row_count, sizeof(*pc->params_written));
+    if (!pc->params_written)
+        return -ENOMEM;
     for (unsigned i = 0; i < cmd_table_count; i++) {
         struct plc_slot *slot = &pc->slots[i];
         slot->pc = pc;
@@ -244,6 +260,8 @@ void plc_commands_free(struct plc_commands *pc)
 {
     /* Only a write's staged commands; queued ones belong to the queue. */
     plc_commands_discard(pc);
+    free(pc->params_written);
+    pc->params_written = NULL;
 }
 
 static void set_result(struct plc_slot *slot, enum cmd_outcome outcome, long code,
@@ -516,13 +534,31 @@ static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd
     return obj;
 }
 
-enum action { ACT_NONE, ACT_TRIGGER, ACT_SETPOINT, ACT_MAILBOX, ACT_JSON };
+/* ACT_STALE: a 1 written onto a trigger another connection left at 1. */
+enum action { ACT_NONE, ACT_TRIGGER, ACT_STALE, ACT_SETPOINT, ACT_MAILBOX, ACT_JSON };
 
 static const struct cmd_def *command_of(const char *path)
 {
     char name[64];
     snprintf(name, sizeof(name), "%.*s", (int)strcspn(path, "."), path);
     return cmd_find(name);
+}
+
+/*
+ * A trigger written 1: 0 -> 1 triggers; 1 again is the same connection's
+ * retransmission (nothing to do), or another connection's write onto a
+ * trigger left at 1 (a PLC restarted mid-handshake, a reconnect): refused,
+ * since sending again could move the arm twice and answering OK would let
+ * the PLC take the old result for its own.
+ */
+static enum action trigger_action(const struct plc_commands *pc, const struct plc_slot *slot,
+                                  const struct regmap_written *w, enum action act)
+{
+    if (w->value == 0)
+        return ACT_NONE;
+    if (w->previous == 0)
+        return act;
+    return slot->trigger_by == pc->writer ? ACT_NONE : ACT_STALE;
 }
 
 /* What writing 'w' asks for; sets *def and *slot. */
@@ -540,14 +576,13 @@ static enum action action_of(struct plc_commands *pc, const struct regmap_writte
         *slot = &pc->slots[*def - cmd_table];
         if (row->fixed)
             return ACT_SETPOINT;
-        /* A trigger sends on 0 -> 1 only: a repeated write is no command. */
         if (!strchr(row->path, '.'))
-            return w->value != 0 && w->previous == 0 ? ACT_TRIGGER : ACT_NONE;
+            return trigger_action(pc, *slot, w, ACT_TRIGGER);
         return ACT_NONE;
     }
     if (row == pc->json_trigger) {
         *slot = &pc->json;
-        return w->value != 0 && w->previous == 0 ? ACT_JSON : ACT_NONE;
+        return trigger_action(pc, *slot, w, ACT_JSON);
     }
     if (row->source == REGMAP_SRC_PATH && strcmp(row->path, "mailbox.seq") == 0) {
         *slot = &pc->mailbox;
@@ -573,15 +608,20 @@ static cJSON *build(struct plc_commands *pc, enum action act, const struct regma
         return *def ? build_mailbox(pc, *def, result) : NULL;
     case ACT_JSON:
         return parse_json_request(pc, def, result);
+    case ACT_STALE:
     case ACT_NONE:
         break;
     }
     return NULL;
 }
 
-void plc_commands_begin(struct plc_commands *pc)
+void plc_commands_begin(struct plc_commands *pc, uint64_t writer,
+                        const struct regmap_written *elements, unsigned count)
 {
     plc_commands_discard(pc);
+    pc->writer = writer;
+    pc->write_elements = elements;
+    pc->write_element_count = count;
 }
 
 void plc_commands_discard(struct plc_commands *pc)
@@ -590,6 +630,97 @@ void plc_commands_discard(struct plc_commands *pc)
         free(pc->staged_cmds[i].json);
     pc->staged = 0;
     pc->applied = 0;
+    pc->write_elements = NULL;
+    pc->write_element_count = 0;
+}
+
+/* Does the write being judged set element 'i' of 'row'? */
+static bool write_sets(const struct plc_commands *pc, const struct regmap_row *row, unsigned i)
+{
+    for (unsigned e = 0; e < pc->write_element_count; e++)
+        if (pc->write_elements[e].row == row && pc->write_elements[e].element == i)
+            return true;
+    return false;
+}
+
+/*
+ * Were all of 'def''s parameters written since start (and not refused
+ * since), or in the write being judged? A move to a target nobody wrote
+ * (zeros at speed 0, or what a refused write meant to replace) must not go.
+ */
+static bool params_written(const struct plc_commands *pc, const struct cmd_def *def)
+{
+    const struct regmap *map = pc->img->map;
+
+    for (unsigned r = 0; r < map->row_count; r++) {
+        const struct regmap_row *row = &map->rows[r];
+        if (!is_param_of(row, def->name))
+            continue;
+        for (unsigned i = 0; i < row->elements; i++)
+            if (!(pc->params_written[r] & (1u << i)) && !write_sets(pc, row, i))
+                return false;
+    }
+    return true;
+}
+
+/* How many of the mailbox's argument registers 'def' takes. */
+static unsigned mailbox_args_taken(const struct cmd_def *def)
+{
+    char args[128];
+    unsigned n = 0;
+
+    snprintf(args, sizeof(args), "%s", def->mailbox_args);
+    for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
+         tok = strtok_r(NULL, ",", &save)) {
+        size_t len = strlen(tok);
+        if (len && tok[len - 1] == '$')
+            continue; /* from a parameter row, not the mailbox */
+        const char *bracket = strchr(tok, '[');
+        n += bracket ? (unsigned)atoi(bracket + 1) : 1;
+    }
+    return n;
+}
+
+/*
+ * Does the write that sets a new sequence number carry the code and the
+ * arguments of its command too? Written apart, they could be another
+ * command's (a rapid_rate 0 sent with a previous command's arguments).
+ */
+static bool mailbox_whole(const struct plc_commands *pc, const struct cmd_def *def)
+{
+    if (!write_sets(pc, pc->mailbox_code, 0))
+        return false;
+    unsigned taken = def ? mailbox_args_taken(def) : 0;
+    for (unsigned k = 0; k < taken && k < pc->mailbox_arg->elements; k++)
+        if (!write_sets(pc, pc->mailbox_arg, k))
+            return false;
+    return true;
+}
+
+void plc_commands_write_refused(struct plc_commands *pc, enum regmap_table table,
+                                unsigned address, unsigned count)
+{
+    const struct regmap *map = pc->img->map;
+
+    for (unsigned a = address; a < address + count; a++) {
+        const struct regmap_row *row = regmap_find(map, table, a);
+        if (!row || !is_param_row(row))
+            continue;
+        unsigned width = regmap_element_width(row);
+        unsigned stride = row->stride ? row->stride : width;
+        unsigned i = (a - row->address) / stride;
+        if (i < row->elements)
+            pc->params_written[row - map->rows] &= ~(1u << i);
+    }
+}
+
+/* A trigger or mailbox write handled, whatever comes of it. */
+static void count_handled(struct plc_commands *pc, const struct plc_slot *slot)
+{
+    if (!slot->count)
+        return;
+    double n = regmap_get_number(pc->img, slot->count, 0);
+    regmap_set_number(pc->img, slot->count, 0, n >= 65535 ? 0 : n + 1, true);
 }
 
 /* Refuses with 'ex', showing why in the slot's result registers. */
@@ -598,8 +729,15 @@ static int refuse(struct plc_commands *pc, struct plc_slot *slot, int ex,
 {
     /* The same words for the audit trail (plc_commands_refusal). */
     snprintf(pc->refusal, sizeof(pc->refusal), "%s", why);
-    if (slot && slot->state && !slot->pending)
+    if (slot && slot->state && !slot->pending) {
         set_result(slot, outcome, 0, why);
+        /* The previous command's reply is no answer to this one. */
+        if (slot == &pc->json) {
+            regmap_set_text(pc->img, pc->json_reply, 0, "");
+            regmap_set_number(pc->img, pc->json_truncated, 0, 0, true);
+            regmap_set_number(pc->img, pc->json_length, 0, 0, true);
+        }
+    }
     return ex;
 }
 
@@ -629,12 +767,14 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
     /* Unknown (JSON mailbox only, with motion on): judged as motion. */
     unsigned flags = def ? def->flags : CMD_MOTION;
 
+    /* Every reason fits a result's error_msg (40 bytes) whole. */
     if ((flags & CMD_MOTION) && !pc->cfg.motion)
-        return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED,
-                      "motion is off: [commands] motion = true enables it");
+        return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED, "motion off: [commands] motion");
     if ((flags & CMD_SHUTDOWN) && !pc->cfg.allow_shutdown)
         return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED,
-                      "shutdown is off: [commands] allow_shutdown = true enables it");
+                      "shutdown off: [commands] allow_shutdown");
+    if (act == ACT_TRIGGER && (flags & CMD_MOTION) && !params_written(pc, def))
+        return refuse(pc, slot, EX_INVALID, CMD_INVALID, "target not written");
     if (!pc->queue->connected)
         return refuse(pc, slot, EX_LINK_DOWN, CMD_NOT_SENT, "not sent: the command link is down");
     /* Pausing and stopping are never held back for want of the handler. */
@@ -642,7 +782,7 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
     if (pc->cfg.require_robot_handle && pc->cfg.robot_handle && !halts &&
         pc->handle_state != PLC_HANDLE_ACCEPTED)
         return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED,
-                      "the robot has not accepted its network-exception handler");
+                      "robot has not accepted its handler");
     if (pc->cfg.gate) {
         char why[96] = "";
         int ex = pc->cfg.gate(pc->cfg.gate_user, def, why, sizeof(why));
@@ -677,6 +817,12 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
     if (act == ACT_NONE)
         return 0;
     pc->refusal[0] = '\0';
+    if (act != ACT_SETPOINT)
+        count_handled(pc, slot);
+    if (act == ACT_STALE)
+        return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED, "trigger still 1: write 0 first");
+    if (act == ACT_MAILBOX && !mailbox_whole(pc, def))
+        return refuse(pc, slot, EX_INVALID, CMD_INVALID, "write code, args and seq in one write");
     cJSON *cmd = build(pc, act, w, &def, &built);
     if (!cmd)
         return built == BUILD_NO_MEMORY
@@ -751,8 +897,12 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
                  : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
     audit_sent(pc, slot, json, def, false);
     if (rc < 0) {
-        char why[96];
-        snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
+        char why[48];
+        snprintf(why, sizeof(why), "not sent: %s",
+                 rc == -ENOTCONN ? "the command link is down"
+                 : rc == -EBUSY  ? "the command queue is full"
+                 : rc == -ENOMEM ? "out of memory"
+                                 : "error");
         /* The write was accepted: whatever kept the command from going
          * out, the robot never got it. */
         struct cmd_result r = {.outcome = CMD_NOT_SENT};
@@ -784,6 +934,10 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
     struct plc_slot *slot;
     enum action act = action_of(pc, w, &def, &slot);
 
+    if (is_param_row(w->row))
+        pc->params_written[w->row - pc->img->map->rows] |= 1u << w->element;
+    if (act == ACT_TRIGGER || act == ACT_JSON)
+        slot->trigger_by = pc->writer; /* its 1 again is a retransmission */
     if (act == ACT_NONE || pc->applied == pc->staged)
         return; /* the second: not checked, so not staged (not reached) */
     struct plc_staged *st = &pc->staged_cmds[pc->applied++];

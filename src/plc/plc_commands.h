@@ -6,19 +6,33 @@
  * Three ways for a PLC to command the robot, all rows of the register map:
  * - a trigger coil per command ("cmd:<cmdName>"): a 0 -> 1 write sends the
  *   command with the parameters in its holding registers
- *   ("cmd:<cmdName>.<param>"); writing 1 again while it reads 1 does
- *   nothing, so a retransmitted write never sends twice. Setpoint rows
- *   (rapid rate, digital and analog outputs, tool and user frame,
- *   collision level) send their command each time they are written. Each
- *   command's result is readable: "gw:result.<cmdName>.state",
- *   ".error_code", ".error_msg";
+ *   ("cmd:<cmdName>.<param>"). A write of 1 onto a trigger that reads 1
+ *   is, from the connection that set it, a retransmission (answered, nothing
+ *   sent); from any other connection (a restarted PLC, a reconnect) it is
+ *   refused, 01 "trigger still 1: write 0 first": nothing is ever sent
+ *   twice because a connection dropped and came back, and nothing is
+ *   answered OK with nothing to show for it. A motion trigger whose
+ *   parameters were not all written since start (or whose last write was
+ *   refused) is refused, 03 "target not written". Setpoint rows (rapid
+ *   rate, digital and analog outputs, tool and user frame, collision
+ *   level) send their command each time they are written. Each command's
+ *   result is readable: "gw:result.<cmdName>.state", ".error_code",
+ *   ".error_msg", and ".count", which changes with every trigger handled
+ *   whatever its outcome: a PLC reads it before its trigger and waits for
+ *   it to change, so it never takes an older result for its own;
  * - the exactly-once mailbox ("gw:mailbox.*"): the PLC writes code,
  *   arguments and sequence number last in one write; a new sequence number
  *   runs the command once, its echo in ack_seq at once and in done_seq
- *   with the result; the same number again does nothing;
- * - the JSON mailbox ("gw:json.*"): any Chapter-4 command as text.
+ *   with the result; the same number again does nothing. A new sequence
+ *   number without the code and the arguments in the same write is
+ *   refused, 03 "write code, args and seq in one write" (they could be
+ *   another command's). mailbox.count changes with every new number;
+ * - the JSON mailbox ("gw:json.*"): any Chapter-4 command as text; its
+ *   trigger follows the trigger coils' rule, json.count counts them, and a
+ *   refusal clears the previous reply.
  * Writes are checked before anything is sent, and refused with a Modbus
- * exception: 01 not permitted by the configuration (motion, shutdown,
+ * exception (the reason, at most 40 bytes, in the result's error_msg): 01
+ * not permitted by the configuration (motion, shutdown,
  * read-only, client not allowed to write), 03 an invalid value or command,
  * 06 the same command (or mailbox) is still pending, 0B the command link
  * is down. Nothing refused is ever sent or queued.
@@ -94,7 +108,8 @@ struct plc_slot {
     struct plc_commands *pc;
     enum plc_slot_kind kind;
     const struct cmd_def *def; /* PLC_SLOT_COMMAND, PLC_SLOT_INFO */
-    const struct regmap_row *state, *error_code, *error_msg;
+    const struct regmap_row *state, *error_code, *error_msg, *count;
+    uint64_t trigger_by;       /* the connection that set its trigger to 1 */
     unsigned pending;
     unsigned starts_pending;   /* of them, commands that start motion */
     bool failed;               /* a failure among the pending ones */
@@ -121,6 +136,13 @@ struct plc_commands {
         const struct cmd_def *def;
     } staged_cmds[CMD_QUEUE_CAPACITY];
     unsigned staged, applied;
+    /* The write being judged: who writes, and all it sets. */
+    uint64_t writer;
+    const struct regmap_written *write_elements;
+    unsigned write_element_count;
+    /* The parameter rows' elements written since start and not refused
+     * since: a bit per element, by row index in the map. */
+    uint32_t *params_written;
     bool sending_frequent; /* the command being sent is a setpoint's */
     struct log_ratelimit refuse_log_limit;
     char refusal[96]; /* why the last plc_commands_check refused */
@@ -136,16 +158,30 @@ struct plc_commands {
 };
 
 /*
- * Finds the rows and prepares the slots. Returns 0, or -EINVAL when the
- * register map lacks a row this module needs (a programming error).
+ * Finds the rows and prepares the slots. Returns 0, -EINVAL when the
+ * register map lacks a row this module needs (a programming error), or
+ * -ENOMEM.
  */
 int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
                       struct cmd_queue *queue, const struct plc_commands_config *cfg,
                       uint64_t (*now_ms)(void *clock), void *clock);
 void plc_commands_free(struct plc_commands *pc);
 
-/* Starts checking a new write (phase 1 below). */
-void plc_commands_begin(struct plc_commands *pc);
+/*
+ * Starts checking a new write (phase 1 below) by connection 'writer' (the
+ * Modbus server's client id), which sets 'elements' (all of them, decoded;
+ * they stay valid until plc_commands_discard).
+ */
+void plc_commands_begin(struct plc_commands *pc, uint64_t writer,
+                        const struct regmap_written *elements, unsigned count);
+
+/*
+ * A write to 'count' registers of 'table' from 'address' was refused
+ * (whatever refused it): the parameters it held count as not written, so
+ * a motion trigger cannot send the values the PLC meant to replace.
+ */
+void plc_commands_write_refused(struct plc_commands *pc, enum regmap_table table,
+                                unsigned address, unsigned count);
 
 /*
  * Phase 1 of a write, for each element it sets, with the new values already

@@ -53,7 +53,7 @@ int plc_write_authorize(const struct plc_write *pw, const struct mb_write *w)
     if (pw->cfg.write_allow.count > 0 &&
         !ip_allow_contains(&pw->cfg.write_allow, &w->client_addr))
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
-    return policy_may_write(pw->policy, w->client_id);
+    return policy_may_write_from(pw->policy, w->client_id, w->peer ? w->peer : w->client);
 }
 
 static bool is_command_row(const struct regmap_row *row)
@@ -154,7 +154,8 @@ static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_
     const struct plc_write_rows *rows = &pw->rows;
 
     if (e->row == rows->heartbeat) {
-        policy_heartbeat(pw->policy, now, pw->w->client_id, pw->w->client, e->value);
+        policy_heartbeat(pw->policy, now, pw->w->client_id,
+                         pw->w->peer ? pw->w->peer : pw->w->client, e->value);
     } else if (e->row == rows->fault_reset) {
         if (e->value != 0 && !drops_enable)
             reset_fault(pw);
@@ -165,6 +166,18 @@ static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_
     } else if (is_command_row(e->row)) {
         plc_commands_apply(pw->commands, e);
     }
+}
+
+/* A refused write: its parameters count as not written (plc_commands.h). */
+static int refused(struct plc_write *pw, const struct mb_write *w, int ex)
+{
+    plc_commands_write_refused(pw->commands, w->table, w->address, w->count);
+    return ex;
+}
+
+void plc_write_refused_unjudged(struct plc_write *pw, const struct mb_write *w)
+{
+    plc_commands_write_refused(pw->commands, w->table, w->address, w->count);
 }
 
 int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
@@ -180,12 +193,12 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     plc_write_name_range(pw, w);
     if (ex) {
         snprintf(pw->why, sizeof(pw->why), "outside role \"%s\"", w->role ? w->role : "");
-        return ex;
+        return refused(pw, w, ex);
     }
     ex = plc_write_authorize(pw, w);
     if (ex) {
         why_unauthorized(pw, w);
-        return ex;
+        return refused(pw, w, ex);
     }
     if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS) {
         snprintf(pw->why, sizeof(pw->why), "invalid count");
@@ -201,7 +214,7 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
         regmap_load(img, w->table, w->address, w->count, pw->saved);
         pw->element_count = 0;
         pw->w = NULL;
-        return ex;
+        return refused(pw, w, ex);
     }
     uint64_t now = pw->hooks.now_ms(pw->hooks.user);
     /* A drop of motion enable goes first, whatever its address: nothing
@@ -219,7 +232,7 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     }
     /* Step 4: every command checked with the new values in place, against
      * the fault as it was before the write (a reset in it starts nothing). */
-    plc_commands_begin(pw->commands);
+    plc_commands_begin(pw->commands, w->client_id, pw->elements, pw->element_count);
     for (unsigned i = 0; i < pw->element_count && ex == 0; i++)
         if (is_command_row(pw->elements[i].row)) {
             ex = plc_commands_check(pw->commands, &pw->elements[i]);
@@ -235,7 +248,7 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
         plc_commands_discard(pw->commands);
         pw->element_count = 0;
         pw->w = NULL;
-        return ex;
+        return refused(pw, w, ex);
     }
     for (unsigned i = 0; i < pw->element_count; i++)
         act_on(pw, &pw->elements[i], now, drops_enable);
@@ -243,6 +256,9 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     policy_check(pw->policy, now, pw->hooks.robot_may_move(pw->hooks.user));
     /* 'w' is the server's and lives only for this call. */
     pw->w = NULL;
+    pw->table = w->table;
+    pw->address = w->address;
+    pw->count = w->count;
     pw->awaiting_after = true;
     return 0;
 }
@@ -252,6 +268,9 @@ void plc_write_after(struct plc_write *pw)
     if (!pw->awaiting_after)
         return;
     pw->awaiting_after = false;
+    for (unsigned a = pw->address; a < pw->address + pw->count; a++)
+        if (regmap_write_skips(pw->img->map, pw->table, a, pw->address, pw->count))
+            pw->img->mb->tab_registers[a] = 0;
     for (unsigned i = 0; i < pw->element_count; i++) {
         const struct regmap_written *e = &pw->elements[i];
         /* Command coils: done once written, they read 0. */

@@ -28,7 +28,9 @@
  *    fault reset and motion-enable coils go to the policy, command rows
  *    send what step 4 built; then the policy is re-evaluated;
  * 6. after libmodbus applied the write: command coils (fault reset, clear
- *    counters) read 0 again, and clear counters clears them.
+ *    counters) read 0 again, and clear counters clears them; a register
+ *    inside a command's parameters that no row owns (regmap_write_skips)
+ *    reads 0 again: what was written there is ignored.
  *
  * Time, the robot's motion and the counters reach the transaction through
  * 'struct plc_write_hooks', so its decisions are unit-tested and fuzzed
@@ -82,6 +84,10 @@ struct plc_write {
     struct regmap_written *elements;       /* decoded once */
     unsigned element_count;
     bool awaiting_after;
+    /* Its range, for step 6 (registers regmap_write_skips() passed over
+     * read 0 again). */
+    enum regmap_table table;
+    unsigned address, count;
     /* The last refusal: where ("coil 107 play_program", or the write's
      * range) and why, as the PLC's result registers say it. */
     char where[96];
@@ -113,6 +119,10 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w);
 /* Names the range of 'w' as the audit does ("holding register 100+2")
  * in pw->where, for a write refused before it was judged. */
 void plc_write_name_range(struct plc_write *pw, const struct mb_write *w);
+
+/* A write the server refused before it could be judged (an address or a
+ * value outside the map): the parameters it held count as not written. */
+void plc_write_refused_unjudged(struct plc_write *pw, const struct mb_write *w);
 
 /* Step 6, after a write plc_write_judge() accepted was applied. */
 void plc_write_after(struct plc_write *pw);

@@ -98,20 +98,43 @@ static void clear_owner(struct policy *p)
 {
     p->owner = 0;
     p->owner_address[0] = '\0';
+    p->owner_host[0] = '\0';
+}
+
+/* The address alone of "address:port" (the port after the last colon;
+ * an RTU line's name has none, and is kept whole). */
+static void host_of(const char *peer, char *out, size_t size)
+{
+    const char *colon = strrchr(peer, ':');
+    snprintf(out, size, "%.*s", colon ? (int)(colon - peer) : (int)strlen(peer), peer);
+}
+
+int policy_may_write_from(const struct policy *p, uint64_t client, const char *peer)
+{
+    if (!p->cfg.single_owner || p->owner == 0 || p->owner == client)
+        return 0;
+    if (!p->cfg.owner_by_connection && peer && p->owner_host[0]) {
+        char host[64];
+        host_of(peer, host, sizeof(host));
+        if (strcmp(host, p->owner_host) == 0)
+            return 0; /* the owner PLC's other connection */
+    }
+    return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
 }
 
 int policy_may_write(const struct policy *p, uint64_t client)
 {
-    if (!p->cfg.single_owner || p->owner == 0 || p->owner == client)
-        return 0;
-    return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    return policy_may_write_from(p, client, NULL);
 }
 
 void policy_heartbeat(struct policy *p, uint64_t now_ms, uint64_t client,
                       const char *address, double value)
 {
     see_time(p, now_ms);
-    /* Only a change counts: a PLC stuck writing the same value is silent. */
+    /* Only a change counts: a PLC stuck writing the same value is silent.
+     * The register reads 0 at start: a first 0 is no change. */
+    if (value != p->heartbeat_value)
+        p->heartbeat_changed = true;
     if (!p->heartbeat_armed || value != p->heartbeat_value) {
         p->heartbeat_ms = now_ms;
         p->heartbeat_armed = true;
@@ -120,7 +143,16 @@ void policy_heartbeat(struct policy *p, uint64_t now_ms, uint64_t client,
     if (p->cfg.single_owner && p->owner == 0) {
         p->owner = client;
         snprintf(p->owner_address, sizeof(p->owner_address), "%s", address);
+        host_of(address, p->owner_host, sizeof(p->owner_host));
     }
+}
+
+enum policy_heartbeat_state policy_heartbeat_state(const struct policy *p, uint64_t now_ms)
+{
+    if (!p->heartbeat_changed)
+        return POLICY_HEARTBEAT_NEVER;
+    return now_ms - p->heartbeat_ms >= p->cfg.time_limit_ms ? POLICY_HEARTBEAT_LOST
+                                                            : POLICY_HEARTBEAT_RUNNING;
 }
 
 void policy_client_opened(struct policy *p, uint64_t now_ms, unsigned clients)
@@ -356,18 +388,21 @@ bool policy_command_starts_motion(const struct cmd_def *def)
 int policy_gate_command(struct policy *p, uint64_t now_ms, const struct cmd_def *def,
                         char *why, size_t size)
 {
-    static const char *const names[] = {"", "the PLC heartbeat", "the Modbus connection",
-                                        "motion enable", "the gateway's own loop"};
-
     see_time(p, now_ms);
     if (def && strcmp(def->name, "stop_program") == 0)
         return 0; /* stopping is never refused */
     if (p->fault != POLICY_FAULT_NONE) {
-        snprintf(why, size, "network-exception fault %d latched: reset it first", p->fault);
+        /* Every reason fits a result's 40 bytes (20 registers) whole. */
+        snprintf(why, size, "fault %d latched: reset it first", p->fault);
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     }
     if (!policy_command_starts_motion(def))
         return 0;
+    /* A PLC that never fed the heartbeat would run the robot unwatched. */
+    if (p->cfg.require_heartbeat && !p->heartbeat_changed) {
+        snprintf(why, size, "heartbeat not started");
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
     /* A start right after a stall is judged with it at once: the PLC
      * asks the robot to run before the gateway knows what it did. */
     unsigned lost = lost_signals(p, now_ms, true);
@@ -376,8 +411,7 @@ int policy_gate_command(struct policy *p, uint64_t now_ms, const struct cmd_def 
          * if the start had gone out, so the outcome does not depend on
          * whether the start came before or after the loss. */
         apply_rule(p, now_ms, true, true);
-        snprintf(why, size, "%s lost: fault %d latched",
-                 names[p->fault <= POLICY_FAULT_GATEWAY_STALL ? p->fault : 0], p->fault);
+        snprintf(why, size, "%s: fault %d latched", policy_fault_name(p->fault), p->fault);
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     }
     if (policy_blocks_commands(p)) {

@@ -59,8 +59,15 @@
  *
  * Write ownership, when configured: the client that feeds the heartbeat
  * owns the write side; other clients' writes are refused (exception 01).
- * Ownership passes only when the owner disconnects or its heartbeat
- * expires.
+ * The owner is a PLC, not a socket (owner = host, the default): every
+ * connection from the owner's address may write, as a PLC that reads on
+ * one connection and writes on another does; owner = connection keeps it
+ * to the one connection. Ownership passes only when the owner's
+ * connection closes or its heartbeat expires.
+ *
+ * No motion without a heartbeat (require_heartbeat): until the heartbeat
+ * has been seen changing, commands that start motion are refused, so a
+ * PLC that never feeds it cannot run the robot unwatched.
  *
  * Pure logic: time comes in as arguments and the action goes out through
  * 'struct policy_sink', so every transition is unit-tested without a loop.
@@ -105,6 +112,8 @@ struct policy_config {
     enum policy_watch watch;
     bool motion_enable;  /* the motion-enable coil is required */
     bool single_owner;   /* one write owner at a time */
+    bool owner_by_connection; /* the owner is its connection, not its host */
+    bool require_heartbeat;   /* no start before the heartbeat changed */
     /*
      * How long after its reply a start the gateway sent counts as "may
      * run" at most when no status document comes (0: 10 s). The gateway
@@ -143,6 +152,7 @@ struct policy {
     bool heartbeat_armed;
     uint64_t heartbeat_ms; /* when it last changed */
     double heartbeat_value;
+    bool heartbeat_changed; /* seen changing once (from the register's 0) */
     /* The connection. */
     unsigned clients;
     bool connection_armed;
@@ -167,23 +177,40 @@ struct policy {
     uint64_t fault_since_ms;
     enum policy_action owed; /* an action not sent yet; KEEP: none */
     uint64_t faults; /* latched, ever */
-    /* The write owner: 0 none. */
+    /* The write owner: 0 none. Its address and port as the PLC reads
+     * them (IR 66), and its address alone (owner = host). */
     uint64_t owner;
-    char owner_address[48];
+    char owner_address[64];
+    char owner_host[64];
+};
+
+/* The PLC heartbeat as the PLC reads it (IR 5603). */
+enum policy_heartbeat_state {
+    POLICY_HEARTBEAT_NEVER = 0,   /* never seen changing */
+    POLICY_HEARTBEAT_RUNNING = 1,
+    POLICY_HEARTBEAT_LOST = 2,    /* no change within time_limit_ms */
 };
 
 void policy_init(struct policy *p, const struct policy_config *cfg,
                  const struct policy_sink *sink);
 
 /*
- * May client 'client' write? 0, or exception 01 when another client owns
- * the write side. Call before every write.
+ * May connection 'client', at 'peer' ("address:port", NULL unknown), write?
+ * 0, or exception 01 when another PLC owns the write side: with owner =
+ * host any connection from the owner's address may. Call before every
+ * write. policy_may_write() is the same with the peer unknown (only the
+ * owner's own connection may).
  */
+int policy_may_write_from(const struct policy *p, uint64_t client, const char *peer);
 int policy_may_write(const struct policy *p, uint64_t client);
 
-/* A write to plc_heartbeat by 'client' (at 'address'). */
+/* A write to plc_heartbeat by connection 'client', at 'address'
+ * ("address:port", as the write owner is shown). */
 void policy_heartbeat(struct policy *p, uint64_t now_ms, uint64_t client,
                       const char *address, double value);
+
+/* The heartbeat: never seen changing, running, or lost. */
+enum policy_heartbeat_state policy_heartbeat_state(const struct policy *p, uint64_t now_ms);
 
 /* Modbus clients: one connected, or one gone ('clients' counts the rest). */
 void policy_client_opened(struct policy *p, uint64_t now_ms, unsigned clients);
@@ -252,7 +279,9 @@ bool policy_robot_may_move(bool status_fresh, const struct jaka_status *status);
 /*
  * The policy's say on a command about to be sent for a PLC: 0, or
  * exception 01 with the reason in 'why'. stop_program always passes; a
- * latched fault refuses everything else; with the motion-enable coil
+ * latched fault refuses everything else; with require_heartbeat, a start
+ * before the heartbeat was seen changing ("heartbeat not started"); with
+ * the motion-enable coil
  * required and at 0, motion and program starts are refused. A start while
  * a watched signal is lost (the heartbeat expired, motion enable dropped
  * after it was armed) is refused and latches that fault, sending its
