@@ -69,6 +69,8 @@ struct sim_options {
     /* A live command client sends something at least this often (0: a
      * silent connection is never taken as lost). */
     unsigned link_check_ms;
+    unsigned move_lag;   /* status documents before an accepted move starts */
+    unsigned fail_times; /* --fail-command fails this many times (0: always) */
 };
 
 struct peer {
@@ -886,6 +888,9 @@ static void usage(FILE *out)
         "  --corrupt-every N      break the JSON of every Nth document, keeping its length\n"
         "  --fail-command NAME    answer command NAME with errorCode \"2\"\n"
         "  --fail-message TEXT    the errorMsg of --fail-command's answer (any bytes)\n"
+        "  --fail-times N         fail --fail-command's first N calls only (0: all)\n"
+        "  --move-lag N           a move starts N status documents after its reply\n"
+        "                         (default 3)\n"
         "  --ignore-command NAME  never answer NAME (\"all\": any command)\n"
         "  --reply-delay-ms N     answer commands after N ms\n"
         "  --delay-command NAME   delay only NAME's replies (with --reply-delay-ms)\n"
@@ -935,6 +940,8 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         {"tls-cert", required_argument, NULL, 'K'},
         {"tls-key", required_argument, NULL, 'k'},
         {"link-check-ms", required_argument, NULL, 'L'},
+        {"move-lag", required_argument, NULL, 'M'},
+        {"fail-times", required_argument, NULL, 'n'},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
@@ -978,6 +985,8 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         case 'K': o->tls_cert = optarg; break;
         case 'k': o->tls_key = optarg; break;
         case 'L': if (parse_uint("link-check-ms", optarg, 600000, &o->link_check_ms)) return -1; break;
+        case 'M': if (parse_uint("move-lag", optarg, 1000, &o->move_lag)) return -1; break;
+        case 'n': if (parse_uint("fail-times", optarg, 1000000, &o->fail_times)) return -1; break;
         case 'h': usage(stdout); exit(0);
         case ':':
             log_plain("jakasim: %s needs a value; see jakasim --help", argv[optind - 1]);
@@ -1030,7 +1039,7 @@ int main(int argc, char **argv)
 
     memset(&sim, 0, sizeof(sim));
     sim.opt = (struct sim_options){.bind = "127.0.0.1", .status_port = 10000,
-                                   .command_port = 10001, .period_ms = 30,
+                                   .command_port = 10001, .period_ms = 30, .move_lag = 3,
                                    .profile = "full"};
     if (parse_options(argc, argv, &sim.opt))
         return 2;
@@ -1044,6 +1053,8 @@ int main(int argc, char **argv)
     sim.handler_log.interval_ms = 100;
     sim.robot.profile = sim.profile;
     sim.robot.fail_message = sim.opt.fail_message;
+    sim.robot.fail_times = sim.opt.fail_times;
+    sim.robot.move_lag_ticks = sim.opt.move_lag;
     if (sim.opt.auto_run) {
         sim.robot.powered_on = sim.robot.enabled = true;
         snprintf(sim.robot.program, sizeof(sim.robot.program), "demo.jks");

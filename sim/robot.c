@@ -190,27 +190,106 @@ void sim_robot_init(struct sim_robot *r, bool test_pattern)
     }
 }
 
+/* How far apart two poses are for a linear move: mm of the position, or
+ * degrees of the largest turn of an angle when that is the larger. */
+static double pose_distance(const double a[6], const double b[6])
+{
+    double mm = 0, deg = 0;
+    for (int i = 0; i < 3; i++)
+        mm += (b[i] - a[i]) * (b[i] - a[i]);
+    for (int i = 3; i < 6; i++)
+        if (fabs(wrap180(b[i] - a[i])) > deg)
+            deg = fabs(wrap180(b[i] - a[i]));
+    return fmax(sqrt(mm), deg);
+}
+
+/* The arm holds where it is: no move, none waiting to start. */
+static void halt_arm(struct sim_robot *r)
+{
+    r->moving = false;
+    r->linear = false;
+    r->move_pending = false;
+    memcpy(r->joint_target, r->joints, sizeof(r->joints));
+}
+
+/* The move accepted move_lag_ticks ago starts now. */
+static void start_pending_move(struct sim_robot *r)
+{
+    memcpy(r->joint_target, r->pending_target, sizeof(r->joint_target));
+    memcpy(r->joint_cmd, r->pending_target, sizeof(r->joint_cmd));
+    r->joint_speed = r->pending_speed;
+    r->linear = r->pending_linear;
+    if (r->linear) {
+        memcpy(r->lin_start, r->cart, sizeof(r->lin_start));
+        memcpy(r->lin_target, r->pending_pose, sizeof(r->lin_target));
+        r->lin_length = pose_distance(r->lin_start, r->lin_target);
+        r->lin_done = 0;
+    }
+    r->moving = true;
+    r->move_pending = false;
+}
+
+/* Joint speed, TCP speed and the pose after the joints moved from 'before'. */
+static void track_motion(struct sim_robot *r, const double before[SIM_JOINTS], double dt)
+{
+    double cart_before[6], dist = 0;
+
+    memcpy(cart_before, r->cart, sizeof(cart_before));
+    for (int i = 0; i < SIM_JOINTS; i++)
+        r->joint_vel[i] = dt > 0 ? (r->joints[i] - before[i]) / dt : 0;
+    sim_forward_kinematics(r->joints, r->cart);
+    for (int i = 0; i < 3; i++)
+        dist += (r->cart[i] - cart_before[i]) * (r->cart[i] - cart_before[i]);
+    r->tcp_speed = dt > 0 ? sqrt(dist) / dt : 0;
+}
+
 static bool move_joints(struct sim_robot *r, double dt)
 {
     double max_step = r->joint_speed * r->rapid_rate * dt;
     bool arrived = true;
-    double before[6];
+    double before[SIM_JOINTS];
 
-    memcpy(before, r->cart, sizeof(before));
+    memcpy(before, r->joints, sizeof(before));
     for (int i = 0; i < SIM_JOINTS; i++) {
         double d = r->joint_target[i] - r->joints[i];
         double step = fabs(d) <= max_step ? d : (d > 0 ? max_step : -max_step);
         r->joints[i] += step;
-        r->joint_vel[i] = dt > 0 ? step / dt : 0;
         if (fabs(r->joint_target[i] - r->joints[i]) > 1e-9)
             arrived = false;
     }
-    sim_forward_kinematics(r->joints, r->cart);
-    double dist = 0;
-    for (int i = 0; i < 3; i++)
-        dist += (r->cart[i] - before[i]) * (r->cart[i] - before[i]);
-    r->tcp_speed = dt > 0 ? sqrt(dist) / dt : 0;
+    track_motion(r, before, dt);
     return arrived;
+}
+
+/*
+ * moveL: the TCP goes along the straight line at the move's speed (mm/s,
+ * or deg/s for a turn longer in degrees than the travel in mm), every
+ * angle turning in proportion; the joints are the inverse solution of each
+ * point, from the last. A point with no solution ends the move there.
+ */
+static bool move_linear(struct sim_robot *r, double dt)
+{
+    double before[SIM_JOINTS], pose[6], q[SIM_JOINTS];
+    double frac;
+
+    memcpy(before, r->joints, sizeof(before));
+    r->lin_done += r->joint_speed * r->rapid_rate * dt;
+    frac = r->lin_length <= 0 || r->lin_done >= r->lin_length ? 1 : r->lin_done / r->lin_length;
+    for (int i = 0; i < 3; i++)
+        pose[i] = r->lin_start[i] + (r->lin_target[i] - r->lin_start[i]) * frac;
+    for (int i = 3; i < 6; i++)
+        pose[i] = wrap180(r->lin_start[i] + wrap180(r->lin_target[i] - r->lin_start[i]) * frac);
+    if (!sim_inverse_kinematics(pose, r->joints, q)) {
+        halt_arm(r);
+        return true;
+    }
+    memcpy(r->joints, q, sizeof(q));
+    track_motion(r, before, dt);
+    if (frac < 1)
+        return false;
+    memcpy(r->joint_target, r->joints, sizeof(r->joint_target));
+    memcpy(r->joint_cmd, r->joints, sizeof(r->joint_cmd));
+    return true;
 }
 
 void sim_robot_tick(struct sim_robot *r, double dt)
@@ -220,6 +299,10 @@ void sim_robot_tick(struct sim_robot *r, double dt)
     r->uptime_s += dt;
     memset(r->joint_vel, 0, sizeof(r->joint_vel));
     r->tcp_speed = 0;
+    /* A stop of any kind ends a move outside a program where the arm is. */
+    if ((!r->enabled || r->emergency_stop || r->protective_stop) &&
+        (r->moving || r->move_pending) && r->interp_state != 3)
+        halt_arm(r);
     if (!r->enabled) {
         r->moving = false;
         if (r->interp_state == 3 || r->interp_state == 2)
@@ -237,9 +320,17 @@ void sim_robot_tick(struct sim_robot *r, double dt)
         memcpy(r->joint_cmd, r->joint_target, sizeof(r->joint_cmd));
         return;
     }
-    if (r->moving && r->interp_state != 2) {
-        if (move_joints(r, dt))
-            r->moving = false;
+    if (r->interp_state == 2)
+        return; /* paused: nothing moves, nothing starts */
+    if (r->move_pending) {
+        if (r->move_lag_left > 0)
+            r->move_lag_left--;
+        else
+            start_pending_move(r);
+    }
+    if (r->moving && (r->linear ? move_linear(r, dt) : move_joints(r, dt))) {
+        r->moving = false;
+        r->linear = false;
     }
 }
 
@@ -374,16 +465,31 @@ static bool can_move(struct command_ctx *c)
            !c->r->protective_stop && c->r->interp_state != 3;
 }
 
-static bool start_joint_move(struct command_ctx *c, const double target[6],
-                             double speed)
+/*
+ * Accepts a move: it starts move_lag_ticks ticks from now (the status
+ * documents until then still show the arm in position where it was),
+ * replacing any move still running. 'pose' (NULL: a joint move) makes it
+ * a linear one through that pose, 'speed' then in mm/s.
+ */
+static bool accept_move(struct command_ctx *c, const double target[6], double speed,
+                        const double *pose)
 {
+    struct sim_robot *r = c->r;
     if (!can_move(c) || speed <= 0)
         return call_failed(c);
-    memcpy(c->r->joint_target, target, sizeof(c->r->joint_target));
-    memcpy(c->r->joint_cmd, target, sizeof(c->r->joint_cmd));
-    c->r->joint_speed = speed;
-    c->r->moving = true;
+    memcpy(r->pending_target, target, sizeof(r->pending_target));
+    r->pending_speed = speed;
+    r->pending_linear = pose != NULL;
+    if (pose)
+        memcpy(r->pending_pose, pose, sizeof(r->pending_pose));
+    r->move_pending = true;
+    r->move_lag_left = r->move_lag_ticks;
     return reply_ok(c);
+}
+
+static bool start_joint_move(struct command_ctx *c, const double target[6], double speed)
+{
+    return accept_move(c, target, speed, NULL);
 }
 
 static bool cmd_power_on(struct command_ctx *c)
@@ -403,7 +509,7 @@ static bool cmd_power_off(struct command_ctx *c)
 {
     c->r->powered_on = false;
     c->r->enabled = false;
-    c->r->moving = false;
+    halt_arm(c->r);
     c->r->interp_state = 0;
     return reply_ok(c);
 }
@@ -423,7 +529,7 @@ static bool cmd_enable(struct command_ctx *c)
 static bool cmd_disable(struct command_ctx *c)
 {
     c->r->enabled = false;
-    c->r->moving = false;
+    halt_arm(c->r);
     return reply_ok(c);
 }
 
@@ -440,7 +546,9 @@ static bool cmd_joint_move(struct command_ctx *c)
     return start_joint_move(c, target, speed);
 }
 
-static bool cartesian_move(struct command_ctx *c, const char *key, double speed_scale)
+/* A move to a TCP pose: along a straight line ('linear', speed in mm/s),
+ * or a joint move to its inverse solution (speed in deg/s). */
+static bool cartesian_move(struct command_ctx *c, const char *key, bool linear)
 {
     double pose[6], joints[6], speed, rel = 0;
     if (!get_vector(c->req, key, pose, 6) || !get_number(c->req, "speed", &speed))
@@ -451,23 +559,27 @@ static bool cartesian_move(struct command_ctx *c, const char *key, double speed_
             pose[i] += c->r->cart[i];
     if (!sim_inverse_kinematics(pose, c->r->joints, joints))
         return call_failed(c);
-    return start_joint_move(c, joints, speed * speed_scale);
+    for (int i = 3; i < 6; i++)
+        pose[i] = wrap180(pose[i]);
+    return accept_move(c, joints, speed, linear ? pose : NULL);
 }
 
+/* 4.8: the inverse solution, reached by a joint move (speed in deg/s). */
 static bool cmd_end_move(struct command_ctx *c)
 {
-    return cartesian_move(c, "endPosition", 1.0);
+    return cartesian_move(c, "endPosition", false);
 }
 
+/* 4.9: a straight line, speed in mm/s. */
 static bool cmd_move_l(struct command_ctx *c)
 {
-    /* Linear speed in mm/s; joints move about 0.2 deg per mm here. */
-    return cartesian_move(c, "cartPosition", 0.2);
+    return cartesian_move(c, "cartPosition", true);
 }
 
+/* movc's arc is simulated as a straight line to its end. */
 static bool cmd_movc(struct command_ctx *c)
 {
-    return cartesian_move(c, "pos_end", 0.2);
+    return cartesian_move(c, "pos_end", true);
 }
 
 /* 4.66: "a movement instruction": the arm moves to jointPosition. */
@@ -490,8 +602,7 @@ static bool cmd_jog(struct command_ctx *c)
     if (mode < 0 || mode > 3 || jnum < 0 || jnum > 5)
         return call_failed(c);
     if (mode == 0) {
-        c->r->moving = false;
-        memcpy(c->r->joint_target, c->r->joints, sizeof(c->r->joints));
+        halt_arm(c->r);
         return reply_ok(c);
     }
     if (coord != 1)
@@ -610,7 +721,7 @@ static bool cmd_play_program(struct command_ctx *c)
     if (!can_move(c))
         return call_failed(c);
     c->r->interp_state = 3;
-    c->r->moving = false;
+    halt_arm(c->r);
     return reply_ok(c);
 }
 
@@ -637,8 +748,7 @@ static void stop_motion(struct sim_robot *r)
 {
     r->interp_state = 0;
     r->paused_move = false;
-    r->moving = false;
-    memcpy(r->joint_target, r->joints, sizeof(r->joints));
+    halt_arm(r);
 }
 
 static bool cmd_stop_program(struct command_ctx *c)
@@ -939,7 +1049,7 @@ void sim_robot_network_lost(struct sim_robot *r, enum sim_net_motion motion, cha
     static const char *const verbs[] = {"kept", "paused", "stopped"};
     const char *verb = verbs[motion <= SIM_NET_STOP ? motion : 0];
     bool program = r->interp_state == 3;
-    bool move = r->interp_state == 0 && r->moving;
+    bool move = r->interp_state == 0 && (r->moving || r->move_pending);
 
     if (r->interp_state == 2) {
         snprintf(done, done_size, "the %s was paused already: left paused",
@@ -957,6 +1067,8 @@ void sim_robot_network_lost(struct sim_robot *r, enum sim_net_motion motion, cha
         snprintf(done, done_size, "%s the move%s", verb,
                  motion == SIM_NET_KEEP ? " running" : "");
     if (motion == SIM_NET_PAUSE) {
+        if (r->move_pending)
+            start_pending_move(r); /* paused as it starts */
         r->interp_state = 2;
         r->paused_move = move;
     } else if (motion == SIM_NET_STOP) {
@@ -1077,7 +1189,8 @@ bool sim_robot_command(struct sim_robot *r, const char *json, size_t size,
     if (!cmd) {
         reply_in_order(reply, (const char *const[]){"errorCode", "1", "errorMsg", CALL_FAILED,
                                                     "cmdName", c.name, NULL});
-    } else if (fail_cmd && strcmp(fail_cmd, c.name) == 0) {
+    } else if (fail_cmd && strcmp(fail_cmd, c.name) == 0 &&
+               (r->fail_times == 0 || r->failed++ < r->fail_times)) {
         if (r->fail_message)
             reply_refused(&c, r->fail_message);
         else

@@ -47,6 +47,19 @@ struct sim_robot {
     double joint_speed;             /* deg/s of the current move */
     double joint_vel[SIM_JOINTS];   /* last tick's velocity */
     bool moving;
+    /* moveL: the TCP on a straight line from lin_start to lin_target,
+     * lin_done mm (or degrees, when the turn is the longer) of lin_length
+     * covered so far; the joints follow by inverse kinematics. */
+    bool linear;
+    double lin_start[6], lin_target[6], lin_length, lin_done;
+    /* A move accepted but not started yet: a controller's planner starts
+     * it a few status periods after its reply (move_lag_ticks). */
+    bool move_pending;
+    unsigned move_lag_left;
+    double pending_target[SIM_JOINTS], pending_speed;
+    bool pending_linear;
+    double pending_pose[6];
+    unsigned move_lag_ticks; /* ticks (status documents); 0: at once */
     double tcp_speed;               /* mm/s */
     double cart[6];                 /* mm, deg: FK of joints */
 
@@ -76,11 +89,21 @@ struct sim_robot {
     const struct sim_profile *profile;
     /* The errorMsg of a command failed on purpose; NULL: "call NAME failed". */
     const char *fail_message;
+    /* How many times the command failed on purpose fails (0: always), and
+     * how many times it has. */
+    unsigned fail_times, failed;
 };
 
 void sim_robot_init(struct sim_robot *r, bool test_pattern);
 
-/* Advances motion and programs by 'dt' seconds. */
+/*
+ * Advances motion and programs by 'dt' seconds: one tick, one status
+ * document. A move outside a program (joint_move, end_move, moveL, jog)
+ * starts move_lag_ticks ticks after it was accepted, runs at its speed
+ * (times the rapid rate) and ends at its target; stop_program, an
+ * emergency or protective stop, disable and power off end it where the
+ * arm is; pause_program does not touch it (no program runs).
+ */
 void sim_robot_tick(struct sim_robot *r, double dt);
 
 /*
