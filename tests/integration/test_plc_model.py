@@ -396,6 +396,16 @@ class Plc:
     def read_coil(self, address):
         return int(self.call("read_coils", address, 1).bits[0])
 
+    def wait_for(self, read, accept, timeout, what):
+        """Scans until accept(read()): returns the value read."""
+        box = []
+
+        def cond():
+            box[:] = [read()]
+            return accept(box[0])
+        self.wait(cond, timeout, what)
+        return box[0]
+
     def wait(self, cond, timeout, what):
         """Scans until cond() holds: the recipe's wait with its timeout."""
         deadline = time.monotonic() + timeout
@@ -416,7 +426,7 @@ class StepFailed(Exception):
 # ---- a cell: jakasim, the relay, jakagw, the PLC, the robot's side ----
 
 class Cell:
-    def __init__(self, index, rng, figures):
+    def __init__(self, index, rng, figures, events):
         self.index = index
         self.rng = rng
         self.figures = figures
@@ -434,8 +444,8 @@ class Cell:
         self.scans = 0
         self.last_beat = 0.0
         self.estop = False
-        self.retained_trigger = False
         self.trace = []
+        self.events = events
 
     def close(self):
         try:
@@ -506,6 +516,10 @@ def startup(cell):
     plc.wait(lambda: plc.ir(ROBOT_HANDLE)[0] == 2, 5, "the robot's handler accepted")
     plc.wait(lambda: plc.ir(BEAT_STATE)[0] == 1, 2, "the heartbeat seen running")
     check(plc.write_coil(MOTION_ENABLE, 1) == 0, "motion enable")
+    # Every trigger 0, in one FC15 each run of coils.
+    first = min(TRIGGERS.values())
+    check(plc.call("write_coils", first, [False] * (max(TRIGGERS.values()) - first + 1))
+          .function_code < 0x80, "the triggers 0")
     plc.wait(lambda: plc.di(STATUS_FRESH) == 1, 5, "status fresh")
     if plc.ir(FAULT)[0] != 0:
         fault_reset(cell)
@@ -515,6 +529,36 @@ def startup(cell):
     if not plc.di(ENABLED):
         command(cell, "enable_robot")
         plc.wait(lambda: plc.di(ENABLED), 2, "enabled")
+    # What the robot does is not known after a fault or a restart: stop it.
+    if plc.ir(INTERP_STATE)[0] != 0 or plc.ir(MOTION_STATE)[0] == MOVING:
+        command(cell, "stop_program")
+        plc.wait(lambda: plc.ir(INTERP_STATE)[0] == 0 and plc.ir(MOTION_STATE)[0] != MOVING,
+                 2, "the robot stopped")
+
+
+def retained_triggers(cell):
+    """A restarted PLC whose output image kept its triggers writes them
+    again as they were: a trigger still at 1 gets 1 from this new
+    connection, which the gateway refuses (01) with the count moved, and
+    the robot receives nothing."""
+    plc = cell.plc
+    for name, address in TRIGGERS.items():
+        if not plc.read_coil(address):
+            continue
+        count_at = ir("result_%s_count" % name)
+        before = plc.ir(count_at)[0]
+        mark = cell.mark()
+        code = plc.write_coil(address, 1)
+        after = plc.ir(count_at)[0]
+        cell.trace.append("retained %s = 1: exception %02X, count %d -> %d"
+                          % (name, code, before, after))
+        cell.events["trigger left at 1, written 1 again: refused"] += 1
+        if code != 0x01 or (after - before) & 0xFFFF != 1:
+            raise Violation("%s left at 1, written 1 by the restarted PLC: exception %02X, "
+                            "count %d -> %d" % (name, code, before, after))
+        time.sleep(0.05)
+        if cell.log.since(mark, name):
+            raise Violation("%s left at 1 and written 1 again reached the robot" % name)
 
 
 def fault_reset(cell):
@@ -545,25 +589,20 @@ def command(cell, name, params=None):
             raise StepFailed("%s parameters refused with %02X" % (name, code))
     mark = cell.mark()
     trigger = TRIGGERS[name]
-    if cell.retained_trigger:
-        # A restarted PLC whose output image kept the trigger at 1 writes
-        # 1 at once: the gateway refuses it (a trigger still 1 from another
-        # connection) and the count moves, so the step cannot pass on the
-        # old result.
-        cell.retained_trigger = False
-    elif plc.read_coil(trigger):
+    if plc.read_coil(trigger):
         plc.write_coil(trigger, 0)
     cell.plc_writes[name] += 1
     code = plc.write_coil(trigger, 1)
     try:
-        now = plc.wait(lambda: plc.ir(count_at)[0] != before, 1, name + "'s count")[0]
+        now = plc.wait_for(lambda: plc.ir(count_at)[0], lambda v: v != before, 1,
+                           name + "'s count")
         if (now - before) & 0xFFFF != 1:
             raise Violation("%s: the count moved from %d to %d for one trigger"
-                            % (name, before, plc.ir(count_at)[0]))
+                            % (name, before, now))
         if code:
             raise StepFailed("%s refused with %02X: %s" % (name, code, text(plc, base + 3)))
-        state = plc.wait(lambda: (lambda s: s if s != PENDING else 0)(plc.ir(base)[0]), 3,
-                         name + "'s result")
+        state = plc.wait_for(lambda: plc.ir(base)[0], lambda v: v != PENDING, 3,
+                             name + "'s result")
     finally:
         try:
             plc.write_coil(trigger, 0)
@@ -594,13 +633,12 @@ def move_done(cell, motion_before, target, relative_from, kind):
     before the trigger and the motion state reads 2; at that moment the
     robot (its own status) is at the target."""
     plc = cell.plc
-    plc.wait(lambda: (plc.ir(MOTION_COUNT)[0] - motion_before) & 0xFFFF >= 1, 1,
-             "the motion count")
-    count = plc.ir(MOTION_COUNT)[0]
+    count = plc.wait_for(lambda: plc.ir(MOTION_COUNT)[0], lambda v: v != motion_before, 1,
+                         "the motion count")
     if (count - motion_before) & 0xFFFF != 1:
         raise Violation("motion count moved from %d to %d for one move" % (motion_before, count))
-    state = plc.wait(lambda: (lambda s: s if s != MOVING else 0)(plc.ir(MOTION_STATE)[0]), 5,
-                     "the move to end")
+    state = plc.wait_for(lambda: plc.ir(MOTION_STATE)[0], lambda v: v != MOVING, 5,
+                         "the move to end")
     if state != ARRIVED:
         raise StepFailed("move ended in motion state %d" % state)
     if kind == "joint":
@@ -650,7 +688,8 @@ def mailbox_move(cell):
     mark = cell.mark()
     cell.plc_writes["joint_move"] += 1
     code = plc.write_regs(MAILBOX_CODE, [MAILBOX_JOINT_MOVE] + f32_registers(args) + [seq])
-    now = plc.wait(lambda: plc.ir(MAILBOX_COUNT)[0] != before, 1, "the mailbox count")[0]
+    now = plc.wait_for(lambda: plc.ir(MAILBOX_COUNT)[0], lambda v: v != before, 1,
+                       "the mailbox count")
     if (now - before) & 0xFFFF != 1:
         raise Violation("mailbox count moved from %d to %d for one write" % (before, now))
     if code:
@@ -709,6 +748,8 @@ def recover(cell):
         return
     t0 = cell.fault_time
     was_moving = cell.watch.moving_at(t0)
+    if was_moving:
+        cell.events["%s while the arm moved" % kind] += 1
     if kind in STOPPING and was_moving:
         time.sleep(max(0.0, t0 + STOP_BOUND_S + 0.15 - time.monotonic()))
         stopped = cell.watch.stopped_since(t0, time.monotonic())
@@ -726,7 +767,8 @@ def recover(cell):
     if kind == "plc_restart":
         time.sleep(cell.rng.uniform(0, 0.3))
         cell.plc.connect()
-        cell.retained_trigger = cell.rng.random() < 0.5
+        if cell.rng.random() < 0.5:
+            retained_triggers(cell)
     plc.beating = True
     if kind == "command_link":
         plc.wait(lambda: plc.di(ROWS[("discrete_input", "command_link_up")]), 5,
@@ -820,13 +862,14 @@ def test_plc_model_under_generated_faults():
     seed = int(os.environ.get("PLC_MODEL_SEED", str(random.randrange(1 << 30))))
     print("  seed %d (PLC_MODEL_SEED), %d runs in %d cells" % (seed, runs, cells_n), flush=True)
     figures = collections.defaultdict(list)
+    events = collections.Counter()
     results = collections.defaultdict(list)
     errors = []
     cells = []
     started = time.monotonic()
     try:
         for i in range(cells_n):
-            cells.append(Cell(i, random.Random(seed * 100 + i), figures))
+            cells.append(Cell(i, random.Random(seed * 100 + i), figures, events))
         threads = [threading.Thread(target=cell_loop,
                                     args=(c, runs // cells_n + (c.index < runs % cells_n),
                                           results, errors))
@@ -846,6 +889,8 @@ def test_plc_model_under_generated_faults():
         values.sort()
         print("  %s: the arm stopped %.0f ms (median) / %.0f ms (max) after the fault, %d moving"
               % (kind, 1000 * values[len(values) // 2], 1000 * values[-1], len(values)))
+    for what, n in sorted(events.items()):
+        print("  %s: %d" % (what, n))
     check(not errors, "seed %d:\n  %s" % (seed, "\n  ".join(errors)))
     check(done == runs, "%d of %d runs" % (done, runs))
 
