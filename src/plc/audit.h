@@ -15,8 +15,8 @@
  *   with the command it would have sent ("coil 107 play_program");
  * - the outcome: the result (cmd_outcome_name(), or "refused" with the
  *   Modbus exception), the robot's errorCode and errorMsg, and for a
- *   refusal its reason as the PLC's result registers show it ("motion is
- *   off: ...", "network-exception fault 1 latched: reset it first",
+ *   refusal its reason as the PLC's result registers show it ("motion
+ *   off: ...", "fault 1 latched: reset it first",
  *   "outside role ...", "not the write owner ...", "busy: ...").
  * A fault reset is recorded too (command "fault_reset", what the fault).
  * A command is recorded when its result is known (a reply, a timeout, the

@@ -473,7 +473,7 @@ def test_plc_connection_silent_pull():
         other = ModbusPlc(gw.modbus_port, source="127.0.0.3")
         ready(other)
         owner = PulledPlc(gw.modbus_port, "127.0.0.2")
-        wait_until(lambda: other.text(WRITE_OWNER, 24) == "127.0.0.2", 5, "the PLC owning writes")
+        wait_until(lambda: other.text(WRITE_OWNER, 24).startswith("127.0.0.2:"), 5, "the PLC owning writes")
         wait_until(lambda: other.ir(INTERP_STATE)[0] == RUNNING, 5, "the program running")
         paused, handed = [], []
         for direction in ("both", "to", "from"):
@@ -493,7 +493,7 @@ def test_plc_connection_silent_pull():
             paused.append(timed(lambda: len(sim_commands(sim, "pause_program")) > pauses, 10,
                                 "pause_program on the wire", fault.since))
             check(other.ir(FAULT)[0] == FAULT_HEARTBEAT, "fault 1 not latched")
-            check(other.text(WRITE_OWNER, 24) == "127.0.0.3", "the owner after the handover")
+            check(other.text(WRITE_OWNER, 24).startswith("127.0.0.3:"), "the owner after the handover")
             wait_until(lambda: other.ir(INTERP_STATE)[0] == PAUSED, 5, "the program paused")
             # Latched: however long the PLC stays away, one pause only.
             for _ in range(12):
@@ -514,7 +514,7 @@ def test_plc_connection_silent_pull():
             owner = PulledPlc(gw.modbus_port, "127.0.0.2")
             other.close()
             other = ModbusPlc(gw.modbus_port, source="127.0.0.3")
-            wait_until(lambda: other.text(WRITE_OWNER, 24) == "127.0.0.2", 5,
+            wait_until(lambda: other.text(WRITE_OWNER, 24).startswith("127.0.0.2:"), 5,
                        "the PLC owning writes again")
         report("PLC pulled -> pause_program on the wire (ms)", paused, bound)
         report("PLC pulled -> another client's write accepted (ms)", handed, bound)

@@ -244,7 +244,8 @@ def test_status_json_clients_policy_and_counters():
         check(c["address"] == "127.0.0.1" and c["transport"] == "modbus" and c["owner"] and
               c["requests"] == 2 and c["exceptions"] == 0 and c["last_request_age_ms"] < 5000,
               "client %r" % c)
-        check(doc["policy"]["write_owner"] == "127.0.0.1" and doc["policy"]["fault"] == 0 and
+        check(doc["policy"]["write_owner"] == "127.0.0.1:%d" % plc.client.socket.getsockname()[1]
+              and doc["policy"]["fault"] == 0 and
               doc["policy"]["handler"] == "accepted", "policy %r" % doc["policy"])
         check(doc["counters"]["modbus_requests"] == u32(regs[IR["modbus_requests"]:]) + 1,
               "counters as the registers")
@@ -1096,11 +1097,11 @@ def test_page_latched_fault_turns_the_header_red_with_how_to_reset():
             wait_until(lambda: [c for c in web.status()["commands"]
                                 if c["command"] == "write"], 10, "the refusal")
             rec = [c for c in web.status()["commands"] if c["command"] == "write"][0]
-            check(rec["reason"] == "network-exception fault 1 latched: reset it first" and
+            check(rec["reason"] == "fault 1 latched: reset it first" and
                   rec["what"] == "coil %d resume_program" % COIL["cmd_resume_program"] and
                   re.match(r"^127\.0\.0\.1:\d+$", rec["client"]), "refusal %r" % rec)
             # The page gives the reason beside the exception.
-            wait_until(lambda: "Modbus exception 01: network-exception fault 1 latched: reset "
+            wait_until(lambda: "Modbus exception 01: fault 1 latched: reset "
                        "it first" in text_of(driver, "commands"), 10, "the reason on the page")
             check(plc.reg(0, 10) == 0 and plc.coil(COIL["fault_reset"], 1) == 0, "the reset")
             wait_until(lambda: not driver.find_element("id", "fault").is_displayed() and

@@ -68,6 +68,10 @@ REACTION_BOUND_S = (LIMIT_MS + PERIOD_MS) / 1000 + SLACK_S
 
 BASE = ("[robot]\nreconnect_min_ms = 50\nreconnect_max_ms = 400\n"
         "[network_exception]\ntime_limit_ms = %d\n" % LIMIT_MS)
+# The motion-enable cases start programs with no heartbeat (one would be
+# watched and lost in them): require_heartbeat is another case's subject
+# (test_contract.py).
+MOTION_ENABLE_CONF = BASE + "motion_enable = true\nrequire_heartbeat = false\n"
 SIM = ["--log-commands", "--period-ms", "20"]
 
 
@@ -373,7 +377,7 @@ def test_connection_watch():
 # ---- the motion-enable coil ----
 
 def test_motion_enable_drop_pauses():
-    with running(SIM + ["--auto-run"], BASE + "motion_enable = true\n") as (sim, gw):
+    with running(SIM + ["--auto-run"], MOTION_ENABLE_CONF) as (sim, gw):
         plc = ModbusPlc(gw.modbus_port)
         ready(plc)
         check(plc.ir(MOTION_ENABLED)[0] == 0, "motion enabled before the coil")
@@ -407,7 +411,7 @@ def test_motion_enable_drop_while_idle():
     """policy.h: a loss while the robot is idle sends nothing and latches
     nothing. The coil at 0 keeps programs from starting; raising it again
     is all the PLC needs to do."""
-    with running(SIM, BASE + "motion_enable = true\n") as (sim, gw):
+    with running(SIM, MOTION_ENABLE_CONF) as (sim, gw):
         plc = ModbusPlc(gw.modbus_port)
         ready(plc)
         check(plc.coil(MOTION_ENABLE, 1) == 0, "motion enable refused")
@@ -472,7 +476,7 @@ def test_play_and_motion_enable_drop_together():
               ("play, drop 10 ms apart", [play, drop], 0.01),
               ("drop, play 10 ms apart", [drop, play], 0.01),
               ("play, drop 200 ms apart", [play, drop], 0.2)]
-    with running(SIM + ["--auto-run"], BASE + "motion_enable = true\n") as (sim, gw):
+    with running(SIM + ["--auto-run"], MOTION_ENABLE_CONF) as (sim, gw):
         plc = ModbusPlc(gw.modbus_port)
         ready(plc)
         for trial, (what, pdus, gap) in enumerate(trials):
@@ -523,7 +527,7 @@ def test_motion_enable_is_a_level():
     from the pendant while the PLC holds it at 0 is paused, fault 3, as a
     heartbeat lost while idle is. Before the coil is first set to 1 it only
     refuses starts (test_motion_enable_drop_pauses)."""
-    with running(SIM + ["--auto-run"], BASE + "motion_enable = true\n") as (sim, gw):
+    with running(SIM + ["--auto-run"], MOTION_ENABLE_CONF) as (sim, gw):
         plc = ModbusPlc(gw.modbus_port)
         ready(plc)
         pendant(sim, "stop_program")
@@ -594,7 +598,9 @@ def test_write_owner():
         check(owner.text(WRITE_OWNER, 24) == "", "an owner before any heartbeat")
         hb = Heartbeat(owner)
         hb.beat()
-        check(other.text(WRITE_OWNER, 24) == "127.0.0.2", "owner address not readable")
+        # Its address and port: which of the PLC's connections feeds it.
+        check(other.text(WRITE_OWNER, 24) == "127.0.0.2:%d" % owner.client.socket.getsockname()[1],
+              "owner address not readable")
         # The other client reads, but its writes are refused, none sent.
         check(other.reg(HEARTBEAT, 999) == EX_NOT_PERMITTED, "a second heartbeat writer")
         check(other.coil(CLEAR_ERROR, 1) == EX_NOT_PERMITTED, "a second client's command")
@@ -609,7 +615,8 @@ def test_write_owner():
         wait_until(lambda: other.text(WRITE_OWNER, 24) == "", 5, "ownership released")
         check(other.reg(HEARTBEAT, 1000) == 0, "heartbeat refused after the owner left")
         stopped = time.monotonic()
-        check(other.text(WRITE_OWNER, 24) == "127.0.0.3", "new owner not shown")
+        check(other.text(WRITE_OWNER, 24) == "127.0.0.3:%d" % other.client.socket.getsockname()[1],
+              "new owner not shown")
         again = ModbusPlc(gw.modbus_port, source="127.0.0.2")
         check(again.coil(CLEAR_ERROR, 0) == EX_NOT_PERMITTED, "the old owner still writes")
         # The new owner's heartbeat expires while it stays connected: the
@@ -621,7 +628,8 @@ def test_write_owner():
         check(LIMIT_MS / 1000 - 0.05 <= took <= REACTION_BOUND_S,
               "released after %.0f ms" % (1000 * took))
         check(again.reg(HEARTBEAT, 5) == 0, "heartbeat refused")
-        check(other.text(WRITE_OWNER, 24) == "127.0.0.2", "owner after expiry")
+        check(other.text(WRITE_OWNER, 24) == "127.0.0.2:%d" % again.client.socket.getsockname()[1],
+              "owner after expiry")
         check(count(sim, "pause_program") == 0, "the gateway acted on an idle robot")
         other.close()
         again.close()
