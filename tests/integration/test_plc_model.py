@@ -88,6 +88,7 @@ FAULT_RESET, MOTION_ENABLE = coil("fault_reset"), coil("motion_enable")
 OUTPUT, OUTPUT_BACK = coil("cabinet_do_1"), di("dout_1")
 STATUS_FRESH, ENABLED, POWERED, ESTOP = di("status_fresh"), di("enabled"), di("powered_on"), \
     di("emergency_stop")
+INPOS = di("inpos")
 
 PENDING, DONE = 1, 2
 MOVING, ARRIVED, STOPPED_SHORT, NOT_IN_TIME = 1, 2, 3, 4
@@ -103,10 +104,18 @@ SLACK_MS = int(os.environ.get("PLC_MODEL_SLACK_MS", "300"))
 STOP_BOUND_S = (LIMIT_MS + PERIOD_MS + REPLY_MS + SLACK_MS) / 1000
 SCAN_S = 0.01  # the PLC's cycle
 HOME = [0.0, 90.0, 90.0, 0.0, 90.0, 0.0]
+# Moves of up to half a second, so that a fault finds the arm moving when
+# the gateway has to act (time_limit_ms after the last heartbeat).
+JOINT_SPEED = 30.0
 
+# The robot's own handler (set by the gateway on each command connection)
+# acts ROBOT_LIMIT_MS after that connection is lost, even when the gateway
+# has reconnected: a cut command link pauses a move that long after.
+ROBOT_LIMIT_MS = 300
 CONFIG = ("[robot]\nreconnect_min_ms = 50\nreconnect_max_ms = 200\n"
           "[commands]\nmotion = true\n"
-          "[network_exception]\ntime_limit_ms = %d\nmotion_enable = true\n" % LIMIT_MS)
+          "[network_exception]\ntime_limit_ms = %d\nmotion_enable = true\n"
+          "robot_time_limit_ms = %d\n" % (LIMIT_MS, ROBOT_LIMIT_MS))
 
 FAULTS = ("none", "heartbeat", "motion_enable", "reconnect", "plc_restart", "estop",
           "command_link")
@@ -443,7 +452,6 @@ class Cell:
         self.fault_time = None
         self.scans = 0
         self.last_beat = 0.0
-        self.estop = False
         self.trace = []
         self.events = events
 
@@ -488,12 +496,19 @@ class Cell:
             self.fault_time = self.last_beat
             raise PlcRestart()
         elif kind == "estop":
-            self.sim.proc.send_signal(signal.SIGRTMIN)
-            self.estop = True
+            self.press_estop(True)
         elif kind == "command_link":
             self.relay.cut()
 
     # -- the robot's side --
+
+    def press_estop(self, pressed):
+        """jakasim's emergency stop (SIGRTMIN toggles it), pressed or
+        released as its own status shows it."""
+        if bool(self.watch.docs and self.watch.docs[-1][2]) != pressed:
+            self.sim.proc.send_signal(signal.SIGRTMIN)
+        wait_until(lambda: self.watch.docs and bool(self.watch.docs[-1][2]) == pressed, 2,
+                   "the emergency stop %s" % ("pressed" if pressed else "released"))
 
     def mark(self):
         return self.log.poll()
@@ -624,8 +639,8 @@ def text(plc, address):
 def new_joint_target(cell, relative):
     rng = cell.rng
     if relative:
-        return [round(rng.uniform(-4, 4), 3) for _ in range(6)]
-    return [round(h + rng.uniform(-8, 8), 3) for h in HOME]
+        return [round(rng.uniform(-6, 6), 3) for _ in range(6)]
+    return [round(h + rng.uniform(-12, 12), 3) for h in HOME]
 
 
 def move_done(cell, motion_before, target, relative_from, kind):
@@ -640,7 +655,9 @@ def move_done(cell, motion_before, target, relative_from, kind):
     state = plc.wait_for(lambda: plc.ir(MOTION_STATE)[0], lambda v: v != MOVING, 5,
                          "the move to end")
     if state != ARRIVED:
-        raise StepFailed("move ended in motion state %d" % state)
+        raise StepFailed("move ended in motion state %d, the arm at %s, target %s%s" % (
+            state, [round(j, 3) for j in cell.watch.joints()], target,
+            " (relative)" if relative_from else ""))
     if kind == "joint":
         goal = [f32(t) + (relative_from[i] if relative_from else 0) for i, t in enumerate(target)]
         at = cell.watch.joints()
@@ -651,11 +668,16 @@ def move_done(cell, motion_before, target, relative_from, kind):
 def joint_move(cell, relative):
     plc = cell.plc
     target = new_joint_target(cell, relative)
-    speed = 80.0
+    speed = JOINT_SPEED
     cell.written_targets.append(("joint", relative, [f32(t) for t in target]))
     regs = f32_registers(target + [speed, 100.0]) + [1 if relative else 0]
     motion_before = plc.ir(MOTION_COUNT)[0]
-    start = cell.watch.joints() if relative else None
+    start = None
+    if relative:
+        # A relative move starts from where the arm is at the trigger: the
+        # guide has the PLC start it in position.
+        plc.wait(lambda: plc.di(INPOS), 2, "in position before a relative move")
+        start = cell.watch.joints()
     command(cell, "joint_move", (JOINT_TARGET, regs))
     move_done(cell, motion_before, target, start, "joint")
 
@@ -667,7 +689,7 @@ def move_l(cell):
     rng = cell.rng
     offset = [round(rng.uniform(-10, 10), 3) for _ in range(3)] + [0.0, 0.0, 0.0]
     cell.written_targets.append(("cart", True, [f32(t) for t in offset]))
-    regs = f32_registers(offset + [200.0, 500.0]) + [1, 0] + f32_registers([0.0])
+    regs = f32_registers(offset + [40.0, 500.0]) + [1, 0] + f32_registers([0.0])
     check(len(regs) == MOVEL_LAST - MOVEL_TARGET + 1, "the moveL block's length")
     motion_before = plc.ir(MOTION_COUNT)[0]
     command(cell, "moveL", (MOVEL_TARGET, regs))
@@ -682,7 +704,7 @@ def mailbox_move(cell):
     target = new_joint_target(cell, False)
     cell.written_targets.append(("joint", False, [f32(t) for t in target]))
     seq = plc.ir(MAILBOX_ACK)[0] % 60000 + 1
-    args = target + [80.0, 100.0, 0.0] + [0.0] * 3
+    args = target + [JOINT_SPEED, 100.0, 0.0] + [0.0] * 3
     before = plc.ir(MAILBOX_COUNT)[0]
     motion_before = plc.ir(MOTION_COUNT)[0]
     mark = cell.mark()
@@ -728,7 +750,7 @@ def program(cell):
     end = time.monotonic() + cell.rng.uniform(0.05, 0.3)
     plc.wait(lambda: time.monotonic() > end, 1, "the program's run")
     command(cell, "stop_program")
-    plc.wait(lambda: plc.ir(INTERP_STATE)[0] == 0, 2, "the program stopped")
+    plc.wait(lambda: plc.ir(INTERP_STATE)[0] == 0 and plc.di(INPOS), 2, "the program stopped")
 
 
 RECIPES = (("joint_move", lambda c: joint_move(c, False)),
@@ -752,6 +774,8 @@ def recover(cell):
         cell.events["%s while the arm moved" % kind] += 1
     if kind in STOPPING and was_moving:
         time.sleep(max(0.0, t0 + STOP_BOUND_S + 0.15 - time.monotonic()))
+        if cell.watch.moving_at(t0 + LIMIT_MS / 1000):
+            cell.events["%s: the arm still moving at time_limit_ms" % kind] += 1
         stopped = cell.watch.stopped_since(t0, time.monotonic())
         if stopped is None:
             raise Violation("%s: the arm still moving %.2f s after the fault"
@@ -761,9 +785,15 @@ def recover(cell):
         if took > STOP_BOUND_S:
             raise Violation("%s: the arm stopped %.0f ms after the fault (bound %.0f ms)"
                             % (kind, took * 1000, STOP_BOUND_S * 1000))
+    if kind in STOPPING and plc.client is not None and plc.ir(FAULT)[0] != 0:
+        # The guide's reset, step 2: what the robot did about the fault.
+        reaction = plc.wait_for(lambda: plc.ir(REACTION)[0], lambda v: v != 2, 1,
+                                "the fault's reaction")
+        cell.events["reaction %d" % reaction] += 1
+        if reaction == 6:
+            raise Violation("%s: reaction 6, the arm still moving after the stop" % kind)
     if kind == "estop":
-        cell.sim.proc.send_signal(signal.SIGRTMIN)  # released
-        cell.estop = False
+        cell.press_estop(False)
     if kind == "plc_restart":
         time.sleep(cell.rng.uniform(0, 0.3))
         cell.plc.connect()
@@ -773,6 +803,10 @@ def recover(cell):
     if kind == "command_link":
         plc.wait(lambda: plc.di(ROWS[("discrete_input", "command_link_up")]), 5,
                  "the command link back")
+        # The robot's own handler for the cut connection acts after its
+        # limit: start-up (which stops a paused robot) comes after it.
+        end = t0 + (ROBOT_LIMIT_MS + 3 * PERIOD_MS) / 1000
+        plc.wait(lambda: time.monotonic() > end, 2, "the robot's own handler")
 
 
 def one_run(cell, number):
@@ -852,8 +886,16 @@ def cell_loop(cell, runs, results, errors):
             outcome = one_run(cell, number)
             results[cell.fault].append(outcome)
     except Exception as e:  # reported by the main thread
-        errors.append("cell %d: %s: %s\n    %s" % (cell.index, type(e).__name__, e,
-                                                   "\n    ".join(cell.trace[-12:])))
+        cell.log.poll()
+        robot = ["%s %s" % (n, json.dumps(r)[:120]) for n, r in cell.log.entries[-8:]]
+        robot += [l for l in cell.gw.output().splitlines() if "motion:" in l][-3:]
+        docs = cell.watch.snapshot(time.monotonic() - 3)
+        now = time.monotonic()
+        robot += ["%.2f s ago: %s estop %s" % (now - t, [round(j, 2) for j in joints], e)
+                  for t, joints, e in docs[::max(1, len(docs) // 15)]]
+        errors.append("cell %d: %s: %s\n    %s\n    the robot's last commands:\n      %s"
+                      % (cell.index, type(e).__name__, e, "\n    ".join(cell.trace[-12:]),
+                         "\n      ".join(robot)))
 
 
 def test_plc_model_under_generated_faults():
