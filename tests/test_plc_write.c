@@ -351,10 +351,46 @@ static void read_only_and_write_allow(void **state)
     assert_int_equal(write_one("::2", 1, pw.rows.heartbeat, 4), 1);
 }
 
+
+/* One write from connection 'client_id' at 'peer' ("address:port"). */
+static int write_from_peer(const char *peer, uint64_t client_id, const struct regmap_row *row,
+                           uint16_t value)
+{
+    char host[64];
+    snprintf(host, sizeof(host), "%.*s", (int)(strrchr(peer, ':') - peer), peer);
+    struct mb_write w = {.table = row->table, .address = row->address, .count = 1,
+                         .values = &value, .client = host, .peer = peer,
+                         .client_id = client_id, .rights = REGMAP_RIGHTS_ALL};
+    assert_int_equal(ip_addr_parse(host, &w.client_addr), 0);
+    int ex = plc_write_judge(&pw, &w);
+    if (ex == 0) {
+        regmap_load(&img, row->table, row->address, 1, &value);
+        plc_write_after(&pw);
+    }
+    return ex;
+}
+
+static void owner_is_the_plc_and_named_with_its_port(void **state)
+{
+    (void)state;
+    struct plc_write_config wc = {0};
+    start(&wc, true, false);
+    assert_int_equal(write_from_peer("192.0.2.1:40122", 1, pw.rows.heartbeat, 7), 0);
+    assert_string_equal(policy.owner_address, "192.0.2.1:40122");
+    /* The same PLC's other connection writes; another host does not, and
+     * is told who owns the write side. */
+    assert_int_equal(write_from_peer("192.0.2.1:40200", 2, pw.rows.clear_counters, 1), 0);
+    assert_int_equal(cleared, 1);
+    assert_int_equal(write_from_peer("192.0.2.2:40122", 3, pw.rows.clear_counters, 1), 1);
+    assert_string_equal(pw.why, "not the write owner: 192.0.2.1:40122 feeds the heartbeat");
+    assert_int_equal(cleared, 1);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test_teardown(heartbeat_owner_and_command_coils, teardown),
+        cmocka_unit_test_teardown(owner_is_the_plc_and_named_with_its_port, teardown),
         cmocka_unit_test_teardown(motion_enable_drop_pauses_through_the_transaction, teardown),
         cmocka_unit_test_teardown(read_only_and_write_allow, teardown),
         cmocka_unit_test_teardown(drop_right_after_a_start_pauses, teardown),

@@ -599,6 +599,7 @@ static void gate_start_while_a_signal_is_lost(void **state)
     assert_int_equal(policy_gate_command(&p, T0 + 20, power_on, why, sizeof(why)), 0);
     assert_int_equal(policy_gate_command(&p, T0 + 20, play, why, sizeof(why)), 1);
     assert_string_equal(why, "motion enable dropped: fault 3 latched");
+    assert_true(strlen(why) <= 40); /* whole in a result's 20 registers */
     expect_one(POLICY_PAUSE, POLICY_FAULT_MOTION_ENABLE);
 
     /* The heartbeat lost, the robot idle: a start latches fault 1 and the
@@ -610,6 +611,7 @@ static void gate_start_while_a_signal_is_lost(void **state)
     assert_int_equal(policy_gate_command(&p, T0 + 2 * LIMIT, power_on, why, sizeof(why)), 0);
     assert_int_equal(policy_gate_command(&p, T0 + 2 * LIMIT, NULL, why, sizeof(why)), 1);
     assert_string_equal(why, "PLC heartbeat lost: fault 1 latched");
+    assert_true(strlen(why) <= 40); /* whole in a result's 20 registers */
     expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
 }
 
@@ -842,6 +844,7 @@ static void gate_refuses_under_a_fault_and_without_motion_enable(void **state)
     assert_int_equal(policy_gate_command(&p, T0, power_on, why, sizeof(why)), 0);
     assert_int_equal(policy_gate_command(&p, T0, play, why, sizeof(why)), 1);
     assert_string_equal(why, "motion enable is 0");
+    assert_true(strlen(why) <= 40); /* whole in a result's 20 registers */
     assert_int_equal(policy_gate_command(&p, T0, joint_move, why, sizeof(why)), 1);
     assert_int_equal(policy_gate_command(&p, T0, NULL, why, sizeof(why)), 1);
     policy_motion_enable(&p, T0, true, IDLE);
@@ -852,6 +855,7 @@ static void gate_refuses_under_a_fault_and_without_motion_enable(void **state)
     policy_check(&p, T0 + LIMIT, MOVING);
     assert_int_equal(policy_gate_command(&p, T0 + LIMIT, power_on, why, sizeof(why)), 1);
     assert_string_equal(why, "fault 1 latched: reset it first");
+    assert_true(strlen(why) <= 40); /* whole in a result's 20 registers */
     assert_int_equal(policy_gate_command(&p, T0 + LIMIT, NULL, why, sizeof(why)), 1);
     assert_int_equal(policy_gate_command(&p, T0 + LIMIT, stop, why, sizeof(why)), 0);
 }
@@ -1129,6 +1133,7 @@ static void no_start_before_the_heartbeat_changed(void **state)
     assert_int_equal(policy_heartbeat_state(&p, T0), POLICY_HEARTBEAT_NEVER);
     assert_int_equal(policy_gate_command(&p, T0, play, why, sizeof(why)), 1);
     assert_string_equal(why, "heartbeat not started");
+    assert_true(strlen(why) <= 40); /* whole in a result's 20 registers */
     assert_int_equal(policy_gate_command(&p, T0, resume, why, sizeof(why)), 1);
     assert_int_equal(policy_gate_command(&p, T0, joint_move, why, sizeof(why)), 1);
     assert_int_equal(policy_gate_command(&p, T0, NULL, why, sizeof(why)), 1);

@@ -268,7 +268,11 @@ static void send_next(struct cmd_queue *q)
         int rc = e->sent ? 0 : write_entry(q, e);
         if (rc < 0) {
             char why[96];
-            snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
+            /* Whole in a result's 40 bytes: a long message by its number. */
+            if (strlen(strerror(-rc)) <= 30)
+                snprintf(why, sizeof(why), "not sent: %s", strerror(-rc));
+            else
+                snprintf(why, sizeof(why), "not sent: write error %d", -rc);
             q->stats.not_sent++;
             fail_head(q, CMD_NOT_SENT, why);
             continue;
