@@ -321,7 +321,7 @@ def test_audit_records_commands_refusals_and_aggregates_outputs():
     # Where and why, in the words of the result registers.
     check(len(refused) == 1 and refused[0]["result"] == "refused" and
           refused[0]["what"] == "coil %d shutdown" % COIL["cmd_shutdown"] and
-          refused[0]["reason"].startswith("shutdown is off") and
+          refused[0]["reason"].startswith("shutdown off") and
           refused[0]["error_code"] == "1", "refusal recorded: %r" % refused)
     outputs = [a for a in out if a["command"] == "set_digital_output"]
     total = sum(int(a["count"]) for a in outputs)
