@@ -36,7 +36,6 @@ faults and recipes, not the machine's timing), PLC_MODEL_CELLS (default 6).
 """
 import collections
 import json
-import math
 import os
 import random
 import signal
@@ -45,8 +44,7 @@ import struct
 import threading
 import time
 
-from harness import (Gateway, Sim, TestFailure, check, free_port, map_rows, run, text_registers,
-                     wait_until)
+from harness import Gateway, Sim, check, map_rows, run, text_registers, wait_until
 
 ROWS = {}
 for _row in map_rows():
@@ -70,28 +68,25 @@ def di(name):
 
 
 # The addresses the guide's recipes use, from the map.
-MAGIC, MAP_VERSION, WORD_ORDER, PROBE_F32 = ir("map_magic"), ir("map_version"), \
-    ir("word_order"), ir("probe_f32")
+MAGIC, WORD_ORDER, PROBE_F32 = ir("map_magic"), ir("word_order"), ir("probe_f32")
 FAULT, REACTION, ROBOT_HANDLE = ir("fault"), ir("fault_reaction"), ir("robot_handle")
 BEAT_STATE = ir("plc_heartbeat_state")
 MOTION_STATE, MOTION_COUNT = ir("motion_state"), ir("motion_count")
 INTERP_STATE = ir("interp_state")
-JOINTS, TCP = ir("joint_actual_position_1"), ir("actual_position_0")
 HEARTBEAT = hr("plc_heartbeat")
 PROGRAM_NAME = hr("load_program_name")
 JOINT_TARGET, MOVEL_TARGET = hr("joint_move_joint_1"), hr("movel_pose_1")
 MOVEL_LAST = hr("movel_tol") + 1  # the block ends with tol's second register
-MAILBOX_CODE, MAILBOX_SEQ = hr("mailbox_code"), hr("mailbox_seq")
+MAILBOX_CODE = hr("mailbox_code")
 MAILBOX_ACK, MAILBOX_DONE, MAILBOX_STATE, MAILBOX_COUNT = ir("mailbox_ack_seq"), \
     ir("mailbox_done_seq"), ir("mailbox_state"), ir("mailbox_count")
 FAULT_RESET, MOTION_ENABLE = coil("fault_reset"), coil("motion_enable")
 OUTPUT, OUTPUT_BACK = coil("cabinet_do_1"), di("dout_1")
-STATUS_FRESH, ENABLED, POWERED, ESTOP = di("status_fresh"), di("enabled"), di("powered_on"), \
-    di("emergency_stop")
+STATUS_FRESH, ENABLED, POWERED = di("status_fresh"), di("enabled"), di("powered_on")
 INPOS = di("inpos")
 
 PENDING, DONE = 1, 2
-MOVING, ARRIVED, STOPPED_SHORT, NOT_IN_TIME = 1, 2, 3, 4
+MOVING, ARRIVED = 1, 2  # motion states; 3 stopped short, 4 not in time
 MAILBOX_JOINT_MOVE = 30
 
 # Short runs: a small time_limit_ms, a fast status push.
