@@ -123,6 +123,12 @@ for build in $BUILDS; do
         if [ "$name" = robot_protection ] && [ "$build" != "${BUILDS%% *}" ]; then
             suite_args="test_handler_belongs_to_its_connection test_silent_gateway_pauses_the_program"
         fi
+        # The PLC model's generated runs: 200 with the first native build,
+        # 60 with the others (sanitizer, ARM under qemu-user).
+        plc_model_runs=${PLC_MODEL_RUNS:-}
+        if [ -z "$plc_model_runs" ] && [ "$build" != "${BUILDS%% *}" ]; then
+            plc_model_runs=60
+        fi
         echo "== $t ($build)"
         # The load test's full minute runs once, with the first native
         # build; the sanitizer and ARM builds run it for 20 s.
@@ -134,6 +140,7 @@ for build in $BUILDS; do
         # The status page's tests in Chromium run with the first build only.
         browser_tests=1
         [ "$build" != "${BUILDS%% *}" ] && browser_tests=0
+        PLC_MODEL_RUNS=$plc_model_runs \
         LOAD_SECONDS=$load_seconds JAKAGW_BROWSER_TESTS=$browser_tests JAKAGW_BIN_DIR="$build" \
             "$PYTHON" "$t" $suite_args 2>&1 | tee "$log"
         status=${PIPESTATUS[0]}

@@ -2,7 +2,10 @@
 # SPDX-License-Identifier: MIT
 """jakagw's command line: the generated docs are current, a bad flag or
 configuration gets one line naming the key and exit code 2."""
+import csv
+import io
 import os
+import re
 import subprocess
 import tempfile
 
@@ -22,6 +25,98 @@ def test_committed_register_map_is_current():
             committed = f.read()
         check(committed == print_map(fmt),
               "%s is out of date: run 'make docs' and commit it" % path)
+
+
+# Register mentions in the PLC docs: an abbreviation or a table's name, an
+# address or a range, and the row's name in backticks when the text gives
+# one ("IR 4023 `result_power_on_count`", "HR 340-359 `movel_pose_1`-`movel_tol`").
+DOC_TABLES = {"ir": "input_register", "input register": "input_register",
+              "input registers": "input_register", "hr": "holding_register",
+              "holding register": "holding_register", "holding registers": "holding_register",
+              "di": "discrete_input", "discrete input": "discrete_input",
+              "discrete inputs": "discrete_input", "coil": "coil", "coils": "coil"}
+DOC_MENTION = re.compile(
+    r"\b(IR|HR|DI|[Cc]oils?|[Ii]nput registers?|[Hh]olding registers?|[Dd]iscrete inputs?)"
+    r"\s+(\d+)(?:-(\d+))?(?:\s+`(\w+)`(?:(?:-|\.\.)`(\w+)`)?)?(\s+unassigned)?")
+
+
+def register_mentions(text):
+    """(line, table, first, last or None, name or None, last name or None,
+    marked unassigned) for every register mention in 'text'."""
+    out = []
+    for m in DOC_MENTION.finditer(text):  # a mention may wrap onto the next line
+        table = DOC_TABLES[re.sub(r"\s+", " ", m.group(1)).lower()]
+        out.append((text.count("\n", 0, m.start()) + 1, table, int(m.group(2)),
+                    int(m.group(3)) if m.group(3) else None, m.group(4), m.group(5),
+                    bool(m.group(6))))
+    return out
+
+
+def doc_address_errors(path, rows):
+    """What a doc says about addresses that the map contradicts."""
+    by_name = {(r["table"], r["name"]): r for r in rows}
+    starts = {(r["table"], int(r["address"])): r for r in rows}
+    covered = set()
+    for r in rows:
+        for a in range(int(r["address"]), int(r["address"]) + int(r["count"])):
+            covered.add((r["table"], a))
+    errors = []
+    with open(path) as f:
+        text = f.read()
+    mentions = register_mentions(text)
+    for line, table, first, last, name, last_name, unassigned in mentions:
+        where = "%s:%d: %s %d" % (os.path.basename(path), line, table, first)
+        if unassigned:
+            if (table, first) in covered:
+                errors.append(where + " is said to be unassigned, but the map assigns it")
+            continue
+        if name:
+            row = by_name.get((table, name))
+            if not row:
+                errors.append("%s: no %s named %s" % (where, table, name))
+                continue
+            if int(row["address"]) != first:
+                errors.append("%s: %s is at %s" % (where, name, row["address"]))
+            end_row = by_name.get((table, last_name)) if last_name else row
+            if last_name and not end_row:
+                errors.append("%s: no %s named %s" % (where, table, last_name))
+                continue
+            end = int(end_row["address"]) + int(end_row["count"]) - 1
+            if last is not None and last != end:
+                errors.append("%s-%d: the block %s ends at %d" % (where, last, name, end))
+        else:
+            if (table, first) not in starts:
+                errors.append("%s: no row starts there" % where)
+            if last is not None and (table, last) not in covered:
+                errors.append("%s-%d: the map has nothing at %d" % (where, last, last))
+    return mentions, errors
+
+
+def test_guide_addresses_agree_with_the_map():
+    """Every register the PLC guide's recipes and docs/commands.md name is
+    where the map puts it: a named row at its address, a block from its
+    first to its last register, an unnamed address at the start of a row."""
+    rows = list(csv.DictReader(io.StringIO(print_map("csv").decode())))
+    total = 0
+    errors = []
+    for doc in ("plc-guide.md", "commands.md"):
+        mentions, found = doc_address_errors(os.path.join(ROOT, "docs", doc), rows)
+        total += len(mentions)
+        errors += found
+    check(not errors, "%d wrong:\n  %s" % (len(errors), "\n  ".join(errors)))
+    check(total >= 150, "only %d register mentions read: the pattern missed the guide" % total)
+    # The pattern catches a wrong address: the same guide with joint_move's
+    # count one register off fails.
+    wrong = os.path.join(tempfile.mkdtemp(prefix="jakagw-guide-"), "plc-guide.md")
+    with open(os.path.join(ROOT, "docs", "plc-guide.md")) as f:
+        text = f.read()
+    with open(wrong, "w") as f:
+        mutated = re.sub(r"IR 4455(\s+)`result_joint_move_count`",
+                         r"IR 4454\1`result_joint_move_count`", text)
+        check(mutated != text, "the guide names IR 4455 result_joint_move_count no more")
+        f.write(mutated)
+    check(doc_address_errors(wrong, rows)[1], "a wrong address not caught")
+    print("  %d register mentions checked" % total)
 
 
 def test_bad_flags_and_config_exit_2():
@@ -271,7 +366,8 @@ def test_every_source_file_carries_its_licence():
 
 
 if __name__ == "__main__":
-    run([test_every_source_file_carries_its_licence, test_committed_register_map_is_current, test_bad_flags_and_config_exit_2,
+    run([test_every_source_file_carries_its_licence, test_committed_register_map_is_current,
+         test_guide_addresses_agree_with_the_map, test_bad_flags_and_config_exit_2,
          test_bad_flags_print_one_line, test_control_bytes_in_a_value_or_flag_are_escaped,
          test_config_directory_is_refused,
          test_check_config_refuses_what_the_daemon_would,

@@ -970,6 +970,31 @@ def tiles_fit(driver):
         return [cut, document.documentElement.scrollWidth, window.innerWidth];""")
 
 
+def words_broken(driver):
+    """Words in the tiles that the browser broke inside themselves: each
+    word's text range must lie on one line (one line box top)."""
+    return driver.execute_script("""
+        const broken = [];
+        for (const e of document.querySelectorAll('.tile b, .tile span, .tile small')) {
+          for (const node of e.childNodes) {
+            if (node.nodeType !== Node.TEXT_NODE) continue;
+            for (const m of node.textContent.matchAll(/\\S+/g)) {
+              const r = document.createRange();
+              r.setStart(node, m.index);
+              r.setEnd(node, m.index + m[0].length);
+              const tops = new Set([...r.getClientRects()].filter((x) => x.width > 0)
+                                   .map((x) => Math.round(x.top)));
+              if (tops.size > 1) broken.push(e.id + ':' + m[0]);
+            }
+          }
+        }
+        return broken;""")
+
+
+def tile_class(driver, name):
+    return driver.find_element("id", "tile-" + name).get_attribute("class")
+
+
 def header_is_red(driver):
     head = driver.find_element("css selector", "header")
     return "fault" in head.get_attribute("class") and \
@@ -1017,6 +1042,17 @@ def test_page_shows_the_robot_first_at_phone_and_desktop_width():
                 cut, scroll, inner = tiles_fit(driver)
                 check(not cut and scroll <= inner == width,
                       "at %d px: cut off %r, page %d wide in %d" % (width, cut, scroll, inner))
+                check(not words_broken(driver), "at %d px, words broken inside: %r"
+                      % (width, words_broken(driver)))
+                check(text_of(driver, "fault-tile") == "none" and
+                      "ok" in tile_class(driver, "policy"), "no fault, robot known: green")
+                # No PLC ever wrote the heartbeat: "never", in amber.
+                beat = driver.find_element("xpath", "//dl[@id='policy']/dt[.='PLC heartbeat']"
+                                                    "/following-sibling::dd[1]")
+                check(beat.text == "never" and "amber" in beat.get_attribute("class"),
+                      "PLC heartbeat shown as %r (%s)" % (beat.text, beat.get_attribute("class")))
+                check(not driver.find_element("id", "outage").is_displayed(),
+                      "an outage banner with both links up")
                 print("  %d px: %s" % (width, " | ".join(text_of(driver, t)
                                                           for t in ROBOT_TILES)))
             finally:
@@ -1050,6 +1086,12 @@ def test_page_latched_fault_turns_the_header_red_with_how_to_reset():
             check("PLC heartbeat lost" in banner and "coil %d" % COIL["fault_reset"] in banner and
                   "holding register 0" in banner and "pause_program" in banner,
                   "banner %r" % banner)
+            # What the robot did, not only what was sent (IR 5602, in
+            # /status.json once the reaction is there).
+            if "reaction" in web.status()["policy"]:
+                wait_until(lambda: "pause_program; the robot: paused" in text_of(driver, "fault"),
+                           5, "the reaction on the page")
+                banner = text_of(driver, "fault")
             shown = re.search(r" at (\d\d):(\d\d):(\d\d)", banner)
             check(shown, "no time in %r" % banner)
             check(text_of(driver, "fault-tile") == "latched", "the fault tile")
@@ -1064,6 +1106,9 @@ def test_page_latched_fault_turns_the_header_red_with_how_to_reset():
             check(rec["reason"] == "fault 1 latched: reset it first" and
                   rec["what"] == "coil %d resume_program" % COIL["cmd_resume_program"] and
                   re.match(r"^127\.0\.0\.1:\d+$", rec["client"]), "refusal %r" % rec)
+            # The page gives the reason beside the exception.
+            wait_until(lambda: "Modbus exception 01: fault 1 latched: reset "
+                       "it first" in text_of(driver, "commands"), 10, "the reason on the page")
             check(plc.reg(0, 10) == 0 and plc.coil(COIL["fault_reset"], 1) == 0, "the reset")
             wait_until(lambda: not driver.find_element("id", "fault").is_displayed() and
                        not header_is_red(driver), 10, "the banner to go after the reset")
@@ -1133,6 +1178,16 @@ def test_page_shows_unknown_during_an_outage():
             check(all(robot[k] is None for k in nulls), "stale robot %r" % robot)
             wait_until(lambda: all(text_of(driver, t) == "unknown" for t in ROBOT_TILES), 10,
                        "unknown tiles")
+            # No fault latched, but the gateway cannot see the robot: the
+            # fault tile is grey "unknown", not a green "none".
+            check(text_of(driver, "fault-tile") == "unknown" and
+                  tile_class(driver, "policy").split() == ["tile"],
+                  "fault tile %r %r" % (text_of(driver, "fault-tile"),
+                                        tile_class(driver, "policy")))
+            wait_until(lambda: re.search(r"status link (stale|silent)", text_of(driver, "outage")),
+                       10, "the outage banner")
+            check("sends no status" in text_of(driver, "outage"), "what to check: %r"
+                  % text_of(driver, "outage"))
             check(text_of(driver, "program-name") == "", "the old program's name still shown")
             robot_panel = text_of(driver, "robot")
             check("none" not in robot_panel and robot_panel.count("unknown") >= 4,
@@ -1146,7 +1201,24 @@ def test_page_shows_unknown_during_an_outage():
             cut, scroll, inner = tiles_fit(driver)
             check(not cut and scroll <= inner, "cut off %r, page %d wide in %d"
                   % (cut, scroll, inner))
+            check(not words_broken(driver),
+                  "390 px, words broken inside: %r" % words_broken(driver))
             check(all(text_of(driver, t) == "unknown" for t in ROBOT_TILES), "tiles while down")
+            check(text_of(driver, "fault-tile") == "unknown", "fault tile while down")
+            outage = text_of(driver, "outage")
+            check("status link disconnected" in outage and "switched on" in outage and
+                  "127.0.0.1" in outage and "jakagw.conf" in outage, "outage banner %r" % outage)
+            print("  outage: %s" % outage.replace("\n", " / "))
+            wide = browser(1280, 900)
+            try:
+                wide.get("http://127.0.0.1:%d/" % port)
+                wait_until(lambda: text_of(wide, "status-link") == "disconnected", 15,
+                           "disconnected at 1280 px")
+                cut, scroll, inner = tiles_fit(wide)
+                check(not cut and scroll <= inner and not words_broken(wide),
+                      "1280 px: cut off %r, broken %r" % (cut, words_broken(wide)))
+            finally:
+                close_browser(wide)
             events = text_of(driver, "events")
             check("robot state unknown" in events and "status link: disconnected" in events,
                   "events %r" % events[:300])
