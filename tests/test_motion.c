@@ -24,6 +24,7 @@
 #include <unistd.h>
 
 #include "motion.h"
+#include "property.h"
 
 #define T0 500000
 
@@ -325,40 +326,23 @@ static void what_the_arm_does(void **state)
  * one before, and the target within tolerance; it is never ARRIVED while
  * the reply is awaited; the count grows by one per move.
  */
-static uint64_t rng;
-
-static unsigned next_random(unsigned n)
-{
-    rng ^= rng << 13;
-    rng ^= rng >> 7;
-    rng ^= rng << 17;
-    return (unsigned)(rng % n);
-}
 
 #define EPS 1e-5 /* the targets go out with six decimals */
 
 static double jitter(double scale)
 {
-    return ((double)next_random(2001) - 1000) / 1000 * scale;
+    return ((double)property_next(2001) - 1000) / 1000 * scale;
 }
 
 static void generated_moves_arrive_only_when_shown(void **state)
 {
     (void)state;
-    const char *seed_env = getenv("MOTION_PROPERTY_SEED");
-    uint64_t seed = seed_env ? strtoull(seed_env, NULL, 0)
-                             : (uint64_t)time(NULL) * 2654435761u ^ (uint64_t)getpid() << 32;
     unsigned runs = 5000, arrived = 0;
-    if (!seed)
-        seed = 1;
-    printf("motion property: %u runs, MOTION_PROPERTY_SEED=0x%llx\n", runs,
-           (unsigned long long)seed);
-    fflush(stdout);
-    rng = seed;
+    property_seed("motion property", "MOTION_PROPERTY_SEED", runs);
     for (unsigned run = 0; run < runs; run++) {
         start_at_home();
-        unsigned which = next_random(3);
-        bool relative = which != 1 && next_random(2);
+        unsigned which = property_next(3);
+        bool relative = which != 1 && property_next(2);
         double given[6], target[6];
         const double *from = which == 0 ? HOME : HOME_TCP;
         for (int i = 0; i < 6; i++) {
@@ -372,17 +356,17 @@ static void generated_moves_arrive_only_when_shown(void **state)
                  which == 0 ? "joint_move" : which == 1 ? "end_move" : "moveL",
                  which == 0 ? "jointPosition" : which == 1 ? "endPosition" : "cartPosition",
                  given[0], given[1], given[2], given[3], given[4], given[5],
-                 1 + next_random(100), relative);
+                 1 + property_next(100), relative);
         uint16_t before = m.count;
         assert_true(motion_sent(&m, T0 + 1, json));
         assert_int_equal((uint16_t)(before + 1), m.count);
         uint64_t t = T0 + 1, reply_at = 0;
         bool accepted = false;
-        unsigned docs = 5 + next_random(40);
+        unsigned docs = 5 + property_next(40);
         for (unsigned k = 0; k < docs && m.state == MOTION_MOVING; k++) {
-            t += 1 + next_random(30);
-            if (!reply_at && next_random(4) == 0) {
-                accepted = next_random(8) != 0;
+            t += 1 + property_next(30);
+            if (!reply_at && property_next(4) == 0) {
+                accepted = property_next(8) != 0;
                 reply_at = t;
                 motion_answered(&m, t, m.name, accepted, false);
                 continue;
@@ -391,21 +375,21 @@ static void generated_moves_arrive_only_when_shown(void **state)
              * tolerance), on the way, or where it was. */
             struct motion_view v = doc_at(HOME, HOME_TCP);
             double *pos = which == 0 ? v.joints : v.tcp;
-            unsigned where = next_random(4);
+            unsigned where = property_next(4);
             double scale = which == 0 ? MOTION_JOINT_TOL_DEG : MOTION_TCP_TOL_MM / 2;
             for (int i = 0; i < 6; i++)
                 pos[i] = where == 0   ? target[i]
                          : where == 1 ? target[i] + jitter(scale)
                          : where == 2 ? target[i] + jitter(5 * scale)
                                       : from[i];
-            if (which == 0 && next_random(2))
+            if (which == 0 && property_next(2))
                 memcpy(v.joints, m.last.joints, sizeof(v.joints)); /* still */
             if (which != 0)
-                memcpy(v.joints, m.have_last && next_random(2) ? m.last.joints : HOME,
+                memcpy(v.joints, m.have_last && property_next(2) ? m.last.joints : HOME,
                        sizeof(v.joints));
-            v.inpos = next_random(3) != 0;
-            v.interp_state = next_random(10) == 0 ? 3 : 0;
-            if (next_random(50) == 0)
+            v.inpos = property_next(3) != 0;
+            v.interp_state = property_next(10) == 0 ? 3 : 0;
+            if (property_next(50) == 0)
                 v.protective_stop = 1;
             struct motion_view prev = m.last;
             motion_document(&m, t, &v);

@@ -24,6 +24,7 @@
 #include <unistd.h>
 
 #include "policy.h"
+#include "property.h"
 
 #define LIMIT 1000 /* time_limit_ms of every test */
 #define T0 100000  /* a clock that does not start at 0 */
@@ -1390,37 +1391,20 @@ static void escalated_stop_that_works_reads_stopped(void **state)
  * third; (3) an arm shown still after the reply ends paused or stopped
  * with nothing more sent.
  */
-static uint64_t rng;
-
-static unsigned next_random(unsigned n)
-{
-    rng ^= rng << 13;
-    rng ^= rng >> 7;
-    rng ^= rng << 17;
-    return (unsigned)(rng % n);
-}
 
 static void generated_faults_stop_what_moves(void **state)
 {
     (void)state;
-    const char *seed_env = getenv("POLICY_PROPERTY_SEED");
-    uint64_t seed = seed_env ? strtoull(seed_env, NULL, 0)
-                             : (uint64_t)time(NULL) * 2654435761u ^ (uint64_t)getpid() << 32;
     unsigned runs = 20000;
-    if (!seed)
-        seed = 1;
-    printf("policy property: %u runs, POLICY_PROPERTY_SEED=0x%llx\n", runs,
-           (unsigned long long)seed);
-    fflush(stdout);
-    rng = seed;
+    property_seed("policy property", "POLICY_PROPERTY_SEED", runs);
     unsigned acted = 0, stopped_moves = 0, escalated = 0;
     for (unsigned run = 0; run < runs; run++) {
-        enum policy_action configured = (enum policy_action)next_random(3);
-        bool by_motion_enable = next_random(2);
-        enum policy_robot robot = (enum policy_robot)next_random(5);
-        bool started = next_random(2), start_is_move = next_random(2);
-        unsigned start_at = next_random(LIMIT); /* ms after T0 */
-        unsigned after = next_random(3); /* 0 stops, 1 keeps moving, 2 stops after escalation */
+        enum policy_action configured = (enum policy_action)property_next(3);
+        bool by_motion_enable = property_next(2);
+        enum policy_robot robot = (enum policy_robot)property_next(5);
+        bool started = property_next(2), start_is_move = property_next(2);
+        unsigned start_at = property_next(LIMIT); /* ms after T0 */
+        unsigned after = property_next(3); /* 0 stops, 1 keeps moving, 2 stops after escalation */
 
         start_with_robot(configured, by_motion_enable, robot);
         if (by_motion_enable)

@@ -165,6 +165,42 @@ static enum rtu_length device_id_length(const uint8_t *d, size_t avail, size_t *
     return RTU_LENGTH_EXACT;
 }
 
+/*
+ * The length of a response to function 'fc' that neither the request nor
+ * the line's history changes: a fixed size, or its own byte count.
+ * RTU_LENGTH_UNKNOWN for the others (each caller knows those its own way).
+ */
+static enum rtu_length own_length(uint8_t fc, const uint8_t *d, size_t avail, size_t *size)
+{
+    switch (fc) {
+    case 5: case 6: case 11: case 15: case 16:
+        *size = 8;
+        return RTU_LENGTH_EXACT;
+    case 7:
+        *size = 5;
+        return RTU_LENGTH_EXACT;
+    case 22:
+        *size = 10;
+        return RTU_LENGTH_EXACT;
+    case 12: case 17: case 20:
+        if (avail < 3) {
+            *size = 5;
+            return RTU_LENGTH_MORE;
+        }
+        *size = 5 + (size_t)d[2];
+        return RTU_LENGTH_EXACT;
+    case 24:
+        if (avail < 4) {
+            *size = 6;
+            return RTU_LENGTH_MORE;
+        }
+        *size = 6 + ((size_t)d[2] << 8 | d[3]);
+        return RTU_LENGTH_EXACT;
+    default:
+        return RTU_LENGTH_UNKNOWN;
+    }
+}
+
 enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
                                     const uint8_t *d, size_t avail, size_t *size)
 {
@@ -188,36 +224,13 @@ enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
     case 8: /* return query data repeats the request; the others, 8 bytes */
         *size = request[2] == 0 && request[3] == 0 ? request_size : 8;
         return RTU_LENGTH_EXACT;
-    case 5: case 6: case 11: case 15: case 16:
-        *size = 8;
-        return RTU_LENGTH_EXACT;
-    case 7:
-        *size = 5;
-        return RTU_LENGTH_EXACT;
     case 21:
         *size = request_size; /* the request, repeated */
-        return RTU_LENGTH_EXACT;
-    case 22:
-        *size = 10;
-        return RTU_LENGTH_EXACT;
-    case 12: case 17: case 20:
-        if (avail < 3) {
-            *size = 5;
-            return RTU_LENGTH_MORE;
-        }
-        *size = 5 + (size_t)d[2];
-        return RTU_LENGTH_EXACT;
-    case 24:
-        if (avail < 4) {
-            *size = 6;
-            return RTU_LENGTH_MORE;
-        }
-        *size = 6 + ((size_t)d[2] << 8 | d[3]);
         return RTU_LENGTH_EXACT;
     case 43:
         return device_id_length(d, avail, size);
     default:
-        return RTU_LENGTH_UNKNOWN;
+        return own_length(request[1], d, avail, size);
     }
 }
 
@@ -238,11 +251,8 @@ static enum rtu_length response_form_length(const uint8_t *d, size_t avail, size
         return RTU_LENGTH_EXACT;
     }
     switch (d[1]) {
-    case 1: case 2: case 3: case 4: case 12: case 17: case 20: case 23:
+    case 1: case 2: case 3: case 4: case 23:
         *size = 5 + (size_t)d[2];
-        return RTU_LENGTH_EXACT;
-    case 5: case 6: case 11: case 15: case 16:
-        *size = 8;
         return RTU_LENGTH_EXACT;
     case 8:
         if (avail < 4) {
@@ -253,25 +263,12 @@ static enum rtu_length response_form_length(const uint8_t *d, size_t avail, size
             return RTU_LENGTH_UNKNOWN;
         *size = 8;
         return RTU_LENGTH_EXACT;
-    case 7:
-        *size = 5;
-        return RTU_LENGTH_EXACT;
-    case 22:
-        *size = 10;
-        return RTU_LENGTH_EXACT;
-    case 24:
-        if (avail < 4) {
-            *size = 6;
-            return RTU_LENGTH_MORE;
-        }
-        *size = 6 + ((size_t)d[2] << 8 | d[3]);
-        return RTU_LENGTH_EXACT;
     case 43:
         if (d[2] != 14)
             return RTU_LENGTH_UNKNOWN;
         return device_id_length(d, avail, size);
     default:
-        return RTU_LENGTH_UNKNOWN;
+        return own_length(d[1], d, avail, size);
     }
 }
 

@@ -617,6 +617,19 @@ static void unit_refusals(void)
 
 /* A move: parameters in the image before the trigger, in the gateway's
  * word order; Done only on arrival of this move (motion count moved). */
+/* JAKA_MoveJoint started, accepted (its result at IR 'res'), and its move
+ * at once in motion state 'state', one scan later. */
+static void move_ends_in(int res, int state)
+{
+    P.MOVEJ.EXECUTE.value = 1;
+    scan();
+    gateway_answers(res, 2, NULL);
+    scan();
+    IR(K(JAKA_IR_MOTION_COUNT))++;
+    IR(K(JAKA_IR_MOTION_STATE)) = state;
+    scan();
+}
+
 static void unit_move(void)
 {
     int res = K(JAKA_IR_RESULT_JOINT_MOVE_STATE);
@@ -656,26 +669,14 @@ static void unit_move(void)
         scan();
     }
     /* Stopped before arriving: CommandAborted, not Error. */
-    P.MOVEJ.EXECUTE.value = 1;
-    scan();
-    gateway_answers(res, 2, NULL);
-    scan();
-    IR(K(JAKA_IR_MOTION_COUNT))++;
-    IR(K(JAKA_IR_MOTION_STATE)) = 3;
-    scan();
+    move_ends_in(res, 3);
     scan();
     if (!P.MOVEJ.COMMANDABORTED.value || P.MOVEJ.ERROR.value || P.MOVEJ.DONE.value)
         fail("stopped: CommandAborted %d Error %d", P.MOVEJ.COMMANDABORTED.value, P.MOVEJ.ERROR.value);
     P.MOVEJ.EXECUTE.value = 0;
     scan();
     /* Not arrived in time (4): Error 0x0302. */
-    P.MOVEJ.EXECUTE.value = 1;
-    scan();
-    gateway_answers(res, 2, NULL);
-    scan();
-    IR(K(JAKA_IR_MOTION_COUNT))++;
-    IR(K(JAKA_IR_MOTION_STATE)) = 4;
-    scan();
+    move_ends_in(res, 4);
     if (!P.MOVEJ.ERROR.value || P.MOVEJ.ERRORID.value != 0x0302)
         fail("motion state 4: ErrorID 0x%04X", P.MOVEJ.ERRORID.value);
     report("unit_move", "both word orders, Done only on this move's arrival, aborted, not arrived");
