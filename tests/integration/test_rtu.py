@@ -914,6 +914,9 @@ def test_line_never_takes_a_slot_nor_evicts():
         r.plc = None
         r.gw = Gateway(r.sim, rtu_config(r.line.device) + extra)
         plcs = [ModbusPlc(r.gw.modbus_port) for _ in range(2)]
+        # The restarted gateway opens the line after its TCP port: under
+        # qemu-user a first RTU read could come before (no reply).
+        wait_until(lambda: plcs[0].ir(IR_LINE_STATE)[0] == LINE_IDLE, 10, "the line open")
         m = r.master()
         try:
             tcp_failed = 0
