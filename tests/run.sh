@@ -47,9 +47,17 @@ alerts_beside="" alerts_pid="" alerts_log=""
 # A suite still running beside the others is stopped with the run.
 trap '[ -n "$alerts_pid" ] && kill "$alerts_pid" 2>/dev/null; rm -f "$log" "$alerts_log"' EXIT
 
+# Each suite's wall time, from the end of the one before it (or from the
+# given start, for a suite that ran beside others), printed at the end,
+# longest first, so that what CI's time goes to is in every log.
+suite_start=$SECONDS
+times=""
+
 # Adds a suite's cases to the totals; a suite that exits non-zero without
 # reporting a failed case (a crash, a sanitizer abort) counts one failure.
-record() { # name exit-status passed-cases failed-cases
+record() { # name exit-status passed-cases failed-cases [start-seconds]
+    times="$times$(( SECONDS - ${5:-$suite_start} )) $1"$'\n'
+    suite_start=$SECONDS
     passed=$((passed + $3))
     failed=$((failed + $4))
     if [ "$2" -ne 0 ]; then
@@ -59,13 +67,13 @@ record() { # name exit-status passed-cases failed-cases
 }
 
 # record() for a suite that printed "N passed, N failed" into a file.
-record_summary() { # name exit-status file
+record_summary() { # name exit-status file [start-seconds]
     local line ok bad
     line=$(grep -E '^[0-9]+ passed, [0-9]+ failed$' "$3" | tail -1)
     ok=${line%% passed*}
     bad=${line#*, }
     bad=${bad%% failed}
-    record "$1" "$2" "${ok:-0}" "${bad:-0}"
+    record "$1" "$2" "${ok:-0}" "${bad:-0}" "${4:-}"
 }
 
 for build in $BUILDS; do
@@ -194,6 +202,7 @@ if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; t
         JAKAGW_BIN_DIR="$alerts_beside" "$PYTHON" tests/integration/test_alerts.py \
             >"$alerts_log" 2>&1 &
         alerts_pid=$!
+        alerts_start=$SECONDS
     fi
     echo "== tests/package/test_package.py ($build)"
     package_mark=$(mktemp)
@@ -222,11 +231,13 @@ if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; t
         alerts_pid=""
         echo "== tests/integration/test_alerts.py ($alerts_beside)"
         cat "$alerts_log"
-        record_summary "tests/integration/test_alerts.py($alerts_beside)" "$status" "$alerts_log"
+        record_summary "tests/integration/test_alerts.py($alerts_beside)" "$status" "$alerts_log" "$alerts_start"
     fi
 fi
 
 echo
+echo "wall time per suite (s), longest first:"
+printf '%s' "$times" | sort -rn | head -n 25 | sed 's/^/  /'
 [ -n "$failures" ] && echo "failed suites:$failures"
 echo "$passed passed, $failed failed"
 [ "$failed" -eq 0 ] && [ -z "$failures" ]
