@@ -39,6 +39,32 @@ static void strbuf_grows_past_its_first_size(void **state)
     assert_int_equal(len, 0);
 }
 
+/* A buffer taken starts a new text: an append after strbuf_take() once
+ * doubled a capacity of 0 forever. */
+static void strbuf_appends_after_take_start_a_new_text(void **state)
+{
+    (void)state;
+    struct strbuf b;
+    size_t len;
+    strbuf_init(&b, 8);
+    strbuf_append(&b, "first", 5);
+    free(strbuf_take(&b, NULL));
+    strbuf_append(&b, "second", 6);
+    strbuf_printf(&b, ",%d", 3);
+    char *text = strbuf_take(&b, &len);
+    assert_non_null(text);
+    assert_string_equal(text, "second,3");
+    assert_int_equal(len, 8);
+    free(text);
+    strbuf_printf(&b, "%s", "third"); /* printf first, into no room at all */
+    text = strbuf_take(&b, &len);
+    assert_non_null(text);
+    assert_string_equal(text, "third");
+    free(text);
+    strbuf_append(&b, "left", 4);
+    strbuf_free(&b); /* what was not taken is freed */
+}
+
 static void label_values_are_escaped(void **state)
 {
     (void)state;
@@ -105,6 +131,7 @@ int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(strbuf_grows_past_its_first_size),
+        cmocka_unit_test(strbuf_appends_after_take_start_a_new_text),
         cmocka_unit_test(label_values_are_escaped),
         cmocka_unit_test(markup_in_json_strings_becomes_escapes),
         cmocka_unit_test(invalid_utf8_in_json_becomes_replacement_characters),

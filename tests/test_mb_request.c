@@ -6,6 +6,7 @@
 #include <stdint.h>
 #include <cmocka.h>
 
+#include <stdlib.h>
 #include <string.h>
 
 #include "mb_request.h"
@@ -135,6 +136,57 @@ static void write_ranges(void **state)
     assert_int_equal(mb_request_write_range(fc4, sizeof(fc4), &t, &a, &n), -1);
 }
 
+/* The values of a request whose counts lie, or whose address is outside
+ * the table, are not read at all (-1): each PDU sits in a buffer of its
+ * own size, so the sanitizer build sees any byte read past it. */
+static int written(const uint8_t *bytes, size_t size, uint16_t *values)
+{
+    uint8_t *pdu = malloc(size);
+    enum regmap_table t;
+    unsigned a;
+    memcpy(pdu, bytes, size);
+    int n = mb_request_written_values(&img, pdu, size, &t, &a, values);
+    free(pdu);
+    return n;
+}
+
+static void written_values_of_unchecked_requests(void **state)
+{
+    (void)state;
+    static uint16_t values[MODBUS_MAX_WRITE_BITS];
+    unsigned hrs = map.size[REGMAP_HOLDING_REGISTER];
+    /* Whole requests: their values. */
+    const uint8_t fc15[] = {0x0F, 0, 0, 0, 10, 2, 0xFF, 0x01};
+    assert_int_equal(written(fc15, sizeof(fc15), values), 10);
+    assert_int_equal(values[8], 1);
+    const uint8_t fc16[] = {0x10, 0, 5, 0, 2, 4, 0x12, 0x34, 0x56, 0x78};
+    assert_int_equal(written(fc16, sizeof(fc16), values), 2);
+    assert_int_equal(values[1], 0x5678);
+    /* 200 coils claimed, one byte of them sent. */
+    const uint8_t fc15_short[] = {0x0F, 0, 0, 0, 200, 1, 0xFF};
+    assert_int_equal(written(fc15_short, sizeof(fc15_short), values), -1);
+    /* 65535 coils: more than values holds. */
+    const uint8_t fc15_many[] = {0x0F, 0, 0, 0xFF, 0xFF, 0xFF, 0};
+    assert_int_equal(written(fc15_many, sizeof(fc15_many), values), -1);
+    const uint8_t fc15_none[] = {0x0F, 0, 0, 0, 0, 0};
+    assert_int_equal(written(fc15_none, sizeof(fc15_none), values), -1);
+    /* 100 registers claimed, one sent; 124, over the limit. */
+    const uint8_t fc16_short[] = {0x10, 0, 5, 0, 100, 200, 0, 1};
+    assert_int_equal(written(fc16_short, sizeof(fc16_short), values), -1);
+    const uint8_t fc16_many[] = {0x10, 0, 5, 0, 124, 248, 0, 1};
+    assert_int_equal(written(fc16_many, sizeof(fc16_many), values), -1);
+    /* 121 registers claimed by a write-and-read, none sent. */
+    const uint8_t fc23_short[] = {0x17, 0, 0, 0, 1, 0, 7, 0, 121, 242};
+    assert_int_equal(written(fc23_short, sizeof(fc23_short), values), -1);
+    /* Mask write: short, and past the holding registers' end. */
+    const uint8_t fc22_short[] = {0x16, 0, 5, 0xFF, 0xFF};
+    assert_int_equal(written(fc22_short, sizeof(fc22_short), values), -1);
+    const uint8_t fc22_past[] = {0x16, hrs >> 8, hrs & 0xFF, 0xFF, 0xFF, 0, 0};
+    assert_int_equal(written(fc22_past, sizeof(fc22_past), values), -1);
+    const uint8_t fc22_last[] = {0x16, (hrs - 1) >> 8, (hrs - 1) & 0xFF, 0xFF, 0xFF, 0, 0};
+    assert_int_equal(written(fc22_last, sizeof(fc22_last), values), 1);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -143,6 +195,7 @@ int main(void)
         cmocka_unit_test(other_functions),
         cmocka_unit_test(reserved_function_codes),
         cmocka_unit_test(write_ranges),
+        cmocka_unit_test(written_values_of_unchecked_requests),
     };
     return cmocka_run_group_tests_name("mb_request", tests, setup, teardown);
 }

@@ -3,6 +3,7 @@
 #include "strbuf.h"
 
 #include <stdarg.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -17,20 +18,31 @@ void strbuf_init(struct strbuf *b, size_t initial)
         b->data[0] = '\0';
 }
 
+static void fail(struct strbuf *b)
+{
+    free(b->data);
+    b->data = NULL;
+    b->failed = true;
+}
+
 static bool reserve(struct strbuf *b, size_t more)
 {
     if (b->failed)
         return false;
-    if (b->len + more + 1 <= b->cap)
+    if (more > SIZE_MAX / 2 - b->len) {
+        fail(b); /* no allocation can hold it: doubling would wrap */
+        return false;
+    }
+    if (b->data && b->len + more + 1 <= b->cap)
         return true;
-    size_t cap = b->cap;
+    /* After strbuf_take() the buffer holds nothing and has no room (cap
+     * 0, which doubling would keep 0 forever): it starts again at 256. */
+    size_t cap = b->cap ? b->cap : 256;
     while (b->len + more + 1 > cap)
         cap *= 2;
     char *data = realloc(b->data, cap);
     if (!data) {
-        free(b->data);
-        b->data = NULL;
-        b->failed = true;
+        fail(b);
         return false;
     }
     b->data = data;
@@ -50,7 +62,7 @@ void strbuf_append(struct strbuf *b, const char *text, size_t len)
 void strbuf_printf(struct strbuf *b, const char *fmt, ...)
 {
     va_list ap;
-    if (b->failed)
+    if (!reserve(b, 0)) /* a buffer taken has no room even for the NUL */
         return;
     va_start(ap, fmt);
     int n = vsnprintf(b->data + b->len, b->cap - b->len, fmt, ap);

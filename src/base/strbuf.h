@@ -22,7 +22,9 @@ void strbuf_init(struct strbuf *b, size_t initial);
 void strbuf_append(struct strbuf *b, const char *text, size_t len);
 void strbuf_printf(struct strbuf *b, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 /* The text (NUL-terminated, *len without the NUL), now the caller's to
- * free(); NULL if an allocation failed (then nothing is left to free). */
+ * free(); NULL if an allocation failed (then nothing is left to free).
+ * The buffer is left empty: appends after it start a new text, which
+ * strbuf_take() or strbuf_free() ends. */
 char *strbuf_take(struct strbuf *b, size_t *len);
 void strbuf_free(struct strbuf *b);
 

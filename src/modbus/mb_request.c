@@ -8,8 +8,23 @@
 #define ILLEGAL_ADDRESS MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS
 #define ILLEGAL_VALUE MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
 
-static unsigned get16(const uint8_t *p) { return (unsigned)p[0] << 8 | p[1]; }
+/* As a product and a sum rather than a shift and an or: the same value,
+ * and one the provers can bound (make prove). */
+/*@ requires \valid_read(p + (0 .. 1));
+    assigns \nothing;
+    ensures \result == p[0] * 256 + p[1];
+    ensures \result <= 65535;
+*/
+static unsigned get16(const uint8_t *p) { return p[0] * 256u + p[1]; }
 
+/*@ predicate table_of(enum regmap_table t) = 0 <= t < REGMAP_TABLE_COUNT;
+*/
+
+/*@ requires regmap_readable(map) && table_of(table);
+    requires mb_pdu_readable(pdu, size);
+    assigns \nothing;
+    ensures mb_answer(\result) && \result != MB_REQUEST_NOT_A_REQUEST;
+*/
 static int check_read(const struct regmap *map, enum regmap_table table,
                       const uint8_t *pdu, size_t size, unsigned max)
 {
@@ -23,11 +38,21 @@ static int check_read(const struct regmap *map, enum regmap_table table,
     return 0;
 }
 
+/*@ requires regmap_readable(map) && table_of(table);
+    requires address <= 65535 && count <= 65535;
+    assigns \nothing;
+    ensures \result == 0 || \result == ILLEGAL_ADDRESS;
+    ensures \result == 0 ==> address + count <= map->size[table];
+*/
 static int check_write_range(const struct regmap *map, enum regmap_table table,
                              unsigned address, unsigned count)
 {
     if (address + count > map->size[table])
         return ILLEGAL_ADDRESS;
+    /*@ loop invariant address <= a <= address + count;
+        loop assigns a;
+        loop variant address + count - a;
+    */
     for (unsigned a = address; a < address + count; a++) {
         const struct regmap_row *row = regmap_find(map, table, a);
         if ((!row || !row->writable) && !regmap_write_skips(map, table, a, address, count))
@@ -36,9 +61,19 @@ static int check_write_range(const struct regmap *map, enum regmap_table table,
     return 0;
 }
 
+/*@ requires regmap_readable(map) && table_of(table);
+    requires address <= 65535 && count <= 65535;
+    requires \valid_read(values + (0 .. count - 1));
+    assigns \nothing;
+    ensures \result == 0 || \result == ILLEGAL_ADDRESS || \result == ILLEGAL_VALUE;
+*/
 static int check_values(const struct regmap *map, enum regmap_table table,
                         unsigned address, const uint16_t *values, unsigned count)
 {
+    /*@ loop invariant 0 <= i <= count;
+        loop assigns i;
+        loop variant count - i;
+    */
     for (unsigned i = 0; i < count; i++) {
         if (regmap_write_skips(map, table, address + i, address, count))
             continue; /* inside a command's parameters: ignored */
@@ -49,6 +84,11 @@ static int check_values(const struct regmap *map, enum regmap_table table,
     return 0;
 }
 
+/*@ requires regmap_readable(map);
+    requires mb_pdu_readable(pdu, size);
+    assigns \nothing;
+    ensures \result == 0 || \result == ILLEGAL_ADDRESS || \result == ILLEGAL_VALUE;
+*/
 static int check_write_coils(const struct regmap *map, const uint8_t *pdu,
                              size_t size)
 {
@@ -63,11 +103,21 @@ static int check_write_coils(const struct regmap *map, const uint8_t *pdu,
     if (ex)
         return ex;
     uint16_t values[MODBUS_MAX_WRITE_BITS];
+    /*@ loop invariant 0 <= i <= count;
+        loop assigns i, values[0 .. count - 1];
+        loop variant count - i;
+    */
     for (unsigned i = 0; i < count; i++)
         values[i] = (pdu[6 + i / 8] >> (i % 8)) & 1;
     return check_values(map, REGMAP_COIL, address, values, count);
 }
 
+/*@ requires regmap_readable(map);
+    requires 1 <= count <= MODBUS_MAX_WRITE_REGISTERS && address <= 65535;
+    requires \valid_read(regs + (0 .. 2 * count - 1));
+    assigns \nothing;
+    ensures \result == 0 || \result == ILLEGAL_ADDRESS || \result == ILLEGAL_VALUE;
+*/
 static int check_write_registers(const struct regmap *map, const uint8_t *regs,
                                  unsigned address, unsigned count)
 {
@@ -75,11 +125,20 @@ static int check_write_registers(const struct regmap *map, const uint8_t *regs,
     if (ex)
         return ex;
     uint16_t values[MODBUS_MAX_WRITE_REGISTERS];
+    /*@ loop invariant 0 <= i <= count;
+        loop assigns i, values[0 .. count - 1];
+        loop variant count - i;
+    */
     for (unsigned i = 0; i < count; i++)
         values[i] = (uint16_t)get16(regs + 2 * i);
     return check_values(map, REGMAP_HOLDING_REGISTER, address, values, count);
 }
 
+/*@ requires regmap_readable(map);
+    requires mb_pdu_readable(pdu, size);
+    assigns \nothing;
+    ensures \result == 0 || \result == ILLEGAL_ADDRESS || \result == ILLEGAL_VALUE;
+*/
 static int check_write_multiple(const struct regmap *map, const uint8_t *pdu,
                                 size_t size)
 {
@@ -93,6 +152,11 @@ static int check_write_multiple(const struct regmap *map, const uint8_t *pdu,
     return check_write_registers(map, pdu + 6, address, count);
 }
 
+/*@ requires regmap_image_readable(img);
+    requires mb_pdu_readable(pdu, size);
+    assigns \nothing;
+    ensures \result == 0 || \result == ILLEGAL_ADDRESS || \result == ILLEGAL_VALUE;
+*/
 static int check_mask_write(const struct regmap_image *img, const uint8_t *pdu,
                             size_t size)
 {
@@ -108,6 +172,11 @@ static int check_mask_write(const struct regmap_image *img, const uint8_t *pdu,
     return check_values(img->map, REGMAP_HOLDING_REGISTER, address, &result, 1);
 }
 
+/*@ requires regmap_readable(map);
+    requires mb_pdu_readable(pdu, size);
+    assigns \nothing;
+    ensures \result == 0 || \result == ILLEGAL_ADDRESS || \result == ILLEGAL_VALUE;
+*/
 static int check_read_write(const struct regmap *map, const uint8_t *pdu,
                             size_t size)
 {
@@ -232,15 +301,24 @@ int mb_request_written_values(const struct regmap_image *img, const uint8_t *pdu
                               size_t size, enum regmap_table *table,
                               unsigned *address, uint16_t *values)
 {
-    unsigned count;
+    /* Kept apart from the caller's until the end: they cannot alias the
+     * image or the PDU then, whatever the caller passed. */
+    enum regmap_table written_table;
+    unsigned first, count;
 
-    if (mb_request_write_range(pdu, size, table, address, &count) != 0)
+    if (mb_request_write_range(pdu, size, &written_table, &first, &count) != 0)
         return -1;
     switch (pdu[0]) {
     case MODBUS_FC_WRITE_SINGLE_COIL:
         values[0] = get16(pdu + 3) ? 1 : 0;
         break;
     case MODBUS_FC_WRITE_MULTIPLE_COILS:
+        if (count < 1 || count > MODBUS_MAX_WRITE_BITS || size < 6 + (count + 7) / 8)
+            return -1;
+        /*@ loop invariant 0 <= i <= count;
+            loop assigns i, values[0 .. count - 1];
+            loop variant count - i;
+        */
         for (unsigned i = 0; i < count; i++)
             values[i] = (pdu[6 + i / 8] >> (i % 8)) & 1;
         break;
@@ -248,20 +326,36 @@ int mb_request_written_values(const struct regmap_image *img, const uint8_t *pdu
         values[0] = (uint16_t)get16(pdu + 3);
         break;
     case MODBUS_FC_WRITE_MULTIPLE_REGISTERS:
+        if (count < 1 || count > MODBUS_MAX_WRITE_REGISTERS || size < 6 + 2 * count)
+            return -1;
+        /*@ loop invariant 0 <= i <= count;
+            loop assigns i, values[0 .. count - 1];
+            loop variant count - i;
+        */
         for (unsigned i = 0; i < count; i++)
             values[i] = (uint16_t)get16(pdu + 6 + 2 * i);
         break;
     case MODBUS_FC_MASK_WRITE_REGISTER: {
+        if (size < 7 || first >= img->map->size[REGMAP_HOLDING_REGISTER])
+            return -1;
         /* The specification's result: (current AND and) OR (or AND NOT and). */
-        unsigned current = img->mb->tab_registers[*address];
+        unsigned current = img->mb->tab_registers[first];
         unsigned and_mask = get16(pdu + 3), or_mask = get16(pdu + 5);
         values[0] = (uint16_t)((current & and_mask) | (or_mask & ~and_mask));
         break;
     }
     case MODBUS_FC_WRITE_AND_READ_REGISTERS:
+        if (count < 1 || count > MODBUS_MAX_WR_WRITE_REGISTERS || size < 10 + 2 * count)
+            return -1;
+        /*@ loop invariant 0 <= i <= count;
+            loop assigns i, values[0 .. count - 1];
+            loop variant count - i;
+        */
         for (unsigned i = 0; i < count; i++)
             values[i] = (uint16_t)get16(pdu + 10 + 2 * i);
         break;
     }
+    *table = written_table;
+    *address = first;
     return (int)count;
 }

@@ -37,6 +37,24 @@
 #define MB_REQUEST_NOT_A_REQUEST (-1)
 
 /*
+ * The facts the proofs of this module rest on (make prove checks every
+ * function below against its contract, and that nothing in it can fault
+ * or overflow): a PDU is 'size' readable bytes; a written value is room
+ * for the most a request can write; an answer is 0, an exception code or
+ * MB_REQUEST_NOT_A_REQUEST.
+ */
+/*@ predicate mb_pdu_readable(uint8_t *pdu, size_t size) =
+        \valid_read(pdu + (0 .. size - 1));
+    predicate mb_values_room(uint16_t *values) =
+        \valid(values + (0 .. MODBUS_MAX_WRITE_BITS - 1));
+    predicate mb_answer(integer a) =
+        a == 0 || a == MB_REQUEST_NOT_A_REQUEST ||
+        a == MODBUS_EXCEPTION_ILLEGAL_FUNCTION ||
+        a == MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS ||
+        a == MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+*/
+
+/*
  * Checks the PDU 'pdu' of 'size' bytes (function code first) against the
  * map and the current image. Returns 0 when it may be answered,
  * MB_REQUEST_NOT_A_REQUEST for a function code of 128 or more, or the
@@ -45,16 +63,39 @@
  * out of range; 02 an address range outside the table, or a write to an
  * address that is not writable; 03 a written value out of the row's range.
  */
+/*@ requires regmap_image_readable(img);
+    requires mb_pdu_readable(pdu, size);
+    assigns \nothing;
+    ensures mb_answer(\result);
+    ensures size >= 1 && (pdu[0] & 0x80) != 0 <==> \result == MB_REQUEST_NOT_A_REQUEST;
+*/
 int mb_request_check(const struct regmap_image *img, const uint8_t *pdu,
                      size_t size);
 
 /* True for the function codes that write (5, 6, 15, 16, 22, 23). */
+/*@ assigns \nothing;
+    ensures \result == 0 || \result == 1;
+    ensures \result == 1 <==> function == 5 || function == 6 || function == 15 ||
+                              function == 16 || function == 22 || function == 23;
+*/
 int mb_request_is_write(uint8_t function);
 
 /*
  * The table and address range a write request touches, for a checked
- * request. Returns 0, or -1 for a request that does not write.
+ * request. Returns 0, or -1 for a request that does not write (or is
+ * too short to say).
  */
+/*@ requires mb_pdu_readable(pdu, size);
+    requires \valid(table) && \valid(address) && \valid(count);
+    requires \separated(table, address, count);
+    assigns *table, *address, *count;
+    ensures \result == 0 || \result == -1;
+    ensures \result == 0 ==> size >= 5 && *address <= 65535 && *count <= 65535 &&
+                             (*table == REGMAP_COIL || *table == REGMAP_HOLDING_REGISTER);
+    ensures \result == 0 ==> pdu[0] == 5 || pdu[0] == 6 || pdu[0] == 15 || pdu[0] == 16 ||
+                             pdu[0] == 22 || pdu[0] == 23;
+    ensures \result == 0 && (pdu[0] == 5 || pdu[0] == 6 || pdu[0] == 22) ==> *count == 1;
+*/
 int mb_request_write_range(const uint8_t *pdu, size_t size,
                            enum regmap_table *table, unsigned *address,
                            unsigned *count);
@@ -64,8 +105,18 @@ int mb_request_write_range(const uint8_t *pdu, size_t size,
  * one per bit (0 or 1) for coils, one per register otherwise, in address
  * order; for mask write (22) the masked result from 'img'. 'values' has
  * room for MODBUS_MAX_WRITE_BITS. Returns the count, or -1 for a request
- * that does not write.
+ * that does not write, or whose quantity, byte count or address
+ * mb_request_check() would refuse (so it reads and writes only inside
+ * the PDU, the image and 'values', whatever it is given).
  */
+/*@ requires regmap_image_readable(img);
+    requires mb_pdu_readable(pdu, size);
+    requires mb_values_room(values);
+    requires \valid(table) && \valid(address);
+    requires \separated(values + (0 .. MODBUS_MAX_WRITE_BITS - 1), table, address);
+    assigns *table, *address, values[0 .. MODBUS_MAX_WRITE_BITS - 1];
+    ensures \result == -1 || 1 <= \result <= MODBUS_MAX_WRITE_BITS;
+*/
 int mb_request_written_values(const struct regmap_image *img, const uint8_t *pdu,
                               size_t size, enum regmap_table *table,
                               unsigned *address, uint16_t *values);

@@ -236,6 +236,13 @@ struct regmap {
     unsigned gw_row_count;
 };
 
+/* For the proofs of the map's readers (make prove), which these
+ * functions' contracts below serve (their own bodies are not proved): the
+ * map and its table sizes can be read. */
+/*@ predicate regmap_readable(struct regmap *map) =
+        \valid_read(map) && \valid_read(&map->size[0 .. REGMAP_TABLE_COUNT - 1]);
+*/
+
 /*
  * Builds the map from the built-in table. Fails with -EINVAL (and a log line
  * naming the row) when rows overlap or a row does not fit its table or
@@ -250,6 +257,10 @@ unsigned regmap_element_width(const struct regmap_row *row);
 unsigned regmap_element_address(const struct regmap_row *row, unsigned i);
 
 /* The row owning 'address' in 'table', or NULL (hole or out of range). */
+/*@ requires regmap_readable(map);
+    assigns \nothing;
+    ensures \result == \null || \valid_read(\result);
+*/
 const struct regmap_row *regmap_find(const struct regmap *map,
                                      enum regmap_table table, unsigned address);
 
@@ -275,6 +286,14 @@ struct regmap_image {
      * and regmap_encode_gw() re-encode only what changed. */
     struct regmap_shown *shown;
 };
+
+/* An image's holding registers can be read up to the map's size of that
+ * table (regmap_image_init() asks libmodbus for exactly the map's sizes). */
+/*@ predicate regmap_image_readable(struct regmap_image *img) =
+        \valid_read(img) && regmap_readable(img->map) && \valid_read(img->mb) &&
+        \valid_read(img->mb->tab_registers +
+                    (0 .. img->map->size[REGMAP_HOLDING_REGISTER] - 1));
+*/
 
 int regmap_image_init(struct regmap_image *img, const struct regmap *map,
                       enum regmap_word_order word_order);
@@ -368,6 +387,9 @@ void regmap_load(struct regmap_image *img, enum regmap_table table,
  * request, as PLCs write a block: the unassigned register is accepted and
  * ignored. Alone, or at either end of a write, it is refused (02).
  */
+/*@ requires regmap_readable(map);
+    assigns \nothing;
+*/
 bool regmap_write_skips(const struct regmap *map, enum regmap_table table,
                         unsigned address, unsigned first, unsigned count);
 
@@ -377,6 +399,11 @@ bool regmap_write_skips(const struct regmap *map, enum regmap_table table,
  * when no writable row owns the address, MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE
  * when the value is outside the row's range.
  */
+/*@ requires regmap_readable(map);
+    assigns \nothing;
+    ensures \result == 0 || \result == MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS ||
+            \result == MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+*/
 int regmap_check_write(const struct regmap *map, enum regmap_table table,
                        unsigned address, uint16_t value);
 
