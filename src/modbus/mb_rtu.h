@@ -87,6 +87,8 @@ struct mb_rtu_config {
     unsigned unit_id;   /* 1..247 */
     bool rs485;         /* TIOCSRS485: the kernel drives RTS while sending */
     bool local_echo;    /* the adapter gives back what it sends */
+    uint32_t delivery_ms; /* the adapter's delivery bound where sysfs tells none */
+    const char *sysfs_root; /* NULL: "/sys" (a seam for tests) */
     uint32_t rights;    /* what the line may write (regmap_parse_rights) */
     uint32_t active_ms; /* counted as a client this long after a request */
 };
@@ -109,6 +111,8 @@ struct mb_rtu_stats {
     uint64_t echoes;         /* our own replies read back, skipped */
     uint64_t collisions;     /* local_echo: a reply came back different */
     uint64_t out_of_turn;    /* frames begun before our reply's end + t3.5 (served) */
+    uint64_t repeats;        /* our last reply again within the delivery bound: answered again */
+    uint64_t exceptions;     /* exception-form frames addressed to us, skipped */
     uint64_t replies;
     uint32_t turnaround_us;     /* the last reply: request's last byte to write */
     uint32_t turnaround_max_us;
@@ -141,6 +145,11 @@ struct mb_rtu {
     uint64_t request_end_ns; /* the request being answered: its last read */
     uint64_t seen_empty_ns;  /* the last read that found the port empty */
     uint32_t char_ns;        /* one character on the wire */
+    /* The adapter's delivery bound (ms): its latency timer read back from
+     * sysfs, else cfg.delivery_ms; 'delivery_source' says which. */
+    uint32_t delivery_bound_ms;
+    const char *delivery_source;
+    const char *sysfs_root;
     struct mb_rtu_tx_frame {
         uint8_t data[RTU_MAX_ADU];
         size_t size, sent;

@@ -371,6 +371,15 @@ static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint
     line->waited = false;
 }
 
+/* Local echo: part of our frame came back and the line surely fell silent
+ * since: the reader found the port empty at 'after_ns', t3.5 beyond the
+ * port's delivery after those bytes were read (judged from that look, not
+ * from a read that a stalled loop makes late). The rest is not coming. */
+static bool echo_stalled(const struct rtu_line *line, uint64_t after_ns)
+{
+    return after_ns >= line->echo_last_ns + line->cfg.delivery_ns + line->cfg.t35_ns;
+}
+
 /*
  * Local echo: takes what comes back of our frame off the input. Returns
  * the bytes consumed. The bytes are judged by when they can have come
@@ -383,10 +392,19 @@ static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint
  * frame, and the chunk's judgement (end_chunk) counts it.
  */
 static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
-                        uint64_t after_ns)
+                        uint64_t after_ns, const struct rtu_line_hooks *hooks)
 {
     size_t used = 0;
 
+    if (line->echo_at && echo_stalled(line, after_ns)) {
+        /* Part of our frame came back, then the line fell silent: a
+         * spoiled echo (a collision). Its bytes are no frame and go; what
+         * comes now is the master's. */
+        line->echo_pending = false;
+        line->stats.collisions++;
+        emit(hooks, RTU_EVENT_COLLISION);
+        return 0;
+    }
     if (after_ns >= line->echo_until_ns) {
         /* Surely not back in its window: what comes now is the master's. */
         line->echo_pending = false;
@@ -399,7 +417,6 @@ static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size,
             used++;
             if (++line->echo_at == line->sent_size) {
                 line->echo_pending = false;
-                line->echo_seen = true;
                 line->stats.echoes++;
             }
         } else {
@@ -408,17 +425,18 @@ static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size,
             append(line, line->sent, line->echo_at, now_ns, after_ns);
         }
     }
+    if (used)
+        line->echo_last_ns = now_ns;
     return used;
 }
 
 void rtu_line_input_read(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
                          uint64_t after_ns, const struct rtu_line_hooks *hooks)
 {
-    (void)hooks;
     if (after_ns > now_ns)
         after_ns = now_ns;
     if (line->echo_pending) {
-        size_t echo = take_echo(line, data, size, now_ns, after_ns);
+        size_t echo = take_echo(line, data, size, now_ns, after_ns, hooks);
         data += echo;
         size -= echo;
     }
@@ -488,18 +506,30 @@ static bool echoes_request(const uint8_t *request, const uint8_t *rsp, size_t si
     }
 }
 
-/* Our last frame heard back: the chunk starts with it, byte for byte, it
- * has not come back yet, and the chunk's first bytes can have arrived
- * within the echo window after it left the wire (judged from the reader's
+/* With local_echo = false: the chunk starts with our last frame, byte
+ * for byte, and its first bytes can have arrived within the port's
+ * delivery bound after that frame left the wire (judged from the reader's
  * last look at an empty port before them, never from the time of the
- * read). Returns its size, or 0. */
+ * read): our frame heard back, or the master sending the same bytes at
+ * once (rtu_line_bound_end_ns). Returns its size, or 0. With local_echo,
+ * take_echo() takes the one echo of each frame off the input instead. */
 static size_t echo_at_head(const struct rtu_line *line)
 {
-    if (!line->tx_end_ns || !line->sent_size || line->echo_seen || line->rx_overrun ||
-        line->chunk_after_ns >= line->tx_end_ns + RTU_ECHO_WINDOW_NS ||
+    if (line->cfg.local_echo || !line->tx_end_ns || !line->sent_size || line->rx_overrun ||
+        line->chunk_after_ns >= rtu_line_bound_end_ns(line) ||
         line->rx_used < line->sent_size || memcmp(line->rx, line->sent, line->sent_size) != 0)
         return 0;
     return line->sent_size;
+}
+
+/* Is our last frame also a whole request of ours (05, 06: the reply is
+ * the request), so that the master may send the same bytes? */
+static bool sent_is_request(const struct rtu_line *line)
+{
+    size_t len = 0;
+    return line->sent_size >= RTU_MIN_ADU && line->sent[0] == line->cfg.unit_id &&
+           rtu_request_length(line->sent, line->sent_size, &len) == RTU_LENGTH_EXACT &&
+           len == line->sent_size;
 }
 
 /* What the walk of a chunk found. */
@@ -703,6 +733,12 @@ static void take_frame(const struct rtu_line *line, size_t at, enum frame_kind k
         w->conv = RTU_CONV_IDLE;
     } else if (d[0] == RTU_BROADCAST) {
         w->stats.broadcasts++;
+        w->conv = RTU_CONV_IDLE;
+    } else if (d[0] == line->cfg.unit_id && (d[1] & 0x80)) {
+        /* An exception's form addressed to us: no master asks that (our
+         * own exception reply heard back, or a unit answering as ours):
+         * counted and skipped, never a request. */
+        w->stats.exceptions++;
         w->conv = RTU_CONV_IDLE;
     } else if (d[0] == line->cfg.unit_id) {
         w->execute_at = at;
@@ -924,6 +960,7 @@ static void add_stats(struct rtu_line_stats *to, const struct rtu_line_stats *ad
     to->foreign_frames += add->foreign_frames;
     to->broadcasts += add->broadcasts;
     to->gap_discards += add->gap_discards;
+    to->exceptions += add->exceptions;
 }
 
 /* Did the chunk begin before our last frame's end plus t3.5 (a master
@@ -939,16 +976,27 @@ static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
 {
     uint8_t request[RTU_MAX_ADU];
     size_t request_size = 0;
+    bool repeat = false;
 
     if (line->rx_overrun) {
         /* Counted when it happened; nothing in it can be trusted. */
         line->conv = RTU_CONV_UNSYNCED;
     } else {
         size_t echo = echo_at_head(line);
-        if (echo) {
+        if (echo == line->rx_used && !line->repeat_answered && sent_is_request(line)) {
+            /* The same bytes as our reply, which is the request itself,
+             * within the delivery bound: our reply heard back, or the
+             * master sending the request again at once (a retry after a
+             * reply it lost). Answered again, not acted on again: once
+             * per request; the next one is an echo. */
+            line->repeat_answered = true;
+            line->stats.repeats++;
+            emit(hooks, RTU_EVENT_REPEAT);
+            line->conv = RTU_CONV_IDLE;
+            repeat = true;
+        } else if (echo) {
             /* Our reply heard back: skipped; what follows it is the
              * master's next request. */
-            line->echo_seen = true;
             line->stats.echoes++;
             emit(hooks, RTU_EVENT_ECHO);
             line->conv = RTU_CONV_IDLE;
@@ -976,10 +1024,13 @@ static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
                 memcpy(request, line->rx + w.execute_at, w.execute_size);
                 request_size = w.execute_size;
                 line->stats.executed++;
+                line->repeat_answered = false; /* a new request: a new reply */
             }
         }
     }
     clear_chunk(line);
+    if (repeat && hooks && hooks->repeat)
+        hooks->repeat(hooks->user);
     if (request_size && hooks && hooks->request)
         hooks->request(hooks->user, request, request_size);
 }
@@ -1027,7 +1078,6 @@ void rtu_line_frame_out(struct rtu_line *line, const uint8_t *frame, size_t size
         size = sizeof(line->sent);
     memcpy(line->sent, frame, size);
     line->sent_size = size;
-    line->echo_seen = false;
     line->echo_pending = line->cfg.local_echo && size > 0;
     line->echo_at = 0;
     line->conv = RTU_CONV_IDLE;
@@ -1038,7 +1088,7 @@ void rtu_line_bytes_out(struct rtu_line *line, size_t size, uint64_t now_ns)
     uint64_t from = line->tx_end_ns > now_ns ? line->tx_end_ns : now_ns;
 
     line->tx_end_ns = from + (uint64_t)size * line->cfg.tx_char_ns;
-    line->echo_until_ns = line->tx_end_ns + RTU_ECHO_WINDOW_NS;
+    line->echo_until_ns = line->tx_end_ns + RTU_LOCAL_ECHO_WINDOW_NS;
 }
 
 uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line)
@@ -1046,7 +1096,10 @@ uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line)
     return line->tx_end_ns ? line->tx_end_ns + line->cfg.t35_ns : 0;
 }
 
-uint64_t rtu_line_echo_window_end_ns(const struct rtu_line *line)
+uint64_t rtu_line_bound_end_ns(const struct rtu_line *line)
 {
-    return line->tx_end_ns ? line->tx_end_ns + RTU_ECHO_WINDOW_NS : 0;
+    if (!line->tx_end_ns)
+        return 0;
+    return line->tx_end_ns +
+           (line->cfg.local_echo ? RTU_LOCAL_ECHO_WINDOW_NS : line->cfg.delivery_ns);
 }
