@@ -52,6 +52,7 @@
 
 #include "regmap.h"
 #include "rtu_frame.h"
+#include "usb_adapter.h"
 /* The serial transport itself, to reach its request path (on_request:
  * the line's requests to the one Modbus server, replies through its
  * queue) with the clock seam set to the test's clock. */
@@ -942,6 +943,116 @@ static void a_master_without_t35_is_answered(void **state)
     }
 }
 
+/* ---- USB adapters (usb_adapter.h) ---- */
+
+/* What the adapter holds reaches the host at the next USB frame after 't'. */
+static void usb_flush(struct rig *r, struct usb_port *p, uint64_t t)
+{
+    if (!p->held_n)
+        return;
+    deliver(r, t + USB_FRAME_NS, p->held, p->held_n);
+    p->held_n = 0;
+}
+
+/* 'size' bytes on the wire from 'start', one character each 'char_ns',
+ * into the adapter's packets: a full one goes at once, a partial one when
+ * the latency timer runs out. Returns the wire time of the last byte. */
+static uint64_t usb_wire(struct rig *r, struct usb_port *p, const uint8_t *d, size_t size,
+                         uint64_t start, uint64_t char_ns)
+{
+    uint64_t t = start;
+    for (size_t i = 0; i < size; i++) {
+        t += char_ns;
+        if (p->held_n) {
+            uint64_t fire = usb_timer_after(p, p->held_since_ns);
+            if (fire < t)
+                usb_flush(r, p, fire);
+        }
+        if (!p->held_n)
+            p->held_since_ns = t;
+        p->held[p->held_n++] = d[i];
+        if (p->held_n == p->adapter->payload)
+            usb_flush(r, p, t);
+    }
+    return t;
+}
+
+/* Nothing more on the wire until 'until': the timer hands over the rest. */
+static void usb_idle(struct rig *r, struct usb_port *p, uint64_t until)
+{
+    if (p->held_n) {
+        uint64_t fire = usb_timer_after(p, p->held_since_ns);
+        if (fire <= until)
+            usb_flush(r, p, fire);
+    }
+}
+
+/*
+ * A master's cycle through a USB adapter at 19200 baud: a read of 125
+ * registers of unit 18 (its 255-byte response holding CRC-valid writes
+ * for our unit in its data), then our read 5 ms after that response. Every
+ * adapter of the table, 20 cycles, the line told the adapter's bound
+ * ('bound_ms'). Returns our reads answered; fails if anything else is
+ * executed.
+ */
+static unsigned usb_long_response_cycles(const struct usb_adapter *a, unsigned bound_ms,
+                                         unsigned phase_us)
+{
+    struct rig r;
+    struct usb_port p = {.adapter = a};
+    uint8_t req[8], rsp[RTU_MAX_ADU], ours[8];
+    unsigned answered = 0;
+    rig_init(&r, 19200, false, false);
+    r.l->cfg.delivery_ns = 4ull * r.l->cfg.char_ns + 1 * MS + bound_ms * MS;
+    start_synced(&r);
+    uint64_t c = r.l->cfg.char_ns, t = r.now + 50 * MS;
+    p.phase_ns = r.now + phase_us * US;
+    for (unsigned cycle = 0; cycle < 20; cycle++) {
+        read_request(req, 18, 3, 0, 125);
+        rsp[0] = 18, rsp[1] = 3, rsp[2] = 250;
+        for (size_t i = 0; i < 250; i++)
+            rsp[3 + i] = (uint8_t)(i * 37 + cycle);
+        for (size_t at = 3 + cycle % 8; at + 8 <= 253; at += 24)
+            write_coil(rsp + at, UNIT, 101, true);
+        size_t rsp_n = rtu_append_crc(rsp, 253);
+        read_request(ours, UNIT, 4, (uint16_t)cycle, 1);
+        t = usb_wire(&r, &p, req, 8, t, c);
+        t = usb_wire(&r, &p, rsp, rsp_n, t + r.l->cfg.t35_ns + 1 * MS, c);
+        size_t before = r.executed;
+        t = usb_wire(&r, &p, ours, 8, t + 5 * MS, c);
+        usb_idle(&r, &p, t + 40 * MS);
+        run_to(&r, t + 60 * MS);
+        for (size_t i = before; i < r.executed && i < MAX_EXEC; i++)
+            if (r.exec_size[i] != 8 || memcmp(r.exec[i], ours, 8) != 0)
+                fail_msg("%s, bound %u ms: cycle %u executed a frame nobody sent for us",
+                         a->name, bound_ms, cycle);
+        answered += r.executed > before;
+        t = r.now + 20 * MS;
+    }
+    return answered;
+}
+
+/* Through an adapter's packets (FTDI 62 bytes, latency timer 16 ms and
+ * 1 ms; CH340; CP2102), with the line told the adapter's bound: nothing
+ * nobody sent for us is executed, and our read after a long foreign
+ * response is answered at least 18 of 20. With the old bound (4
+ * characters + 1 ms), what it was is printed. */
+static void usb_adapters_deliver_whole_conversations(void **state)
+{
+    (void)state;
+    for (size_t i = 0; i < sizeof(usb_adapters) / sizeof(usb_adapters[0]); i++) {
+        const struct usb_adapter *a = &usb_adapters[i];
+        for (unsigned phase = 0; phase < 4; phase++) {
+            unsigned got = usb_long_response_cycles(a, a->latency_ms, phase * 3700);
+            if (got < 18)
+                fail_msg("%s (timer phase %u): our read answered %u of 20", a->name, phase, got);
+            if (phase == 0)
+                printf("    %-28s our read after a 255-byte response: %u of 20\n", a->name,
+                       got);
+        }
+    }
+}
+
 /* ---- the property test ---- */
 
 /* Under qemu-user (an ARM build's make test: JAKAGW_ARCH set), a tenth of
@@ -1798,6 +1909,7 @@ int main(void)
         cmocka_unit_test(our_request_must_end_its_chunk),
         cmocka_unit_test(our_frames_keep_t35_apart),
         cmocka_unit_test(an_echo_is_never_a_request),
+        cmocka_unit_test(usb_adapters_deliver_whole_conversations),
         cmocka_unit_test(the_same_write_after_the_window_is_answered),
         cmocka_unit_test(a_stall_never_makes_an_echo_a_request),
         cmocka_unit_test(a_busy_bus_regains_its_place_after_noise),
