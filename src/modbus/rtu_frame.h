@@ -291,7 +291,7 @@ void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uin
 /* The same, for a reader that knows more: the bytes arrived after
  * 'after_ns' (the last time it found the port empty) and by 'now_ns'. The
  * silences are judged from 'now_ns'; whether the bytes can be our frame
- * heard back (in its echo window) from 'after_ns', so a loop late to read
+ * heard back (within the delivery bound) from 'after_ns', so a loop late to read
  * an echo cannot make it a request. */
 void rtu_line_input_read(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
                          uint64_t after_ns, const struct rtu_line_hooks *hooks);
