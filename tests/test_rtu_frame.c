@@ -919,6 +919,75 @@ static void a_busy_bus_regains_its_place_after_noise(void **state)
             }
 }
 
+/*
+ * A master's cycle with a user-defined function code (65-72, 100-110)
+ * of unit 18, 'data' bytes, and our write, each a legal gap (t3.5 and a
+ * seventh) after the frame before; unit 18 absent (no response) or
+ * answering with the same form ('answered'). Returns our writes executed
+ * of 10; fails if anything else is.
+ */
+static size_t user_code_cycles(unsigned baud, uint8_t fc, size_t data, bool answered)
+{
+    struct rig r;
+    uint8_t req[64], ours[8];
+    rig_init(&r, baud, false, false);
+    start_synced(&r);
+    uint64_t c = r.l->cfg.char_ns, gap = r.l->cfg.t35_ns + r.l->cfg.t35_ns / 7;
+    uint64_t t = r.now + 50 * MS;
+    size_t got = 0;
+    for (unsigned i = 0; i < 10; i++) {
+        req[0] = 18, req[1] = fc;
+        for (size_t k = 0; k < data; k++)
+            req[2 + k] = (uint8_t)(i * 31 + k * 7 + 1);
+        size_t n = rtu_append_crc(req, 2 + data);
+        t += n * c;
+        deliver(&r, t, req, n);
+        if (answered) {
+            req[2] ^= 0x55; /* the response: another frame of the same form */
+            n = rtu_append_crc(req, 2 + data);
+            t += gap + n * c;
+            deliver(&r, t, req, n);
+        }
+        size_t m = write_coil(ours, UNIT, 200, i & 1), before = r.executed;
+        t += gap + m * c;
+        deliver(&r, t, ours, m);
+        run_to(&r, t + 100 * MS);
+        for (size_t e = before; e < r.executed && e < MAX_EXEC; e++)
+            if (memcmp(r.exec[e], ours, 8) != 0)
+                fail_msg("FC%u: executed a frame that is not our write", fc);
+        got += r.executed > before;
+        t = r.l->tx_end_ns + r.l->cfg.t35_ns + 1 * MS;
+        if (t < r.now)
+            t = r.now;
+    }
+    return got;
+}
+
+/* User-defined function codes of another unit get the length search
+ * FC08 gets: a request of a code whose form the line does not know is
+ * cut at the shortest CRC-valid run that a whole request follows. With
+ * unit 18 absent, our writes after them are answered (before: starved, 0
+ * of 10); where unit 18 answers in a form the line cannot know, its
+ * response's data is never searched (its data is that unit's), and
+ * nothing but our writes is ever executed. */
+static void user_codes_of_another_unit_are_cut_by_length(void **state)
+{
+    static const uint8_t codes[] = {65, 72, 100, 110};
+    (void)state;
+    for (size_t b = 0; b < 2; b++)
+        for (size_t k = 0; k < sizeof(codes); k++)
+            for (int answered = 0; answered < 2; answered++) {
+                unsigned baud = b ? 9600 : 115200;
+                size_t got = user_code_cycles(baud, codes[k], 6, answered);
+                if (!answered && got < 9)
+                    fail_msg("%u baud, FC%u to absent unit 18: %zu of 10 writes executed", baud,
+                             codes[k], got);
+                if (k == 0)
+                    printf("    %6u baud, FC%u, unit 18 %s: %zu of 10 writes executed\n", baud,
+                           codes[k], answered ? "answering" : "absent", got);
+            }
+}
+
 /* Why's fourth case: a master that keeps no t3.5 of its own sends each
  * request as soon as our reply has come (50 writes, each toggling the
  * output): every one answered, on a wire and on a pty. */
@@ -1913,6 +1982,7 @@ int main(void)
         cmocka_unit_test(the_same_write_after_the_window_is_answered),
         cmocka_unit_test(a_stall_never_makes_an_echo_a_request),
         cmocka_unit_test(a_busy_bus_regains_its_place_after_noise),
+        cmocka_unit_test(user_codes_of_another_unit_are_cut_by_length),
         cmocka_unit_test(a_master_without_t35_is_answered),
         cmocka_unit_test(generated_buses_execute_exactly_our_whole_requests),
         cmocka_unit_test(field_buses_keep_safety_and_liveness),

@@ -610,13 +610,17 @@ static size_t first_crc_run(const uint8_t *d, size_t avail, size_t from, bool re
 /*
  * A request's length where the chunk holds what follows it. A function
  * whose request length only its end tells: the run up to the next sure
- * silence, if CRC-valid (no frame goes across one). FC08's return query data carries any
- * data, and its response repeats it byte for byte: the request is the
- * shortest CRC-valid run that the next bytes repeat; for a unit that does
- * not answer, the chunk's rest if CRC-valid, else the shortest CRC-valid
- * run if a whole request follows it (the master's next; 'depth': how many
- * such cuts came before, up to RUN_SEARCH_DEPTH). Its data is the master's own,
- * never another unit's registers. Ours ends its chunk: its rest.
+ * silence, if CRC-valid (no frame goes across one). FC08's return query
+ * data carries any data, and its response repeats it byte for byte: the
+ * request is the shortest CRC-valid run that the next bytes repeat. For
+ * it, for a unit that does not answer, and for a function whose form we
+ * do not know (a user-defined code, 65-72, 100-110): the chunk's rest if
+ * CRC-valid, else the shortest CRC-valid run if a whole request follows
+ * it (the master's next; 'depth': how many such cuts came before, up to
+ * RUN_SEARCH_DEPTH, which also turns the search off). Its data is the
+ * master's own, never another unit's registers: the awaited unit's
+ * response of a form we do not know is never searched. Ours ends its
+ * chunk: its rest.
  */
 static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size_t at,
                                                size_t avail, size_t *size, unsigned depth,
@@ -634,13 +638,15 @@ static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size
         *size = next - at;
         return RTU_LENGTH_EXACT;
     }
-    if (d[1] != 8)
-        return how;
-    if ((k = first_crc_run(d, avail, 6, true)) != 0) {
+    /* FC08's return query data: at least 2 bytes of data, and what its
+     * response repeats. A code whose form we do not know (a user-defined
+     * one): any data, not repeated. */
+    size_t least = d[1] == 8 ? 6 : RTU_MIN_ADU;
+    if (d[1] == 8 && (k = first_crc_run(d, avail, 6, true)) != 0) {
         *size = k;
         return RTU_LENGTH_EXACT;
     }
-    if (avail <= RTU_MAX_ADU && avail >= 6 && rtu_crc_ok(d, avail)) {
+    if (avail <= RTU_MAX_ADU && avail >= least && rtu_crc_ok(d, avail)) {
         /* The chunk's rest, once nothing more comes (a port's piece may
          * end where a CRC happens to be valid). */
         *size = final ? avail : avail + 1;
@@ -648,7 +654,7 @@ static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size
     }
     /* The first CRC-valid runs (at most RTU_MAX_ADU bytes are scanned). */
     unsigned tries = 0;
-    for (size_t from = 6; depth < RUN_SEARCH_DEPTH && tries++ < RUN_SEARCH_TRIES &&
+    for (size_t from = least; depth < RUN_SEARCH_DEPTH && tries++ < RUN_SEARCH_TRIES &&
                           (k = first_crc_run(d, avail, from, false)) != 0;
          from = k + 1)
         if (k + RTU_MIN_ADU <= avail && request_follows(line, at + k, avail - k, depth + 1)) {
@@ -816,6 +822,9 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
         const uint8_t *d = rx + at;
         size_t avail = size - at, len = 0, rsp_len = 0, missing = 0;
         bool awaited = false; /* rsp_len is the response awaited */
+        /* The awaited unit's response in a form we do not know: its data
+         * is that unit's, never searched for runs. */
+        bool unknown_response = false;
         /* Where the line knows where it stands, a frame starts at the
          * chunk's start, where the last one ended; where it does not,
          * only after a silence it is sure of. */
@@ -851,6 +860,7 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
                  * it may be the master asking that unit again. */
                 how = rtu_response_length(w->await_request, w->await_request_size, d, avail,
                                           &len);
+                unknown_response = how == RTU_LENGTH_UNKNOWN;
                 if (how == RTU_LENGTH_UNKNOWN && silence)
                     how = RTU_LENGTH_EXACT, len = avail; /* the rest of the chunk */
                 if (whole_frame(how, len, d, avail) && echoes_request(w->await_request, d, len)) {
@@ -879,7 +889,8 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
              * next request): a master's request, where the last frame
              * ended. */
             if (kind == FRAME_NONE && !response) {
-                how = request_length_in_chunk(line, at, avail, &len, 0, final);
+                how = request_length_in_chunk(line, at, avail, &len,
+                                              unknown_response ? RUN_SEARCH_DEPTH : 0, final);
                 bool rest = how == RTU_LENGTH_UNKNOWN && (silence || d[0] == line->cfg.unit_id);
                 if (rest) /* only as the chunk's rest, once nothing more comes */
                     how = final ? RTU_LENGTH_EXACT : RTU_LENGTH_MORE, len = avail + !final;
