@@ -32,6 +32,12 @@
  * in order) and liveness (every one from the second cycle after the last
  * fault on, executed and answered); RTU_FIELD_BUSES sets how many (100000
  * by default; under qemu-user, JAKAGW_ARCH set, a tenth of each).
+ * And buses through USB adapters (usb_adapter.h: FTDI, CH340, CP2102 as
+ * their packets and latency timers deliver) with masters that retry a
+ * lost reply (1-3 retries, 20-1000 ms timeouts), rewrite the same write
+ * cyclically and poll user-defined codes of absent units: safety (our
+ * transmissions only, in order, each once) and liveness (every request
+ * and its first retry answered); RTU_USB_BUSES sets how many (20000).
  * RTU_PROPERTY_SEED replays a run (with RTU_PROPERTY_BUS=N,
  * RTU_PROPERTY_BUSES=1 or RTU_FIELD_BUSES=1 and the other 0, and
  * RTU_PROPERTY_TRACE=1: one bus).
@@ -1873,6 +1879,209 @@ static void field_buses_keep_safety_and_liveness(void **state)
     }
 }
 
+/* ---- the property test, through USB adapters, with masters that retry ---- */
+
+/*
+ * A master polling through one adapter of usb_adapter.h (every byte in
+ * its packets), the line told the adapter's bound: per cycle up to two
+ * exchanges with other units (reads of up to 125 registers whose data
+ * hides writes for our unit; user-defined codes, 65-72 and 100-110, to
+ * absent units; each unit once a cycle: the same unit and code again
+ * right after could be that unit's answer, whose data is never
+ * searched), then a request of ours (a read, or a write: half the
+ * time the very write of the cycle before, a cyclic rewrite). A reply of
+ * ours is lost on its way to the master at random; the master then sends
+ * the same frame again after its timeout (20-1000 ms, never shorter than
+ * the reply's wire time), up to its retries (1-3).
+ * Safety: what is executed is our transmissions, in order, each once.
+ * Liveness: every first transmission and every first retry is answered
+ * (executed, or within the delivery bound answered again), except our
+ * last reply's bytes again within the bound after it was answered again
+ * once (an echo, by the rule: a rewrite or retry faster than the reply's
+ * wire time and the bound).
+ */
+#define USB_SENT_MAX 48
+
+/* What the buses did, over a run: said at its end. */
+static struct {
+    unsigned long sent, retries, repeats, executed, foreign_hidden;
+} usb_totals;
+
+struct usb_bus {
+    struct rig r;
+    struct usb_port port;
+    uint64_t char_ns;
+    size_t sent; /* our transmissions */
+    uint8_t frames[USB_SENT_MAX][8];
+    uint8_t polled; /* the unit polled last in this cycle: a master polls each once */
+};
+
+/* A request for another unit and what follows it on the wire. */
+static uint64_t usb_foreign(struct usb_bus *u, uint64_t t)
+{
+    uint8_t req[16], rsp[RTU_MAX_ADU];
+    uint64_t c = u->char_ns, t35 = u->r.l->cfg.t35_ns;
+    uint8_t unit = (uint8_t)(1 + below(247));
+    while (unit == UNIT || unit == u->polled)
+        unit = (uint8_t)(1 + below(247));
+    u->polled = unit;
+    if (chance(40)) {
+        /* A user-defined code to a unit that does not answer. */
+        static const uint8_t codes[] = {65, 66, 70, 72, 100, 104, 110};
+        req[0] = unit, req[1] = codes[below(sizeof(codes))];
+        size_t data = below(9);
+        for (size_t i = 0; i < data; i++)
+            req[2 + i] = (uint8_t)rnd();
+        size_t n = rtu_append_crc(req, 2 + data);
+        t = usb_wire(&u->r, &u->port, req, n, t, c);
+        return t + (chance(50) ? t35 + below(2 * (unsigned)MS) : 20 * MS);
+    }
+    unsigned count = 1 + below(125);
+    t = usb_wire(&u->r, &u->port, req, read_request(req, unit, 3, (uint16_t)below(1000),
+                                                     (uint16_t)count), t, c);
+    rsp[0] = unit, rsp[1] = 3, rsp[2] = (uint8_t)(2 * count);
+    for (unsigned i = 0; i < 2 * count; i++)
+        rsp[3 + i] = (uint8_t)rnd();
+    for (size_t at = 3 + below(8); at + 8 <= 3 + 2 * count; at += 8 + below(32))
+        write_coil(rsp + at, UNIT, (uint16_t)(200 + below(16)), true);
+    size_t n = rtu_append_crc(rsp, 3 + 2 * count);
+    t = usb_wire(&u->r, &u->port, rsp, n, t + t35 + below(3 * (unsigned)MS), c);
+    return t + t35 + below(3 * (unsigned)MS);
+}
+
+/* One transmission of ours at 't'; returns whether it was answered
+ * (a reply went out for it), and the time the master may go on. */
+static bool usb_ours(struct usb_bus *u, const uint8_t *frame, uint64_t *t)
+{
+    size_t replies = u->r.replies;
+    if (u->sent < USB_SENT_MAX)
+        memcpy(u->frames[u->sent], frame, 8);
+    u->sent++;
+    trace_bytes("sent", *t, frame, 8);
+    *t = usb_wire(&u->r, &u->port, frame, 8, *t, u->char_ns);
+    usb_idle(&u->r, &u->port, *t + 100 * MS);
+    /* The last piece comes by the adapter's timer and a USB frame; a line
+     * that reads what came two ways waits t3.5, a port's piece and the
+     * bound beyond it (rtu_frame.h). */
+    u->r.stop_at_reply = true;
+    run_to(&u->r, *t + (uint64_t)u->port.adapter->latency_ms * MS + USB_FRAME_NS +
+                      u->r.l->cfg.delivery_ns + RTU_PIECE_CHARS * u->char_ns +
+                      u->r.l->cfg.t35_ns + 5 * MS);
+    u->r.stop_at_reply = false;
+    return u->r.replies > replies;
+}
+
+static void one_usb_bus(unsigned long bus_no)
+{
+    static const unsigned bauds[] = {9600, 19200, 38400, 115200};
+    struct usb_bus u;
+    const struct usb_adapter *a = &usb_adapters[below(sizeof(usb_adapters) /
+                                                      sizeof(usb_adapters[0]))];
+    uint8_t ours[8], last_write[8];
+    bool have_write = false;
+
+    memset(&u, 0, sizeof(u));
+    rig_init(&u.r, bauds[below(4)], false, chance(20));
+    u.r.turnaround = (20 + below(400)) * US;
+    u.r.l->cfg.delivery_ns += (uint64_t)a->latency_ms * MS;
+    u.char_ns = u.r.l->cfg.char_ns;
+    start_synced(&u.r);
+    u.port.adapter = a;
+    u.port.phase_ns = u.r.now + below(a->latency_ms * 1000) * US;
+    unsigned retries = 1 + below(3);
+    uint64_t timeout = (20 + below(981)) * MS;
+    uint64_t t = u.r.now + 20 * MS;
+    unsigned cycles = 2 + below(8);
+    for (unsigned c = 0; c < cycles && u.sent + 4 <= USB_SENT_MAX; c++) {
+        u.polled = 0;
+        for (unsigned f = below(3); f > 0; f--)
+            t = usb_foreign(&u, t);
+        if (have_write && chance(50)) {
+            memcpy(ours, last_write, 8); /* the same write again */
+        } else if (chance(50)) {
+            read_request(ours, UNIT, 4, (uint16_t)below(6000), (uint16_t)(1 + below(20)));
+        } else {
+            write_coil(ours, UNIT, (uint16_t)(200 + below(16)), below(2));
+            memcpy(last_write, ours, 8);
+            have_write = true;
+        }
+        /* The reply's wire time bounds the master's timeout from below. */
+        uint64_t reply_wire = (5 + 40) * u.char_ns + u.r.l->cfg.t35_ns + 5 * MS;
+        uint64_t wait = timeout > reply_wire ? timeout : reply_wire;
+        for (unsigned k = 0; k <= retries; k++) {
+            uint64_t asked = t;
+            /* Our last reply again, within the bound, after it was already
+             * answered again once: an echo, by the rule (rtu_frame.h). */
+            const struct rtu_line *l = u.r.l;
+            bool may_skip = l->sent_size == 8 && memcmp(ours, l->sent, 8) == 0 &&
+                            l->repeat_answered && t < rtu_line_bound_end_ns(l);
+            bool answered = usb_ours(&u, ours, &t);
+            if (!answered && k <= 1 && !may_skip)
+                fail_msg("usb bus %lu (%s, %u baud, timeout %llu ms, %u retries): cycle %u, "
+                         "%s not answered",
+                         bus_no, a->name, 1000000000u / (unsigned)u.char_ns * 10, 
+                         (unsigned long long)(timeout / MS), retries, c,
+                         k ? "the first retry" : "the request");
+            bool lost = answered && chance(25);
+            if (answered && !lost)
+                break;
+            t = asked + wait; /* the master's timeout, then the same frame */
+            usb_totals.retries += k < retries;
+            if (t < u.r.now)
+                t = u.r.now;
+        }
+        uint64_t free_at = u.r.l->tx_end_ns + u.r.l->cfg.t35_ns + 1 * MS;
+        t = (free_at > t ? free_at : t) + below(5 * (unsigned)MS);
+        if (t < u.r.now)
+            t = u.r.now;
+    }
+    usb_idle(&u.r, &u.port, t + 200 * MS);
+    run_to(&u.r, t + 300 * MS);
+    usb_totals.sent += u.sent;
+    usb_totals.repeats += u.r.l->stats.repeats;
+    usb_totals.executed += u.r.executed;
+    /* Safety: our transmissions, in order, each at most once. */
+    size_t next = 0;
+    for (size_t i = 0; i < u.r.executed && i < MAX_EXEC; i++) {
+        while (next < u.sent && next < USB_SENT_MAX &&
+               (u.r.exec_size[i] != 8 || memcmp(u.frames[next], u.r.exec[i], 8) != 0))
+            next++;
+        if (next >= u.sent || next >= USB_SENT_MAX)
+            fail_msg("usb bus %lu (%s): executed #%zu is no transmission of ours after the "
+                     "one before",
+                     bus_no, a->name, i);
+        next++;
+    }
+}
+
+static void usb_buses_with_retrying_masters(void **state)
+{
+    const char *env = getenv("RTU_USB_BUSES"), *seed_env = getenv("RTU_PROPERTY_SEED");
+    unsigned long buses = env ? strtoul(env, NULL, 10) : 20000 / emulated();
+    uint64_t seed = seed_env ? strtoull(seed_env, NULL, 0)
+                             : (uint64_t)time(NULL) * 2654435761u ^ (uint64_t)getpid() << 32 ^
+                                   (uint64_t)clock() ^ 0x5B;
+    unsigned long first = getenv("RTU_PROPERTY_BUS") ? strtoul(getenv("RTU_PROPERTY_BUS"), NULL, 10)
+                                                      : 0;
+    (void)state;
+    if (!seed)
+        seed = 1;
+    printf("rtu usb property: %lu buses, RTU_PROPERTY_SEED=0x%llx\n", buses,
+           (unsigned long long)seed);
+    fflush(stdout);
+    server = NULL;
+    for (unsigned long i = first; i < first + buses; i++) {
+        rng_state = seed + i * 0x9E3779B97F4A7C15ull;
+        if (!rng_state)
+            rng_state = 1;
+        rnd();
+        one_usb_bus(i);
+    }
+    printf("rtu usb property: %lu transmissions of ours (%lu retries), %lu executed, %lu "
+           "answered again within the bound\n",
+           usb_totals.sent, usb_totals.retries, usb_totals.executed, usb_totals.repeats);
+}
+
 static void server_open(struct server_path *p)
 {
     struct mb_server_config cfg = {.bind = "127.0.0.1", .port = 0, .max_clients = 8,
@@ -1986,6 +2195,7 @@ int main(void)
         cmocka_unit_test(a_master_without_t35_is_answered),
         cmocka_unit_test(generated_buses_execute_exactly_our_whole_requests),
         cmocka_unit_test(field_buses_keep_safety_and_liveness),
+        cmocka_unit_test(usb_buses_with_retrying_masters),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
