@@ -13,9 +13,11 @@
  *      good): it must be executed, once; our reply goes out;
  *   1: one byte of noise (the line loses its place), then 'len' arbitrary
  *      bytes: executed only if the run, whole, is a request of ours;
- *   2: our last reply given back up to 116 ms late ((tag >> 3) & 31 times
- *      3.75 ms), with either setting, read at once or (tag & 0x80) by a
- *      loop stalled 300 ms: never executed;
+ *   2: our last reply given back ((tag >> 3) & 15 sixteenths of the
+ *      port's delivery bound late; with local_echo, that many times
+ *      3.75 ms), read at once or (tag & 0x80) by a loop stalled 300 ms:
+ *      never executed (without local_echo, a write's reply, which is the
+ *      request, is answered again once, not executed);
  *   3: a read of 'len' / 2 registers of another unit and its response,
  *      the arbitrary bytes its register data: nothing executed;
  *   4: a write of those bytes to another unit's registers (16) and its
@@ -69,7 +71,14 @@ static void on_request(void *user, const uint8_t *frame, size_t size)
     b->reply_due = true;
 }
 
-static const struct rtu_line_hooks hooks = {.request = on_request};
+/* Our last reply again (rtu_frame.h): nothing executed. */
+static void on_repeat(void *user)
+{
+    struct bus *b = user;
+    b->reply_due = true;
+}
+
+static const struct rtu_line_hooks hooks = {.request = on_request, .repeat = on_repeat};
 
 static void run_to(struct bus *b, uint64_t t)
 {
@@ -100,7 +109,7 @@ static uint64_t sure(const struct bus *b)
 {
     return 2 * ((uint64_t)b->line.cfg.t35_ns + RTU_PIECE_CHARS * (uint64_t)b->line.cfg.char_ns +
                 b->line.cfg.delivery_ns) +
-           RTU_ECHO_WINDOW_NS;
+           (b->line.cfg.local_echo ? RTU_LOCAL_ECHO_WINDOW_NS : b->line.cfg.delivery_ns);
 }
 
 static void deliver(struct bus *b, uint64_t t, const uint8_t *data, size_t size)
@@ -262,7 +271,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         }
         case 2:
             if (b->reply_size && b->line.tx_end_ns && !b->echoed) {
-                uint64_t t = b->line.tx_end_ns + (uint64_t)((tag >> 3) & 15) * 3750000ull;
+                uint64_t step = b->line.cfg.local_echo ? 3750000ull : b->line.cfg.delivery_ns / 16;
+                uint64_t t = b->line.tx_end_ns + (uint64_t)((tag >> 3) & 15) * step;
                 if (t < b->now)
                     break; /* too late to be an echo in its window */
                 b->echoed = true;

@@ -32,6 +32,12 @@
  * in order) and liveness (every one from the second cycle after the last
  * fault on, executed and answered); RTU_FIELD_BUSES sets how many (100000
  * by default; under qemu-user, JAKAGW_ARCH set, a tenth of each).
+ * And buses through USB adapters (usb_adapter.h: FTDI, CH340, CP2102 as
+ * their packets and latency timers deliver) with masters that retry a
+ * lost reply (1-3 retries, 20-1000 ms timeouts), rewrite the same write
+ * cyclically and poll user-defined codes of absent units: safety (our
+ * transmissions only, in order, each once) and liveness (every request
+ * and its first retry answered); RTU_USB_BUSES sets how many (20000).
  * RTU_PROPERTY_SEED replays a run (with RTU_PROPERTY_BUS=N,
  * RTU_PROPERTY_BUSES=1 or RTU_FIELD_BUSES=1 and the other 0, and
  * RTU_PROPERTY_TRACE=1: one bus).
@@ -52,6 +58,7 @@
 
 #include "regmap.h"
 #include "rtu_frame.h"
+#include "usb_adapter.h"
 /* The serial transport itself, to reach its request path (on_request:
  * the line's requests to the one Modbus server, replies through its
  * queue) with the clock seam set to the test's clock. */
@@ -149,6 +156,14 @@ static void rig_event(void *user, enum rtu_event event)
     r->events[event]++;
 }
 
+/* Our last reply again, as the transport sends it (nothing executed). */
+static void rig_repeat(void *user)
+{
+    struct rig *r = user;
+    trace_bytes("REPEAT", r->now, r->reply, r->reply_size);
+    r->pending_reply = true;
+}
+
 /* Through the server: recorded, handed to the transport's request path
  * as the line hands it, and the reply the server built taken from the
  * transport's port, as sent. */
@@ -177,6 +192,7 @@ static const struct rtu_line_hooks *hooks_of(struct rig *r)
     static struct rtu_line_hooks hooks;
     hooks.request = r->via_server ? on_request_via_server : rig_request;
     hooks.event = rig_event;
+    hooks.repeat = rig_repeat;
     hooks.user = r;
     return &hooks;
 }
@@ -563,8 +579,11 @@ static void an_echo_in_our_turn_is_never_executed(void **state)
         run_to(&r, r.now + 20 * MS);
         assert_int_equal(r.executed, (size_t)i + 1);
     }
-    assert_int_equal(r.l->stats.echoes, 5);
-    assert_int_equal(r.events[RTU_EVENT_ECHO], 5);
+    /* Each the first within the delivery bound: answered again, not
+     * acted on again. */
+    assert_int_equal(r.l->stats.repeats, 5);
+    assert_int_equal(r.events[RTU_EVENT_REPEAT], 5);
+    assert_int_equal(r.replies, 10);
 }
 
 /* local_echo = true: the reply's bytes come back up to 100 ms late, in
@@ -584,7 +603,7 @@ static void local_echo_is_taken_off_the_input(void **state)
     run_to(&r, r.now + 3 * MS);
     assert_int_equal(r.executed, 1);
     deliver(&r, r.l->tx_end_ns + 60 * MS, r.reply, 3);
-    deliver(&r, r.l->tx_end_ns + 95 * MS, r.reply + 3, r.reply_size - 3);
+    deliver(&r, r.now + 1 * MS, r.reply + 3, r.reply_size - 3);
     run_to(&r, r.now + 10 * MS);
     assert_int_equal(r.executed, 1);
     assert_int_equal(r.l->stats.echoes, 1);
@@ -636,11 +655,11 @@ static void an_echo_is_judged_by_its_arrival(void **state)
     r.now += 300 * MS;
     rtu_line_silence(r.l, r.now, hooks_of(&r));
     assert_int_equal(r.executed, 1);
-    assert_int_equal(r.l->stats.echoes, 1);
+    assert_int_equal(r.l->stats.repeats, 1);
 }
 
-/* A master that repeats one write, 40 times, each past the echo window
- * after our reply: 40 executed. */
+/* A master that repeats one write, 40 times, each 20 ms apart (past the
+ * delivery bound after our reply): 40 executed. */
 static void a_repeated_write_is_executed_each_time(void **state)
 {
     struct rig r;
@@ -649,7 +668,7 @@ static void a_repeated_write_is_executed_each_time(void **state)
     (void)state;
     rig_init(&r, 19200, false, true);
     for (int i = 0; i < 40; i++)
-        deliver(&r, r.now + RTU_ECHO_WINDOW_NS + 30 * MS, write, n);
+        deliver(&r, r.now + 20 * MS, write, n);
     run_to(&r, r.now + 30 * MS);
     assert_int_equal(r.executed, 40);
     assert_int_equal(r.l->stats.echoes, 0);
@@ -721,33 +740,42 @@ static size_t echo_loop(unsigned baud, bool local_echo, uint64_t delay, struct r
     return r->executed;
 }
 
-/* Why's first case: an echo later than t3.5 made one write repeat without
- * end with local_echo = false (378 executions in 1.5 s for an echo at
- * t3.5 at 115200). Within the echo window, with either setting, at 115200
- * and 9600: one execution, the echo counted and said. */
-static void an_echo_in_its_window_is_never_a_request(void **state)
+/* An echo later than t3.5 once made one write repeat without end with
+ * local_echo = false (378 executions in 1.5 s for an echo at t3.5 at
+ * 115200). With local_echo = false, an echo within the port's delivery
+ * bound: the first is answered again (the master may be retrying at
+ * once), the echo of that answer is skipped: one execution, two replies.
+ * With local_echo = true, an echo up to 999 ms late: one execution, one
+ * reply. At 115200 and 9600. */
+static void an_echo_is_never_a_request(void **state)
 {
     static const unsigned bauds[] = {115200, 9600};
-    static const uint64_t delays_us[] = {0, 900, 1750, 3500, 3900, 5250, 8000, 16000, 50000,
-                                         99000, RTU_ECHO_WINDOW_NS / US - 1000};
+    static const uint64_t local_us[] = {0, 900, 1750, 3500, 16000, 50000, 200000, 999000};
     (void)state;
     for (int echo = 0; echo < 2; echo++)
         for (size_t b = 0; b < 2; b++)
-            for (size_t d = 0; d < sizeof(delays_us) / sizeof(delays_us[0]); d++) {
+            for (size_t d = 0; d < 8; d++) {
                 struct rig r;
-                size_t executed = echo_loop(bauds[b], echo, delays_us[d] * US, &r);
-                if (executed != 1 || r.l->stats.echoes != 1 ||
-                    (!echo && r.events[RTU_EVENT_ECHO] != 1))
-                    fail_msg("local_echo %d, %u baud, echo %.2f ms late: %zu executed, %llu "
-                             "echoes, %u said",
-                             echo, bauds[b], delays_us[d] / 1000.0, executed,
-                             (unsigned long long)r.l->stats.echoes, r.events[RTU_EVENT_ECHO]);
+                uint64_t bound = 4ull * (10ull * 1000000000ull / bauds[b]) + 1 * MS;
+                uint64_t delay = echo ? local_us[d] * US : bound * d / 8;
+                size_t executed = echo_loop(bauds[b], echo, delay, &r);
+                bool ok = executed == 1 && r.l->stats.echoes == 1 &&
+                          (echo ? r.replies == 1
+                                : r.replies == 2 && r.l->stats.repeats == 1 &&
+                                      r.events[RTU_EVENT_REPEAT] == 1);
+                if (!ok)
+                    fail_msg("local_echo %d, %u baud, echo %.2f ms late: %zu executed, %zu "
+                             "replies, %llu echoes, %llu repeats",
+                             echo, bauds[b], delay / 1e6, executed, r.replies,
+                             (unsigned long long)r.l->stats.echoes,
+                             (unsigned long long)r.l->stats.repeats);
             }
 }
 
-/* Past the window, the same write is the master's again: answered each
- * time (20 writes, each 10 ms after the window). Inside the window, a
- * request of ours that differs from our last reply is never an echo. */
+/* Past the delivery bound (local_echo: past the echo's wait), the same
+ * write is the master's again: answered each time (20 writes, each 10 ms
+ * after it). Inside it, a request of ours that differs from our last
+ * reply is never an echo. */
 static void the_same_write_after_the_window_is_answered(void **state)
 {
     uint8_t on[8], off[8], read[8];
@@ -762,7 +790,7 @@ static void the_same_write_after_the_window_is_answered(void **state)
         deliver(&r, r.now + 5 * MS, on, 8);
         for (int i = 0; i < 20; i++) {
             run_to(&r, r.now + 3 * MS);
-            uint64_t at = r.l->tx_end_ns + RTU_ECHO_WINDOW_NS + 10 * MS;
+            uint64_t at = rtu_line_bound_end_ns(r.l) + 10 * MS;
             deliver_read(&r, at, at - 1 * US, on, 8);
         }
         run_to(&r, r.now + 10 * MS);
@@ -778,10 +806,11 @@ static void the_same_write_after_the_window_is_answered(void **state)
     }
 }
 
-/* Why's second case: the echo is judged by when its bytes can have come.
- * The echo 5 ms after the reply, and the loop stalled 0.3 s before it read
- * it, or after it read half of it; an echo in two pieces, the second
- * 105 ms late. With either setting: never a second execution. */
+/* The echo is judged by when its bytes can have come. The echo within
+ * the delivery bound after the reply (local_echo: 5 ms), and the loop
+ * stalled 0.3 s before it read it, or after it read half of it; an echo
+ * in two pieces, the second 100 ms later (with local_echo, a spoiled
+ * echo: a collision). With either setting: never a second execution. */
 static void a_stall_never_makes_an_echo_a_request(void **state)
 {
     static const unsigned bauds[] = {115200, 9600};
@@ -797,15 +826,16 @@ static void a_stall_never_makes_an_echo_a_request(void **state)
                 deliver(&r, r.now + 5 * MS, write, n);
                 run_to(&r, r.now + 30 * MS);
                 assert_int_equal(r.executed, 1);
-                uint64_t end = r.l->tx_end_ns, look = r.now; /* the last look */
+                uint64_t end = r.l->tx_end_ns, look = end; /* the last look */
+                uint64_t at = end + (echo ? 5 * MS : r.l->cfg.delivery_ns / 2);
                 if (how == 0) {
-                    read_after_stall(&r, end + 305 * MS, look, r.reply, r.reply_size);
+                    read_after_stall(&r, at + 300 * MS, look, r.reply, r.reply_size);
                 } else if (how == 1) {
-                    deliver_read(&r, end + 5 * MS, end + 5 * MS - 1 * US, r.reply, 3);
-                    read_after_stall(&r, end + 305 * MS, look, r.reply + 3, r.reply_size - 3);
+                    deliver_read(&r, at, at - 1 * US, r.reply, 3);
+                    read_after_stall(&r, at + 300 * MS, at, r.reply + 3, r.reply_size - 3);
                 } else {
-                    deliver_read(&r, end + 5 * MS, end + 5 * MS - 1 * US, r.reply, 3);
-                    deliver_read(&r, end + 105 * MS, end + 105 * MS - 1 * US, r.reply + 3,
+                    deliver_read(&r, at, at - 1 * US, r.reply, 3);
+                    deliver_read(&r, at + 100 * MS, at + 100 * MS - 1 * US, r.reply + 3,
                                  r.reply_size - 3);
                 }
                 run_to(&r, r.now + 300 * MS);
@@ -895,6 +925,75 @@ static void a_busy_bus_regains_its_place_after_noise(void **state)
             }
 }
 
+/*
+ * A master's cycle with a user-defined function code (65-72, 100-110)
+ * of unit 18, 'data' bytes, and our write, each a legal gap (t3.5 and a
+ * seventh) after the frame before; unit 18 absent (no response) or
+ * answering with the same form ('answered'). Returns our writes executed
+ * of 10; fails if anything else is.
+ */
+static size_t user_code_cycles(unsigned baud, uint8_t fc, size_t data, bool answered)
+{
+    struct rig r;
+    uint8_t req[64], ours[8];
+    rig_init(&r, baud, false, false);
+    start_synced(&r);
+    uint64_t c = r.l->cfg.char_ns, gap = r.l->cfg.t35_ns + r.l->cfg.t35_ns / 7;
+    uint64_t t = r.now + 50 * MS;
+    size_t got = 0;
+    for (unsigned i = 0; i < 10; i++) {
+        req[0] = 18, req[1] = fc;
+        for (size_t k = 0; k < data; k++)
+            req[2 + k] = (uint8_t)(i * 31 + k * 7 + 1);
+        size_t n = rtu_append_crc(req, 2 + data);
+        t += n * c;
+        deliver(&r, t, req, n);
+        if (answered) {
+            req[2] ^= 0x55; /* the response: another frame of the same form */
+            n = rtu_append_crc(req, 2 + data);
+            t += gap + n * c;
+            deliver(&r, t, req, n);
+        }
+        size_t m = write_coil(ours, UNIT, 200, i & 1), before = r.executed;
+        t += gap + m * c;
+        deliver(&r, t, ours, m);
+        run_to(&r, t + 100 * MS);
+        for (size_t e = before; e < r.executed && e < MAX_EXEC; e++)
+            if (memcmp(r.exec[e], ours, 8) != 0)
+                fail_msg("FC%u: executed a frame that is not our write", fc);
+        got += r.executed > before;
+        t = r.l->tx_end_ns + r.l->cfg.t35_ns + 1 * MS;
+        if (t < r.now)
+            t = r.now;
+    }
+    return got;
+}
+
+/* User-defined function codes of another unit get the length search
+ * FC08 gets: a request of a code whose form the line does not know is
+ * cut at the shortest CRC-valid run that a whole request follows. With
+ * unit 18 absent, our writes after them are answered (before: starved, 0
+ * of 10); where unit 18 answers in a form the line cannot know, its
+ * response's data is never searched (its data is that unit's), and
+ * nothing but our writes is ever executed. */
+static void user_codes_of_another_unit_are_cut_by_length(void **state)
+{
+    static const uint8_t codes[] = {65, 72, 100, 110};
+    (void)state;
+    for (size_t b = 0; b < 2; b++)
+        for (size_t k = 0; k < sizeof(codes); k++)
+            for (int answered = 0; answered < 2; answered++) {
+                unsigned baud = b ? 9600 : 115200;
+                size_t got = user_code_cycles(baud, codes[k], 6, answered);
+                if (!answered && got < 9)
+                    fail_msg("%u baud, FC%u to absent unit 18: %zu of 10 writes executed", baud,
+                             codes[k], got);
+                if (k == 0)
+                    printf("    %6u baud, FC%u, unit 18 %s: %zu of 10 writes executed\n", baud,
+                           codes[k], answered ? "answering" : "absent", got);
+            }
+}
+
 /* Why's fourth case: a master that keeps no t3.5 of its own sends each
  * request as soon as our reply has come (50 writes, each toggling the
  * output): every one answered, on a wire and on a pty. */
@@ -916,6 +1015,116 @@ static void a_master_without_t35_is_answered(void **state)
         if (r.executed != 51)
             fail_msg("pty %d: %zu of 51 executed", pty, r.executed);
         assert_int_equal(r.replies, 51);
+    }
+}
+
+/* ---- USB adapters (usb_adapter.h) ---- */
+
+/* What the adapter holds reaches the host at the next USB frame after 't'. */
+static void usb_flush(struct rig *r, struct usb_port *p, uint64_t t)
+{
+    if (!p->held_n)
+        return;
+    deliver(r, t + USB_FRAME_NS, p->held, p->held_n);
+    p->held_n = 0;
+}
+
+/* 'size' bytes on the wire from 'start', one character each 'char_ns',
+ * into the adapter's packets: a full one goes at once, a partial one when
+ * the latency timer runs out. Returns the wire time of the last byte. */
+static uint64_t usb_wire(struct rig *r, struct usb_port *p, const uint8_t *d, size_t size,
+                         uint64_t start, uint64_t char_ns)
+{
+    uint64_t t = start;
+    for (size_t i = 0; i < size; i++) {
+        t += char_ns;
+        if (p->held_n) {
+            uint64_t fire = usb_timer_after(p, p->held_since_ns);
+            if (fire < t)
+                usb_flush(r, p, fire);
+        }
+        if (!p->held_n)
+            p->held_since_ns = t;
+        p->held[p->held_n++] = d[i];
+        if (p->held_n == p->adapter->payload)
+            usb_flush(r, p, t);
+    }
+    return t;
+}
+
+/* Nothing more on the wire until 'until': the timer hands over the rest. */
+static void usb_idle(struct rig *r, struct usb_port *p, uint64_t until)
+{
+    if (p->held_n) {
+        uint64_t fire = usb_timer_after(p, p->held_since_ns);
+        if (fire <= until)
+            usb_flush(r, p, fire);
+    }
+}
+
+/*
+ * A master's cycle through a USB adapter at 19200 baud: a read of 125
+ * registers of unit 18 (its 255-byte response holding CRC-valid writes
+ * for our unit in its data), then our read 5 ms after that response. Every
+ * adapter of the table, 20 cycles, the line told the adapter's bound
+ * ('bound_ms'). Returns our reads answered; fails if anything else is
+ * executed.
+ */
+static unsigned usb_long_response_cycles(const struct usb_adapter *a, unsigned bound_ms,
+                                         unsigned phase_us)
+{
+    struct rig r;
+    struct usb_port p = {.adapter = a};
+    uint8_t req[8], rsp[RTU_MAX_ADU], ours[8];
+    unsigned answered = 0;
+    rig_init(&r, 19200, false, false);
+    r.l->cfg.delivery_ns = 4ull * r.l->cfg.char_ns + 1 * MS + bound_ms * MS;
+    start_synced(&r);
+    uint64_t c = r.l->cfg.char_ns, t = r.now + 50 * MS;
+    p.phase_ns = r.now + phase_us * US;
+    for (unsigned cycle = 0; cycle < 20; cycle++) {
+        read_request(req, 18, 3, 0, 125);
+        rsp[0] = 18, rsp[1] = 3, rsp[2] = 250;
+        for (size_t i = 0; i < 250; i++)
+            rsp[3 + i] = (uint8_t)(i * 37 + cycle);
+        for (size_t at = 3 + cycle % 8; at + 8 <= 253; at += 24)
+            write_coil(rsp + at, UNIT, 101, true);
+        size_t rsp_n = rtu_append_crc(rsp, 253);
+        read_request(ours, UNIT, 4, (uint16_t)cycle, 1);
+        t = usb_wire(&r, &p, req, 8, t, c);
+        t = usb_wire(&r, &p, rsp, rsp_n, t + r.l->cfg.t35_ns + 1 * MS, c);
+        size_t before = r.executed;
+        t = usb_wire(&r, &p, ours, 8, t + 5 * MS, c);
+        usb_idle(&r, &p, t + 40 * MS);
+        run_to(&r, t + 60 * MS);
+        for (size_t i = before; i < r.executed && i < MAX_EXEC; i++)
+            if (r.exec_size[i] != 8 || memcmp(r.exec[i], ours, 8) != 0)
+                fail_msg("%s, bound %u ms: cycle %u executed a frame nobody sent for us",
+                         a->name, bound_ms, cycle);
+        answered += r.executed > before;
+        t = r.now + 20 * MS;
+    }
+    return answered;
+}
+
+/* Through an adapter's packets (FTDI 62 bytes, latency timer 16 ms and
+ * 1 ms; CH340; CP2102), with the line told the adapter's bound: nothing
+ * nobody sent for us is executed, and our read after a long foreign
+ * response is answered at least 18 of 20. With the old bound (4
+ * characters + 1 ms), what it was is printed. */
+static void usb_adapters_deliver_whole_conversations(void **state)
+{
+    (void)state;
+    for (size_t i = 0; i < sizeof(usb_adapters) / sizeof(usb_adapters[0]); i++) {
+        const struct usb_adapter *a = &usb_adapters[i];
+        for (unsigned phase = 0; phase < 4; phase++) {
+            unsigned got = usb_long_response_cycles(a, a->latency_ms, phase * 3700);
+            if (got < 18)
+                fail_msg("%s (timer phase %u): our read answered %u of 20", a->name, phase, got);
+            if (phase == 0)
+                printf("    %-28s our read after a 255-byte response: %u of 20\n", a->name,
+                       got);
+        }
     }
 }
 
@@ -1016,13 +1225,14 @@ static uint64_t next_start(struct bus *b)
 }
 
 /* A master that repeats our last reply (the same write) does it after the
- * echo window (rtu_frame.h: within it, the frame is that reply heard
- * back). 'size' 0: a chunk that does not start with our request. */
+ * delivery bound (rtu_frame.h: within it, the frame is answered again and
+ * not acted on again), so that the bus expects it executed. 'size' 0: a
+ * chunk that does not start with our request. */
 static uint64_t past_echo_window(const struct bus *b, const uint8_t *frame, size_t size,
                                  uint64_t start)
 {
     const struct rtu_line *l = b->r.l;
-    uint64_t window_end = rtu_line_echo_window_end_ns(l);
+    uint64_t window_end = rtu_line_bound_end_ns(l);
     if (size && size == l->sent_size && memcmp(frame, l->sent, size) == 0 &&
         start < window_end + 1 * MS)
         return window_end + 1 * MS;
@@ -1165,14 +1375,47 @@ static size_t cut_into_no_frames(const uint8_t *d, size_t n)
     return 0;
 }
 
+/* The echo of the frame we sent last, as the adapter gives it back:
+ * without local_echo within the port's delivery bound (its definition),
+ * with it up to 95 ms late; whole or in two pieces, delivered in order. */
+static void echo_back(struct bus *b, bool local_echo, unsigned how)
+{
+    uint64_t end = b->r.l->tx_end_ns, bound = b->r.l->cfg.delivery_ns, at;
+    if (!local_echo)
+        at = b->r.reply_at + below((unsigned)(end - b->r.reply_at + bound - 50 * US));
+    else
+        at = end + below(how == 1 ? 95 * (unsigned)MS : 5 * (unsigned)MS);
+    size_t split = b->r.reply_size > 4 && chance(50) ? 1 + below((unsigned)b->r.reply_size - 1)
+                                                     : b->r.reply_size;
+    if (at < b->r.now)
+        at = b->r.now;
+    if (!local_echo && at + 50 * US >= end + bound)
+        return; /* the clock ran past the bound (a reply taken late): no echo */
+    deliver(&b->r, at, b->r.reply, split);
+    if (split < b->r.reply_size) {
+        uint64_t at2 = at + below(local_echo ? 1 * (unsigned)MS : 100 * (unsigned)US);
+        if (!local_echo && at2 >= end + bound - 50 * US)
+            at2 = at;
+        deliver(&b->r, at2, b->r.reply + split, b->r.reply_size - split);
+        at = at2;
+    }
+    b->read_at = at;
+    if (!local_echo)
+        b->wire = b->wire > at ? b->wire : at; /* the master speaks after t3.5 more */
+}
+
 /* After our request: the line answers (or not, if it did not execute), the
- * echo comes back as the mode allows, the master waits. */
+ * echo comes back as the mode allows, the master waits. Without
+ * local_echo, an echo of a write's reply (the request itself) is answered
+ * again once, and that answer is echoed too. */
 static void our_reply_and_echo(struct bus *b, bool local_echo)
 {
+    b->r.stop_at_reply = true; /* the echo comes as the reply goes out */
     run_to(&b->r, b->read_at + b->t35 + b->r.turnaround);
     if (!b->r.reply_at) /* taken after a sure silence: the line had lost its place */
         run_to(&b->r, b->read_at + b->t35 + RTU_PIECE_CHARS * b->char_ns +
                           b->r.l->cfg.delivery_ns + b->r.turnaround);
+    b->r.stop_at_reply = false;
     if (!b->r.reply_at || b->r.reply_at < b->read_at)
         return; /* not answered: the master times out (the wire is free) */
     uint64_t end = b->r.l->tx_end_ns;
@@ -1181,27 +1424,20 @@ static void our_reply_and_echo(struct bus *b, bool local_echo)
     unsigned how = below(4);
     if (how == 0 && !local_echo)
         return; /* an adapter that does not echo */
-    uint64_t at;
-    if (!local_echo)
-        at = b->r.reply_at + below((unsigned)(end - b->r.reply_at + b->t35 - 50 * US));
-    else
-        at = end + below(how == 1 ? 95 * (unsigned)MS : 5 * (unsigned)MS);
-    /* The echo in one or two pieces, delivered in order. */
-    size_t split = b->r.reply_size > 4 && chance(50) ? 1 + below((unsigned)b->r.reply_size - 1)
-                                                     : b->r.reply_size;
-    if (at < b->r.now)
-        at = b->r.now;
-    deliver(&b->r, at, b->r.reply, split);
-    if (split < b->r.reply_size) {
-        uint64_t at2 = at + below(local_echo ? 3 * (unsigned)MS : 100 * (unsigned)US);
-        if (!local_echo && at2 >= end + b->t35 - 50 * US)
-            at2 = at;
-        deliver(&b->r, at2, b->r.reply + split, b->r.reply_size - split);
-        at = at2;
-    }
-    b->read_at = at;
-    if (!local_echo)
-        b->wire = b->wire > at ? b->wire : at; /* the master speaks after t3.5 more */
+    size_t replies = b->r.replies;
+    echo_back(b, local_echo, how);
+    if (local_echo)
+        return;
+    b->r.stop_at_reply = true; /* the echo comes as the answer goes out */
+    run_to(&b->r, b->read_at + b->t35 + RTU_PIECE_CHARS * b->char_ns +
+                      b->r.l->cfg.delivery_ns + b->r.turnaround);
+    b->r.stop_at_reply = false;
+    if (b->r.replies == replies)
+        return;
+    if (b->r.l->tx_end_ns > b->wire)
+        b->wire = b->r.l->tx_end_ns;
+    echo_back(b, local_echo, how);
+    run_to(&b->r, b->read_at + b->t35);
 }
 
 static void one_bus(unsigned long bus_no)
@@ -1449,6 +1685,37 @@ static bool known_function(uint8_t fc)
     return false;
 }
 
+/* The adapter gives our last frame back 'echo_delay' after its wire time
+ * (whole, or in two pieces: the second within the port's latency without
+ * local_echo, up to 100 ms later with it, a fault of this cycle). */
+static void field_echo(const uint8_t *reply, size_t size, struct field *f, int cycle,
+                       bool local_echo)
+{
+    struct bus *b = &f->b;
+    uint64_t end = b->r.l->tx_end_ns, at = end + f->echo_delay;
+    size_t split = size > 4 && chance(30) ? 1 + below((unsigned)size - 1) : size;
+    if (at < b->read_at)
+        at = b->read_at;
+    if (at < b->r.now)
+        at = b->r.now;
+    if (!local_echo && at >= end + b->r.l->cfg.delivery_ns)
+        return; /* the clock ran past the bound (a stall, a late reply): no echo */
+    deliver(&b->r, at, reply, split);
+    b->read_at = at;
+    if (split < size) {
+        if (local_echo) {
+            /* A piece later than the port's latency holds what follows
+             * it (the master's next frames, glued: their silences lost).
+             * The line may lose the next cycle (never executing any of it
+             * twice). */
+            f->last_fault = cycle;
+            at += below(100 * (unsigned)MS);
+        }
+        deliver(&b->r, at, reply + split, size - split);
+        b->read_at = at;
+    }
+}
+
 static void one_field_bus(unsigned long bus_no)
 {
     static const unsigned bauds[] = {9600, 19200, 38400, 115200};
@@ -1473,8 +1740,10 @@ static void one_field_bus(unsigned long bus_no)
     default: f.echo_delay = below(119 * (unsigned)MS); break;
     }
     f.timeout = (400 + below(200)) * MS;
-    /* The port's lateness: the echo's delay, for every byte received. */
+    /* The port's lateness: the echo's delay, for every byte received; the
+     * line is told it as the adapter's delivery bound. */
     b->latency = f.echoes ? f.echo_delay : below(2) * below(16 * (unsigned)MS);
+    b->r.l->cfg.delivery_ns += b->latency + 2 * b->jitter;
     f.last_fault = -1; /* the line starts not knowing where the bus stands */
     int cycles = 3 + (int)below(FIELD_CYCLES_MAX - 2);
     uint64_t start = b->r.now + 50 * MS;
@@ -1530,24 +1799,19 @@ static void one_field_bus(unsigned long bus_no)
         }
         uint64_t end = b->r.l->tx_end_ns;
         if (f.echoes) {
-            uint64_t at = end + f.echo_delay;
-            size_t size = b->r.reply_size;
-            size_t split = size > 4 && chance(30) ? 1 + below((unsigned)size - 1) : size;
-            if (at < b->read_at)
-                at = b->read_at;
-            deliver(&b->r, at, b->r.reply, split);
-            b->read_at = at;
-            if (split < size) {
-                /* A piece later than the port's latency holds what
-                 * follows it (the master's next frames, glued: their
-                 * silences lost); without local_echo, an echo in pieces
-                 * is chunks that are no frame. The line may lose the
-                 * next cycle (never executing any of it twice). */
-                f.last_fault = c;
-                uint64_t limit = end + 119 * MS > at ? end + 119 * MS - at : 1;
-                at += below((unsigned)(limit < 100 * MS ? limit : 100 * MS));
-                deliver(&b->r, at, b->r.reply + split, size - split);
-                b->read_at = at;
+            field_echo(f.b.r.reply, b->r.reply_size, &f, c, local_echo);
+            if (!local_echo) {
+                /* A write's reply is the request: its echo is answered
+                 * again once, and that answer echoed too. */
+                size_t before = b->r.replies;
+                b->r.stop_at_reply = true;
+                run_to(&b->r, b->read_at + b->t35 + RTU_PIECE_CHARS * b->char_ns +
+                                  b->r.l->cfg.delivery_ns + b->r.turnaround);
+                b->r.stop_at_reply = false;
+                if (b->r.replies > before) {
+                    end = b->r.l->tx_end_ns;
+                    field_echo(b->r.reply, b->r.reply_size, &f, c, local_echo);
+                }
             }
         }
         b->wire = end;
@@ -1584,9 +1848,9 @@ static void one_field_bus(unsigned long bus_no)
                      bus_no, local_echo, f.echoes, f.echo_delay / 1e6, f.no_t35,
                      1000000000u / b->char_ns * 10, f.ours_cycle[k], f.last_fault);
     }
-    if (b->r.replies != b->r.executed)
-        fail_msg("field bus %lu: %zu executed, %zu answered", bus_no, b->r.executed,
-                 b->r.replies);
+    if (b->r.replies != b->r.executed + b->r.l->stats.repeats)
+        fail_msg("field bus %lu: %zu executed, %llu answered again, %zu replies", bus_no,
+                 b->r.executed, (unsigned long long)b->r.l->stats.repeats, b->r.replies);
 }
 
 static void field_buses_keep_safety_and_liveness(void **state)
@@ -1613,6 +1877,209 @@ static void field_buses_keep_safety_and_liveness(void **state)
         rnd();
         one_field_bus(i);
     }
+}
+
+/* ---- the property test, through USB adapters, with masters that retry ---- */
+
+/*
+ * A master polling through one adapter of usb_adapter.h (every byte in
+ * its packets), the line told the adapter's bound: per cycle up to two
+ * exchanges with other units (reads of up to 125 registers whose data
+ * hides writes for our unit; user-defined codes, 65-72 and 100-110, to
+ * absent units; each unit once a cycle: the same unit and code again
+ * right after could be that unit's answer, whose data is never
+ * searched), then a request of ours (a read, or a write: half the
+ * time the very write of the cycle before, a cyclic rewrite). A reply of
+ * ours is lost on its way to the master at random; the master then sends
+ * the same frame again after its timeout (20-1000 ms, never shorter than
+ * the reply's wire time), up to its retries (1-3).
+ * Safety: what is executed is our transmissions, in order, each once.
+ * Liveness: every first transmission and every first retry is answered
+ * (executed, or within the delivery bound answered again), except our
+ * last reply's bytes again within the bound after it was answered again
+ * once (an echo, by the rule: a rewrite or retry faster than the reply's
+ * wire time and the bound).
+ */
+#define USB_SENT_MAX 48
+
+/* What the buses did, over a run: said at its end. */
+static struct {
+    unsigned long sent, retries, repeats, executed, foreign_hidden;
+} usb_totals;
+
+struct usb_bus {
+    struct rig r;
+    struct usb_port port;
+    uint64_t char_ns;
+    size_t sent; /* our transmissions */
+    uint8_t frames[USB_SENT_MAX][8];
+    uint8_t polled; /* the unit polled last in this cycle: a master polls each once */
+};
+
+/* A request for another unit and what follows it on the wire. */
+static uint64_t usb_foreign(struct usb_bus *u, uint64_t t)
+{
+    uint8_t req[16], rsp[RTU_MAX_ADU];
+    uint64_t c = u->char_ns, t35 = u->r.l->cfg.t35_ns;
+    uint8_t unit = (uint8_t)(1 + below(247));
+    while (unit == UNIT || unit == u->polled)
+        unit = (uint8_t)(1 + below(247));
+    u->polled = unit;
+    if (chance(40)) {
+        /* A user-defined code to a unit that does not answer. */
+        static const uint8_t codes[] = {65, 66, 70, 72, 100, 104, 110};
+        req[0] = unit, req[1] = codes[below(sizeof(codes))];
+        size_t data = below(9);
+        for (size_t i = 0; i < data; i++)
+            req[2 + i] = (uint8_t)rnd();
+        size_t n = rtu_append_crc(req, 2 + data);
+        t = usb_wire(&u->r, &u->port, req, n, t, c);
+        return t + (chance(50) ? t35 + below(2 * (unsigned)MS) : 20 * MS);
+    }
+    unsigned count = 1 + below(125);
+    t = usb_wire(&u->r, &u->port, req, read_request(req, unit, 3, (uint16_t)below(1000),
+                                                     (uint16_t)count), t, c);
+    rsp[0] = unit, rsp[1] = 3, rsp[2] = (uint8_t)(2 * count);
+    for (unsigned i = 0; i < 2 * count; i++)
+        rsp[3 + i] = (uint8_t)rnd();
+    for (size_t at = 3 + below(8); at + 8 <= 3 + 2 * count; at += 8 + below(32))
+        write_coil(rsp + at, UNIT, (uint16_t)(200 + below(16)), true);
+    size_t n = rtu_append_crc(rsp, 3 + 2 * count);
+    t = usb_wire(&u->r, &u->port, rsp, n, t + t35 + below(3 * (unsigned)MS), c);
+    return t + t35 + below(3 * (unsigned)MS);
+}
+
+/* One transmission of ours at 't'; returns whether it was answered
+ * (a reply went out for it), and the time the master may go on. */
+static bool usb_ours(struct usb_bus *u, const uint8_t *frame, uint64_t *t)
+{
+    size_t replies = u->r.replies;
+    if (u->sent < USB_SENT_MAX)
+        memcpy(u->frames[u->sent], frame, 8);
+    u->sent++;
+    trace_bytes("sent", *t, frame, 8);
+    *t = usb_wire(&u->r, &u->port, frame, 8, *t, u->char_ns);
+    usb_idle(&u->r, &u->port, *t + 100 * MS);
+    /* The last piece comes by the adapter's timer and a USB frame; a line
+     * that reads what came two ways waits t3.5, a port's piece and the
+     * bound beyond it (rtu_frame.h). */
+    u->r.stop_at_reply = true;
+    run_to(&u->r, *t + (uint64_t)u->port.adapter->latency_ms * MS + USB_FRAME_NS +
+                      u->r.l->cfg.delivery_ns + RTU_PIECE_CHARS * u->char_ns +
+                      u->r.l->cfg.t35_ns + 5 * MS);
+    u->r.stop_at_reply = false;
+    return u->r.replies > replies;
+}
+
+static void one_usb_bus(unsigned long bus_no)
+{
+    static const unsigned bauds[] = {9600, 19200, 38400, 115200};
+    struct usb_bus u;
+    const struct usb_adapter *a = &usb_adapters[below(sizeof(usb_adapters) /
+                                                      sizeof(usb_adapters[0]))];
+    uint8_t ours[8], last_write[8];
+    bool have_write = false;
+
+    memset(&u, 0, sizeof(u));
+    rig_init(&u.r, bauds[below(4)], false, chance(20));
+    u.r.turnaround = (20 + below(400)) * US;
+    u.r.l->cfg.delivery_ns += (uint64_t)a->latency_ms * MS;
+    u.char_ns = u.r.l->cfg.char_ns;
+    start_synced(&u.r);
+    u.port.adapter = a;
+    u.port.phase_ns = u.r.now + below(a->latency_ms * 1000) * US;
+    unsigned retries = 1 + below(3);
+    uint64_t timeout = (20 + below(981)) * MS;
+    uint64_t t = u.r.now + 20 * MS;
+    unsigned cycles = 2 + below(8);
+    for (unsigned c = 0; c < cycles && u.sent + 4 <= USB_SENT_MAX; c++) {
+        u.polled = 0;
+        for (unsigned f = below(3); f > 0; f--)
+            t = usb_foreign(&u, t);
+        if (have_write && chance(50)) {
+            memcpy(ours, last_write, 8); /* the same write again */
+        } else if (chance(50)) {
+            read_request(ours, UNIT, 4, (uint16_t)below(6000), (uint16_t)(1 + below(20)));
+        } else {
+            write_coil(ours, UNIT, (uint16_t)(200 + below(16)), below(2));
+            memcpy(last_write, ours, 8);
+            have_write = true;
+        }
+        /* The reply's wire time bounds the master's timeout from below. */
+        uint64_t reply_wire = (5 + 40) * u.char_ns + u.r.l->cfg.t35_ns + 5 * MS;
+        uint64_t wait = timeout > reply_wire ? timeout : reply_wire;
+        for (unsigned k = 0; k <= retries; k++) {
+            uint64_t asked = t;
+            /* Our last reply again, within the bound, after it was already
+             * answered again once: an echo, by the rule (rtu_frame.h). */
+            const struct rtu_line *l = u.r.l;
+            bool may_skip = l->sent_size == 8 && memcmp(ours, l->sent, 8) == 0 &&
+                            l->repeat_answered && t < rtu_line_bound_end_ns(l);
+            bool answered = usb_ours(&u, ours, &t);
+            if (!answered && k <= 1 && !may_skip)
+                fail_msg("usb bus %lu (%s, %u baud, timeout %llu ms, %u retries): cycle %u, "
+                         "%s not answered",
+                         bus_no, a->name, 1000000000u / (unsigned)u.char_ns * 10, 
+                         (unsigned long long)(timeout / MS), retries, c,
+                         k ? "the first retry" : "the request");
+            bool lost = answered && chance(25);
+            if (answered && !lost)
+                break;
+            t = asked + wait; /* the master's timeout, then the same frame */
+            usb_totals.retries += k < retries;
+            if (t < u.r.now)
+                t = u.r.now;
+        }
+        uint64_t free_at = u.r.l->tx_end_ns + u.r.l->cfg.t35_ns + 1 * MS;
+        t = (free_at > t ? free_at : t) + below(5 * (unsigned)MS);
+        if (t < u.r.now)
+            t = u.r.now;
+    }
+    usb_idle(&u.r, &u.port, t + 200 * MS);
+    run_to(&u.r, t + 300 * MS);
+    usb_totals.sent += u.sent;
+    usb_totals.repeats += u.r.l->stats.repeats;
+    usb_totals.executed += u.r.executed;
+    /* Safety: our transmissions, in order, each at most once. */
+    size_t next = 0;
+    for (size_t i = 0; i < u.r.executed && i < MAX_EXEC; i++) {
+        while (next < u.sent && next < USB_SENT_MAX &&
+               (u.r.exec_size[i] != 8 || memcmp(u.frames[next], u.r.exec[i], 8) != 0))
+            next++;
+        if (next >= u.sent || next >= USB_SENT_MAX)
+            fail_msg("usb bus %lu (%s): executed #%zu is no transmission of ours after the "
+                     "one before",
+                     bus_no, a->name, i);
+        next++;
+    }
+}
+
+static void usb_buses_with_retrying_masters(void **state)
+{
+    const char *env = getenv("RTU_USB_BUSES"), *seed_env = getenv("RTU_PROPERTY_SEED");
+    unsigned long buses = env ? strtoul(env, NULL, 10) : 20000 / emulated();
+    uint64_t seed = seed_env ? strtoull(seed_env, NULL, 0)
+                             : (uint64_t)time(NULL) * 2654435761u ^ (uint64_t)getpid() << 32 ^
+                                   (uint64_t)clock() ^ 0x5B;
+    unsigned long first = getenv("RTU_PROPERTY_BUS") ? strtoul(getenv("RTU_PROPERTY_BUS"), NULL, 10)
+                                                      : 0;
+    (void)state;
+    if (!seed)
+        seed = 1;
+    printf("rtu usb property: %lu buses, RTU_PROPERTY_SEED=0x%llx\n", buses,
+           (unsigned long long)seed);
+    fflush(stdout);
+    server = NULL;
+    for (unsigned long i = first; i < first + buses; i++) {
+        rng_state = seed + i * 0x9E3779B97F4A7C15ull;
+        if (!rng_state)
+            rng_state = 1;
+        rnd();
+        one_usb_bus(i);
+    }
+    printf("rtu usb property: %lu transmissions of ours (%lu retries), %lu executed, %lu "
+           "answered again within the bound\n",
+           usb_totals.sent, usb_totals.retries, usb_totals.executed, usb_totals.repeats);
 }
 
 static void server_open(struct server_path *p)
@@ -1719,13 +2186,16 @@ int main(void)
         cmocka_unit_test(a_repeated_write_is_executed_each_time),
         cmocka_unit_test(our_request_must_end_its_chunk),
         cmocka_unit_test(our_frames_keep_t35_apart),
-        cmocka_unit_test(an_echo_in_its_window_is_never_a_request),
+        cmocka_unit_test(an_echo_is_never_a_request),
+        cmocka_unit_test(usb_adapters_deliver_whole_conversations),
         cmocka_unit_test(the_same_write_after_the_window_is_answered),
         cmocka_unit_test(a_stall_never_makes_an_echo_a_request),
         cmocka_unit_test(a_busy_bus_regains_its_place_after_noise),
+        cmocka_unit_test(user_codes_of_another_unit_are_cut_by_length),
         cmocka_unit_test(a_master_without_t35_is_answered),
         cmocka_unit_test(generated_buses_execute_exactly_our_whole_requests),
         cmocka_unit_test(field_buses_keep_safety_and_liveness),
+        cmocka_unit_test(usb_buses_with_retrying_masters),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -143,6 +143,7 @@ static const struct key_info keys[] = {
     KEY("rtu", "unit_id", KEY_UINT, rtu_unit_id, 1, 247, "1"),
     KEY("rtu", "rs485", KEY_BOOL, rtu_rs485, 0, 1, "false"),
     KEY("rtu", "local_echo", KEY_BOOL, rtu_local_echo, 0, 1, "false"),
+    KEY("rtu", "delivery_ms", KEY_UINT, rtu_delivery_ms, 0, 255, "16"),
     KEY("rtu", "rights", KEY_RIGHTS, rtu_rights, 0, 0, "read"),
     KEY("http", "enabled", KEY_BOOL, http_enabled, 0, 1, "false"),
     KEY("http", "bind", KEY_IP_ADDRESS, http_bind, 1, 0, "127.0.0.1"),

@@ -105,6 +105,7 @@ struct gw_config {
     uint32_t rtu_unit_id;   /* 1..247 */
     bool rtu_rs485;         /* TIOCSRS485 */
     bool rtu_local_echo;    /* the adapter gives back what it sends */
+    uint32_t rtu_delivery_ms; /* the adapter's delivery bound where sysfs tells none */
     char rtu_rights[160];   /* as written */
     uint32_t rtu_rights_mask;
     /* [http]: metrics, status page */

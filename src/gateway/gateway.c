@@ -271,6 +271,7 @@ static void refresh_rtu_values(struct gateway *gw, double *v)
     v[GW_rtu_echoes] = (double)s->echoes;
     v[GW_rtu_collisions] = (double)s->collisions;
     v[GW_rtu_out_of_turn] = (double)s->out_of_turn;
+    v[GW_rtu_delivery_ms] = on ? gw->rtu.delivery_bound_ms : 0;
 }
 
 static void refresh_tls_values(struct gateway *gw, double *v)
@@ -630,6 +631,10 @@ void gateway_describe(const struct gateway *gw, char *buf, size_t size)
              names[gw->command.link.state],
              command_port_state(&gw->command) == 3 ? " (not answering yet)" : "",
              gw->modbus.stats.clients);
+    size_t used = strlen(buf);
+    if ((gw->parts & GATEWAY_PART_RTU) && gw->rtu.fd >= 0 && used < size)
+        snprintf(buf + used, size - used, ", serial line delivery %u ms",
+                 gw->rtu.delivery_bound_ms);
 }
 
 static int start_links(struct gateway *gw)
@@ -862,6 +867,7 @@ static int start_rtu(struct gateway *gw)
         .unit_id = cfg->rtu_unit_id,
         .rs485 = cfg->rtu_rs485,
         .local_echo = cfg->rtu_local_echo,
+        .delivery_ms = cfg->rtu_delivery_ms,
         .rights = cfg->rtu_rights_mask,
         .active_ms = cfg->ne_time_limit_ms,
     };

@@ -116,6 +116,68 @@ static int configure_port(struct mb_rtu *rtu, int fd, char *why, size_t why_size
     return finish_setup(rtu, fd, why, why_size);
 }
 
+/* The USB serial adapter's latency timer (ms) in sysfs, for the tty 'st'
+ * names: the FTDI driver's (ftdi_sio) on the usb-serial port, which is the
+ * tty's "device". 'value' NULL: reads it; else writes it first. Returns the
+ * value read, or -1 where there is none (another driver, a pty, a UART). */
+static int latency_timer(const struct mb_rtu *rtu, const struct stat *st, const char *value)
+{
+    char path[160], text[16];
+    int fd, ms = -1;
+
+    snprintf(path, sizeof(path), "%s/dev/char/%u:%u/device/latency_timer", rtu->sysfs_root,
+             major(st->st_rdev), minor(st->st_rdev));
+    if (value && (fd = open(path, O_WRONLY | O_CLOEXEC)) >= 0) {
+        /* Refused without the right to write it: what is read back holds. */
+        if (write(fd, value, strlen(value)) < 0)
+            log_info("rtu: %s: cannot set the adapter's latency timer to %s ms: %s",
+                     rtu->device, value, strerror(errno));
+        close(fd);
+    }
+    if ((fd = open(path, O_RDONLY | O_CLOEXEC)) < 0)
+        return -1;
+    ssize_t n = read(fd, text, sizeof(text) - 1);
+    close(fd);
+    if (n > 0) {
+        text[n] = 0;
+        if (sscanf(text, "%d", &ms) != 1 || ms < 0 || ms > 255)
+            ms = -1;
+    }
+    return ms;
+}
+
+/*
+ * A USB adapter hands over what it received in packets, a partial one
+ * only when its latency timer runs out (FTDI: 16 ms by default): a gap
+ * the host sees may be that timer, not a silence on the wire. Asks for low
+ * latency where the driver allows (ASYNC_LOW_LATENCY, which ftdi_sio
+ * turns into a 1 ms timer; its sysfs latency_timer set to 1), reads the
+ * bound back from sysfs where it exists, else takes [rtu] delivery_ms, and
+ * gives the line that bound beyond a FIFO's 4-character timeout and the
+ * host's own delivery (MB_RTU_DELIVERY_NS).
+ */
+static void set_up_delivery(struct mb_rtu *rtu, int fd)
+{
+    struct serial_struct ss;
+    struct stat st;
+    int ms = -1;
+
+    memset(&ss, 0, sizeof(ss));
+    if (ioctl(fd, TIOCGSERIAL, &ss) == 0 && !(ss.flags & ASYNC_LOW_LATENCY)) {
+        ss.flags |= ASYNC_LOW_LATENCY;
+        (void)ioctl(fd, TIOCSSERIAL, &ss); /* a refusal: the bound read back holds */
+    }
+    if (fstat(fd, &st) == 0 && S_ISCHR(st.st_mode)) {
+        ms = latency_timer(rtu, &st, NULL);
+        if (ms > 1)
+            ms = latency_timer(rtu, &st, "1");
+    }
+    rtu->delivery_source = ms >= 0 ? "the adapter's latency timer" : "[rtu] delivery_ms";
+    rtu->delivery_bound_ms = ms >= 0 ? (uint32_t)ms : rtu->cfg.delivery_ms;
+    rtu->line.cfg.delivery_ns =
+        4ull * rtu->char_ns + MB_RTU_DELIVERY_NS + rtu->delivery_bound_ms * 1000000ull;
+}
+
 static void on_serial(uv_poll_t *p, int status, int events);
 
 /* Opens and sets up the device. 0, -ENOTTY (why set) or -errno (why set). */
@@ -148,6 +210,7 @@ static int open_line(struct mb_rtu *rtu, char *why, size_t why_size)
     /* Perhaps another adapter: nothing of the old conversation holds. A
      * pty has no wire: what is written is delivered at once. */
     rtu->line.cfg.tx_char_ns = is_pseudo_terminal(fd) ? 0 : rtu->char_ns;
+    set_up_delivery(rtu, fd);
     rtu_line_reset(&rtu->line);
     /* Flushed just now: what is read later came after this. */
     rtu->seen_empty_ns = rtu->now_ns();
@@ -247,6 +310,8 @@ static void sync_stats(struct mb_rtu *rtu)
     rtu->stats.echoes = l->echoes;
     rtu->stats.collisions = l->collisions;
     rtu->stats.out_of_turn = l->out_of_turn;
+    rtu->stats.repeats = l->repeats;
+    rtu->stats.exceptions = l->exceptions;
     /* overruns: the line's receive overruns and the replies not taken */
 }
 
@@ -256,11 +321,11 @@ static void arm_timer(struct mb_rtu *rtu)
 {
     uint64_t at = rtu_line_deadline(&rtu->line);
     /* Looks at the port when our turn ends (our reply's end plus t3.5)
-     * and when its echo window ends: found empty then, what comes later
-     * surely came after it, and a frame equal to our reply is the master
-     * repeating it; bytes found there may be our reply heard back. */
+     * and when the delivery bound after it ends: found empty then, what
+     * comes later surely came after it, and a frame equal to our reply is
+     * the master's request; bytes found there may be our reply heard back. */
     const uint64_t looks[] = {rtu_line_tx_ready_ns(&rtu->line),
-                              rtu_line_echo_window_end_ns(&rtu->line)};
+                              rtu_line_bound_end_ns(&rtu->line)};
 
     for (size_t i = 0; i < sizeof(looks) / sizeof(looks[0]); i++)
         if (looks[i] && rtu->seen_empty_ns < looks[i] && (!at || looks[i] < at))
@@ -415,6 +480,9 @@ static void on_request(void *user, const uint8_t *frame, size_t size)
 static const char *const event_text[RTU_EVENT_COUNT] = {
     [RTU_EVENT_ECHO] = "a reply came back as it was sent (the adapter echoes): skipped; "
                        "set [rtu] local_echo = true for this adapter",
+    [RTU_EVENT_REPEAT] = "a frame equal to the last reply came within the adapter's delivery "
+                         "bound: answered again, not acted on again (a master retrying at "
+                         "once, or the adapter echoing: then set [rtu] local_echo = true)",
     [RTU_EVENT_COLLISION] = "a reply came back different from what was sent: another "
                             "transmitter on the line at the same time (collision); counted",
     [RTU_EVENT_NO_ECHO] = "local_echo = true, but a reply did not come back: does this "
@@ -433,9 +501,35 @@ static void on_event(void *user, enum rtu_event event)
     log_warn("rtu: %s: %s", rtu->device, event_text[event]);
 }
 
+/* The master sent our last reply's bytes again within the delivery bound
+ * (rtu_frame.h): the same reply again, nothing acted on. */
+static void on_repeat(void *user)
+{
+    struct mb_rtu *rtu = user;
+    uint64_t suppressed;
+
+    if (rtu->fd < 0 || !rtu->line.sent_size)
+        return;
+    if (rtu->tx_count == MB_RTU_TX_FRAMES) {
+        rtu->stats.overruns++;
+        if (log_ratelimit_pass(&rtu->log_limit, uv_now(rtu->loop), &suppressed))
+            log_warn("rtu: %s: the port does not take replies: one dropped", rtu->device);
+        return;
+    }
+    struct mb_rtu_tx_frame *f = &rtu->tx[rtu->tx_count++];
+    memcpy(f->data, rtu->line.sent, rtu->line.sent_size);
+    f->size = rtu->line.sent_size;
+    f->sent = 0;
+    rtu->request_end_ns = rtu->line.last_rx_ns;
+    rtu->stats.replies++;
+    if (!rtu->tx_waiting)
+        flush_tx(rtu);
+}
+
 static struct rtu_line_hooks line_hooks_of(struct mb_rtu *rtu)
 {
-    struct rtu_line_hooks hooks = {.request = on_request, .event = on_event, .user = rtu};
+    struct rtu_line_hooks hooks = {
+        .request = on_request, .event = on_event, .repeat = on_repeat, .user = rtu};
     return hooks;
 }
 
@@ -536,13 +630,16 @@ int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
     snprintf(rtu->peer, sizeof(rtu->peer), "rtu:%s", cfg->device);
     rtu->log_limit.interval_ms = 1000;
     rtu->now_ns = monotonic_ns;
+    rtu->sysfs_root = cfg->sysfs_root ? cfg->sysfs_root : "/sys";
+    rtu->delivery_bound_ms = cfg->delivery_ms;
+    rtu->delivery_source = "[rtu] delivery_ms";
     rtu->char_ns = (uint32_t)((1 + 8 + (cfg->parity != MB_RTU_PARITY_NONE) + cfg->stop_bits) *
                               1000000000ull / (cfg->baud ? cfg->baud : 19200));
     struct rtu_line_config line_cfg = {
         .unit_id = cfg->unit_id,
         .char_ns = rtu->char_ns,
         .tx_char_ns = rtu->char_ns,
-        .delivery_ns = 4ull * rtu->char_ns + MB_RTU_DELIVERY_NS,
+        .delivery_ns = 4ull * rtu->char_ns + MB_RTU_DELIVERY_NS + cfg->delivery_ms * 1000000ull,
         .local_echo = cfg->local_echo,
     };
     rtu_char_times(cfg->baud, cfg->parity != MB_RTU_PARITY_NONE, cfg->stop_bits, &line_cfg.t15_ns,
@@ -580,14 +677,15 @@ int mb_rtu_start(uv_loop_t *loop, struct mb_rtu *rtu, struct mb_server *srv,
         return 0;
     }
     log_notice("rtu: %s: %u baud, parity %s, %u stop bit%s, unit %u%s%s; t1.5 %u us, "
-               "t3.5 %u us",
+               "t3.5 %u us; delivery bound %u ms (%s)",
                rtu->device, cfg->baud,
                cfg->parity == MB_RTU_PARITY_NONE   ? "none"
                : cfg->parity == MB_RTU_PARITY_EVEN ? "even"
                                                    : "odd",
                cfg->stop_bits, cfg->stop_bits == 1 ? "" : "s", cfg->unit_id,
                cfg->rs485 ? ", RS-485 mode" : "", cfg->local_echo ? ", local echo" : "",
-               rtu->line.cfg.t15_ns / 1000, rtu->line.cfg.t35_ns / 1000);
+               rtu->line.cfg.t15_ns / 1000, rtu->line.cfg.t35_ns / 1000,
+               rtu->delivery_bound_ms, rtu->delivery_source);
     return 0;
 }
 

@@ -31,21 +31,16 @@
  * broadcast (unit 0) is counted and never acted on, because no reply
  * could tell the master whether a command was carried out.
  *
- * Echo. An adapter that hears its own transmitter gives each reply back.
- * With either setting of [rtu] local_echo, a frame equal to our last
- * reply whose bytes can have come within the echo window (120 ms after
- * its wire time, RTU_ECHO_WINDOW_NS: a USB adapter's latency timer and a
- * late host) is that reply heard back, once per reply: counted, skipped,
- * and with local_echo = false logged once with the hint to set it true.
- * When they can have come is judged from the last read that found the
- * port empty before them, and the port is looked at when the window ends,
- * so a stalled loop never makes an echo a request. local_echo = true
- * also takes the reply's bytes off the input as they come (glued to a
- * request, in pieces; a difference is a collision, counted and logged
- * once). A master that repeats a write is answered and acted on every
- * time it comes after the window, as over TCP; any other request, also
- * one that comes right after our reply (a master that keeps no t3.5), is
- * served. Two frames we send are at least t3.5 apart, however the port's
+ * Delivery and echo. At open, set_up_delivery() asks for low latency
+ * (ASYNC_LOW_LATENCY; an FTDI adapter's sysfs latency_timer set to 1) and
+ * reads the adapter's delivery bound back from sysfs, else takes [rtu]
+ * delivery_ms: a gap shorter than it is never a silence (rtu_frame.h). A
+ * frame equal to our last reply (FC05, FC06: the request itself) later
+ * than the bound is the master's, acted on and answered; within it, it is
+ * answered again once and not acted on again (on_repeat); a second one is
+ * an echo, skipped. local_echo = true takes each reply's one echo off the
+ * input within 1 s; a spoiled echo is a collision, counted and logged
+ * once. Two frames we send are at least t3.5 apart, however the port's
  * writability goes (replies wait in a small queue).
  *
  * Limits. The line is a client of the server with no socket: it never
@@ -87,6 +82,8 @@ struct mb_rtu_config {
     unsigned unit_id;   /* 1..247 */
     bool rs485;         /* TIOCSRS485: the kernel drives RTS while sending */
     bool local_echo;    /* the adapter gives back what it sends */
+    uint32_t delivery_ms; /* the adapter's delivery bound where sysfs tells none */
+    const char *sysfs_root; /* NULL: "/sys" (a seam for tests) */
     uint32_t rights;    /* what the line may write (regmap_parse_rights) */
     uint32_t active_ms; /* counted as a client this long after a request */
 };
@@ -109,6 +106,8 @@ struct mb_rtu_stats {
     uint64_t echoes;         /* our own replies read back, skipped */
     uint64_t collisions;     /* local_echo: a reply came back different */
     uint64_t out_of_turn;    /* frames begun before our reply's end + t3.5 (served) */
+    uint64_t repeats;        /* our last reply again within the delivery bound: answered again */
+    uint64_t exceptions;     /* exception-form frames addressed to us, skipped */
     uint64_t replies;
     uint32_t turnaround_us;     /* the last reply: request's last byte to write */
     uint32_t turnaround_max_us;
@@ -141,6 +140,11 @@ struct mb_rtu {
     uint64_t request_end_ns; /* the request being answered: its last read */
     uint64_t seen_empty_ns;  /* the last read that found the port empty */
     uint32_t char_ns;        /* one character on the wire */
+    /* The adapter's delivery bound (ms): its latency timer read back from
+     * sysfs, else cfg.delivery_ms; 'delivery_source' says which. */
+    uint32_t delivery_bound_ms;
+    const char *delivery_source;
+    const char *sysfs_root;
     struct mb_rtu_tx_frame {
         uint8_t data[RTU_MAX_ADU];
         size_t size, sent;

@@ -127,6 +127,7 @@ enum regmap_word_order {
     X(rtu_echoes)                                                              \
     X(rtu_collisions)                                                          \
     X(rtu_out_of_turn)                                                         \
+    X(rtu_delivery_ms)                                                         \
     X(status_stale_ms)                                                         \
     X(loop_stalls)                                                             \
     X(loop_stall_last_ms)

@@ -432,9 +432,10 @@ const struct regmap_row regmap_table_rows[] = {
     G_IR(5556, rtu_turnaround_max_us, REGMAP_U32, "us",
          "The longest RTU turnaround since start or the last counter reset"),
     G_IR(5558, rtu_echoes, REGMAP_U32, "",
-         "RTU replies of ours read back from the line within 120 ms and skipped: an adapter "
-         "that echoes (with local_echo = false, a hint to set local_echo = true is logged "
-         "once)"),
+         "RTU replies of ours read back from the line and skipped: with local_echo = true "
+         "the one echo of each reply; with false, a frame equal to the last reply within "
+         "the delivery bound (rtu_delivery_ms) once it was answered again (a hint to set "
+         "local_echo = true is logged once)"),
     G_IR(5560, rtu_collisions, REGMAP_U32, "",
          "local_echo = true: a reply read back different from what was sent (another "
          "sender on the line at the same time, or noise)"),
@@ -442,6 +443,12 @@ const struct regmap_row regmap_table_rows[] = {
          "RTU frames begun before our reply's wire time + t3.5 that were not our reply "
          "heard back: served all the same (a master that does not keep the 3.5-character "
          "silence)"),
+    G_IR(5564, rtu_delivery_ms, REGMAP_U16, "ms",
+         "The serial adapter's delivery bound: how late it may hand over bytes it received "
+         "(a USB adapter's latency timer, read back from sysfs after setting it to 1 ms; "
+         "else [rtu] delivery_ms). A gap the host sees shorter than this is never a "
+         "silence, and a frame equal to the last reply within it is answered again, "
+         "not acted on again; 0 while the line is off or down"),
 
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",

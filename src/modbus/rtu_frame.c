@@ -371,6 +371,15 @@ static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint
     line->waited = false;
 }
 
+/* Local echo: part of our frame came back and the line surely fell silent
+ * since: the reader found the port empty at 'after_ns', t3.5 beyond the
+ * port's delivery after those bytes were read (judged from that look, not
+ * from a read that a stalled loop makes late). The rest is not coming. */
+static bool echo_stalled(const struct rtu_line *line, uint64_t after_ns)
+{
+    return after_ns >= line->echo_last_ns + line->cfg.delivery_ns + line->cfg.t35_ns;
+}
+
 /*
  * Local echo: takes what comes back of our frame off the input. Returns
  * the bytes consumed. The bytes are judged by when they can have come
@@ -383,10 +392,19 @@ static void append(struct rtu_line *line, const uint8_t *data, size_t size, uint
  * frame, and the chunk's judgement (end_chunk) counts it.
  */
 static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
-                        uint64_t after_ns)
+                        uint64_t after_ns, const struct rtu_line_hooks *hooks)
 {
     size_t used = 0;
 
+    if (line->echo_at && echo_stalled(line, after_ns)) {
+        /* Part of our frame came back, then the line fell silent: a
+         * spoiled echo (a collision). Its bytes are no frame and go; what
+         * comes now is the master's. */
+        line->echo_pending = false;
+        line->stats.collisions++;
+        emit(hooks, RTU_EVENT_COLLISION);
+        return 0;
+    }
     if (after_ns >= line->echo_until_ns) {
         /* Surely not back in its window: what comes now is the master's. */
         line->echo_pending = false;
@@ -399,7 +417,6 @@ static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size,
             used++;
             if (++line->echo_at == line->sent_size) {
                 line->echo_pending = false;
-                line->echo_seen = true;
                 line->stats.echoes++;
             }
         } else {
@@ -408,17 +425,18 @@ static size_t take_echo(struct rtu_line *line, const uint8_t *data, size_t size,
             append(line, line->sent, line->echo_at, now_ns, after_ns);
         }
     }
+    if (used)
+        line->echo_last_ns = now_ns;
     return used;
 }
 
 void rtu_line_input_read(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
                          uint64_t after_ns, const struct rtu_line_hooks *hooks)
 {
-    (void)hooks;
     if (after_ns > now_ns)
         after_ns = now_ns;
     if (line->echo_pending) {
-        size_t echo = take_echo(line, data, size, now_ns, after_ns);
+        size_t echo = take_echo(line, data, size, now_ns, after_ns, hooks);
         data += echo;
         size -= echo;
     }
@@ -488,18 +506,30 @@ static bool echoes_request(const uint8_t *request, const uint8_t *rsp, size_t si
     }
 }
 
-/* Our last frame heard back: the chunk starts with it, byte for byte, it
- * has not come back yet, and the chunk's first bytes can have arrived
- * within the echo window after it left the wire (judged from the reader's
+/* With local_echo = false: the chunk starts with our last frame, byte
+ * for byte, and its first bytes can have arrived within the port's
+ * delivery bound after that frame left the wire (judged from the reader's
  * last look at an empty port before them, never from the time of the
- * read). Returns its size, or 0. */
+ * read): our frame heard back, or the master sending the same bytes at
+ * once (rtu_line_bound_end_ns). Returns its size, or 0. With local_echo,
+ * take_echo() takes the one echo of each frame off the input instead. */
 static size_t echo_at_head(const struct rtu_line *line)
 {
-    if (!line->tx_end_ns || !line->sent_size || line->echo_seen || line->rx_overrun ||
-        line->chunk_after_ns >= line->tx_end_ns + RTU_ECHO_WINDOW_NS ||
+    if (line->cfg.local_echo || !line->tx_end_ns || !line->sent_size || line->rx_overrun ||
+        line->chunk_after_ns >= rtu_line_bound_end_ns(line) ||
         line->rx_used < line->sent_size || memcmp(line->rx, line->sent, line->sent_size) != 0)
         return 0;
     return line->sent_size;
+}
+
+/* Is our last frame also a whole request of ours (05, 06: the reply is
+ * the request), so that the master may send the same bytes? */
+static bool sent_is_request(const struct rtu_line *line)
+{
+    size_t len = 0;
+    return line->sent_size >= RTU_MIN_ADU && line->sent[0] == line->cfg.unit_id &&
+           rtu_request_length(line->sent, line->sent_size, &len) == RTU_LENGTH_EXACT &&
+           len == line->sent_size;
 }
 
 /* What the walk of a chunk found. */
@@ -580,13 +610,17 @@ static size_t first_crc_run(const uint8_t *d, size_t avail, size_t from, bool re
 /*
  * A request's length where the chunk holds what follows it. A function
  * whose request length only its end tells: the run up to the next sure
- * silence, if CRC-valid (no frame goes across one). FC08's return query data carries any
- * data, and its response repeats it byte for byte: the request is the
- * shortest CRC-valid run that the next bytes repeat; for a unit that does
- * not answer, the chunk's rest if CRC-valid, else the shortest CRC-valid
- * run if a whole request follows it (the master's next; 'depth': how many
- * such cuts came before, up to RUN_SEARCH_DEPTH). Its data is the master's own,
- * never another unit's registers. Ours ends its chunk: its rest.
+ * silence, if CRC-valid (no frame goes across one). FC08's return query
+ * data carries any data, and its response repeats it byte for byte: the
+ * request is the shortest CRC-valid run that the next bytes repeat. For
+ * it, for a unit that does not answer, and for a function whose form we
+ * do not know (a user-defined code, 65-72, 100-110): the chunk's rest if
+ * CRC-valid, else the shortest CRC-valid run if a whole request follows
+ * it (the master's next; 'depth': how many such cuts came before, up to
+ * RUN_SEARCH_DEPTH, which also turns the search off). Its data is the
+ * master's own, never another unit's registers: the awaited unit's
+ * response of a form we do not know is never searched. Ours ends its
+ * chunk: its rest.
  */
 static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size_t at,
                                                size_t avail, size_t *size, unsigned depth,
@@ -604,13 +638,15 @@ static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size
         *size = next - at;
         return RTU_LENGTH_EXACT;
     }
-    if (d[1] != 8)
-        return how;
-    if ((k = first_crc_run(d, avail, 6, true)) != 0) {
+    /* FC08's return query data: at least 2 bytes of data, and what its
+     * response repeats. A code whose form we do not know (a user-defined
+     * one): any data, not repeated. */
+    size_t least = d[1] == 8 ? 6 : RTU_MIN_ADU;
+    if (d[1] == 8 && (k = first_crc_run(d, avail, 6, true)) != 0) {
         *size = k;
         return RTU_LENGTH_EXACT;
     }
-    if (avail <= RTU_MAX_ADU && avail >= 6 && rtu_crc_ok(d, avail)) {
+    if (avail <= RTU_MAX_ADU && avail >= least && rtu_crc_ok(d, avail)) {
         /* The chunk's rest, once nothing more comes (a port's piece may
          * end where a CRC happens to be valid). */
         *size = final ? avail : avail + 1;
@@ -618,7 +654,7 @@ static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size
     }
     /* The first CRC-valid runs (at most RTU_MAX_ADU bytes are scanned). */
     unsigned tries = 0;
-    for (size_t from = 6; depth < RUN_SEARCH_DEPTH && tries++ < RUN_SEARCH_TRIES &&
+    for (size_t from = least; depth < RUN_SEARCH_DEPTH && tries++ < RUN_SEARCH_TRIES &&
                           (k = first_crc_run(d, avail, from, false)) != 0;
          from = k + 1)
         if (k + RTU_MIN_ADU <= avail && request_follows(line, at + k, avail - k, depth + 1)) {
@@ -704,6 +740,12 @@ static void take_frame(const struct rtu_line *line, size_t at, enum frame_kind k
     } else if (d[0] == RTU_BROADCAST) {
         w->stats.broadcasts++;
         w->conv = RTU_CONV_IDLE;
+    } else if (d[0] == line->cfg.unit_id && (d[1] & 0x80)) {
+        /* An exception's form addressed to us: no master asks that (our
+         * own exception reply heard back, or a unit answering as ours):
+         * counted and skipped, never a request. */
+        w->stats.exceptions++;
+        w->conv = RTU_CONV_IDLE;
     } else if (d[0] == line->cfg.unit_id) {
         w->execute_at = at;
         w->execute_size = len;
@@ -780,6 +822,9 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
         const uint8_t *d = rx + at;
         size_t avail = size - at, len = 0, rsp_len = 0, missing = 0;
         bool awaited = false; /* rsp_len is the response awaited */
+        /* The awaited unit's response in a form we do not know: its data
+         * is that unit's, never searched for runs. */
+        bool unknown_response = false;
         /* Where the line knows where it stands, a frame starts at the
          * chunk's start, where the last one ended; where it does not,
          * only after a silence it is sure of. */
@@ -815,6 +860,7 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
                  * it may be the master asking that unit again. */
                 how = rtu_response_length(w->await_request, w->await_request_size, d, avail,
                                           &len);
+                unknown_response = how == RTU_LENGTH_UNKNOWN;
                 if (how == RTU_LENGTH_UNKNOWN && silence)
                     how = RTU_LENGTH_EXACT, len = avail; /* the rest of the chunk */
                 if (whole_frame(how, len, d, avail) && echoes_request(w->await_request, d, len)) {
@@ -843,7 +889,8 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
              * next request): a master's request, where the last frame
              * ended. */
             if (kind == FRAME_NONE && !response) {
-                how = request_length_in_chunk(line, at, avail, &len, 0, final);
+                how = request_length_in_chunk(line, at, avail, &len,
+                                              unknown_response ? RUN_SEARCH_DEPTH : 0, final);
                 bool rest = how == RTU_LENGTH_UNKNOWN && (silence || d[0] == line->cfg.unit_id);
                 if (rest) /* only as the chunk's rest, once nothing more comes */
                     how = final ? RTU_LENGTH_EXACT : RTU_LENGTH_MORE, len = avail + !final;
@@ -924,6 +971,7 @@ static void add_stats(struct rtu_line_stats *to, const struct rtu_line_stats *ad
     to->foreign_frames += add->foreign_frames;
     to->broadcasts += add->broadcasts;
     to->gap_discards += add->gap_discards;
+    to->exceptions += add->exceptions;
 }
 
 /* Did the chunk begin before our last frame's end plus t3.5 (a master
@@ -939,16 +987,27 @@ static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
 {
     uint8_t request[RTU_MAX_ADU];
     size_t request_size = 0;
+    bool repeat = false;
 
     if (line->rx_overrun) {
         /* Counted when it happened; nothing in it can be trusted. */
         line->conv = RTU_CONV_UNSYNCED;
     } else {
         size_t echo = echo_at_head(line);
-        if (echo) {
+        if (echo == line->rx_used && !line->repeat_answered && sent_is_request(line)) {
+            /* The same bytes as our reply, which is the request itself,
+             * within the delivery bound: our reply heard back, or the
+             * master sending the request again at once (a retry after a
+             * reply it lost). Answered again, not acted on again: once
+             * per request; the next one is an echo. */
+            line->repeat_answered = true;
+            line->stats.repeats++;
+            emit(hooks, RTU_EVENT_REPEAT);
+            line->conv = RTU_CONV_IDLE;
+            repeat = true;
+        } else if (echo) {
             /* Our reply heard back: skipped; what follows it is the
              * master's next request. */
-            line->echo_seen = true;
             line->stats.echoes++;
             emit(hooks, RTU_EVENT_ECHO);
             line->conv = RTU_CONV_IDLE;
@@ -976,10 +1035,13 @@ static void end_chunk(struct rtu_line *line, const struct rtu_line_hooks *hooks)
                 memcpy(request, line->rx + w.execute_at, w.execute_size);
                 request_size = w.execute_size;
                 line->stats.executed++;
+                line->repeat_answered = false; /* a new request: a new reply */
             }
         }
     }
     clear_chunk(line);
+    if (repeat && hooks && hooks->repeat)
+        hooks->repeat(hooks->user);
     if (request_size && hooks && hooks->request)
         hooks->request(hooks->user, request, request_size);
 }
@@ -1027,7 +1089,6 @@ void rtu_line_frame_out(struct rtu_line *line, const uint8_t *frame, size_t size
         size = sizeof(line->sent);
     memcpy(line->sent, frame, size);
     line->sent_size = size;
-    line->echo_seen = false;
     line->echo_pending = line->cfg.local_echo && size > 0;
     line->echo_at = 0;
     line->conv = RTU_CONV_IDLE;
@@ -1038,7 +1099,7 @@ void rtu_line_bytes_out(struct rtu_line *line, size_t size, uint64_t now_ns)
     uint64_t from = line->tx_end_ns > now_ns ? line->tx_end_ns : now_ns;
 
     line->tx_end_ns = from + (uint64_t)size * line->cfg.tx_char_ns;
-    line->echo_until_ns = line->tx_end_ns + RTU_ECHO_WINDOW_NS;
+    line->echo_until_ns = line->tx_end_ns + RTU_LOCAL_ECHO_WINDOW_NS;
 }
 
 uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line)
@@ -1046,7 +1107,10 @@ uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line)
     return line->tx_end_ns ? line->tx_end_ns + line->cfg.t35_ns : 0;
 }
 
-uint64_t rtu_line_echo_window_end_ns(const struct rtu_line *line)
+uint64_t rtu_line_bound_end_ns(const struct rtu_line *line)
 {
-    return line->tx_end_ns ? line->tx_end_ns + RTU_ECHO_WINDOW_NS : 0;
+    if (!line->tx_end_ns)
+        return 0;
+    return line->tx_end_ns +
+           (line->cfg.local_echo ? RTU_LOCAL_ECHO_WINDOW_NS : line->cfg.delivery_ns);
 }

@@ -96,24 +96,40 @@
  * OUR OWN TRANSMISSIONS. rtu_line_frame_out() and rtu_line_bytes_out()
  * tell the line what we send and when; from them it knows when our last
  * frame leaves the wire (tx_end: the bytes' wire time, none on a pty,
- * which has no wire). THE ECHO WINDOW (RTU_ECHO_WINDOW_NS): a chunk that
- * starts with our last frame, byte for byte, whose first bytes can have
- * come within the window after tx_end, is that frame heard back, once per
- * frame we send, whatever local_echo says: counted (RTU_EVENT_ECHO),
- * skipped, and what follows it in the chunk is the master's next request.
- * When the bytes can have come is judged from the reader's last look at
- * an empty port before them (rtu_line_input_read's 'after_ns'), never
- * from the time of the read: a loop that stalls, an echo in pieces or
- * read by halves stays an echo. Any other frame is the master's, also
- * one that begins before tx_end + t3.5 (a master that keeps no silence of
- * its own: counted out of turn, and served). With local_echo, the bytes
- * of each frame we send are expected back first, within the window, and
- * are taken off the input before any framing. Where the input differs (or
- * surely comes later), what matched is input again with the rest, and the
- * chunk is judged: what the conversation expects means the adapter gave
- * nothing back (RTU_EVENT_NO_ECHO: a master's request starts as our reply
- * did, with the unit id and function); anything else is a collision
- * (RTU_EVENT_COLLISION, counted), dropped as any chunk that is no frame.
+ * which has no wire). A frame byte-equal to our last one is judged by
+ * when its first bytes can have come, from the reader's last look at an
+ * empty port before them (rtu_line_input_read's 'after_ns'), never from
+ * the time of the read (a loop that stalls, an echo in pieces or read by
+ * halves, stays what it was):
+ *   - local_echo = false, later than the port's delivery bound after
+ *     tx_end (delivery_ns: rtu_line_bound_end_ns): the master's, walked
+ *     as any frame (a retry after a lost reply, a cyclic rewrite: acted
+ *     on and answered, as over TCP);
+ *   - local_echo = false, within the bound: where our frame is itself a
+ *     request of ours (05, 06: the reply is the request) and it is the
+ *     whole chunk, the first one per request executed is answered again
+ *     and not acted on again (RTU_EVENT_REPEAT, the 'repeat' hook: a
+ *     master that retries at once, or our reply heard back); any other
+ *     (a second one, a reply that is no request) is our frame heard back
+ *     (RTU_EVENT_ECHO), skipped, and what follows it in the chunk is the
+ *     master's next request. Where an echo and the master's repeat are
+ *     the same bytes at the same time, answering the master wins: a line
+ *     that echoes costs at most one repeated reply per request;
+ *   - local_echo = true: the bytes of each frame we send are expected
+ *     back first, within RTU_LOCAL_ECHO_WINDOW_NS, and are taken off the
+ *     input before any framing, exactly one echo per frame. Where the
+ *     input differs (or surely comes later), what matched is input again
+ *     with the rest, and the chunk is judged: what the conversation
+ *     expects means the adapter gave nothing back (RTU_EVENT_NO_ECHO: a
+ *     master's request starts as our reply did, with the unit id and
+ *     function); anything else is a collision (RTU_EVENT_COLLISION,
+ *     counted), dropped as any chunk that is no frame. An echo that stops
+ *     short (the line surely silent after part of it) is a collision too,
+ *     and its bytes are dropped: it never costs the next request.
+ * Any other frame is the master's, also one that begins before tx_end +
+ * t3.5 (a master that keeps no silence of its own: counted out of turn,
+ * and served). A frame of an exception's form addressed to us (our own
+ * exception reply heard back) is counted and skipped, never a request.
  * The next frame we send may start at rtu_line_tx_ready_ns(): t3.5 after
  * the last one's end.
  *
@@ -164,15 +180,11 @@ enum rtu_length rtu_request_length(const uint8_t *frame, size_t avail, size_t *s
 enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
                                     const uint8_t *frame, size_t avail, size_t *size);
 
-/* The echo window: a frame equal to our last one, whose first bytes can
- * have come within this time after it left the wire, is our frame heard
- * back (once per frame we send), whatever local_echo says. A USB adapter
- * hands received bytes over when its latency timer runs out (FTDI: 16 ms
- * by default, CH340 and CP210x 1-16 ms), a loaded host reads later still:
- * 100 ms covers them with room to spare, and 20 ms more a host that is
- * late to look. A master that repeats our last frame (the same write)
- * within it is not answered that once; after it, every time. */
-#define RTU_ECHO_WINDOW_NS 120000000ull
+/* local_echo = true: how long after our frame left the wire its one echo
+ * is awaited (an adapter's latency timer and a host late to read, with
+ * room to spare); nothing of it by then is an adapter that gave nothing
+ * back. */
+#define RTU_LOCAL_ECHO_WINDOW_NS 1000000000ull
 /* A port hands over what it received at least every this many characters
  * (a 16550's FIFO triggers at 14 at most; a USB adapter's lateness is the
  * config's delivery_ns): how long a frame begun but not whole is waited
@@ -194,7 +206,8 @@ struct rtu_line_config {
     uint32_t t15_ns, t35_ns;
     uint32_t char_ns;     /* one character received */
     uint32_t tx_char_ns;  /* one character we send, on the wire; 0 on a pty */
-    uint64_t delivery_ns; /* how late the port may hand over received bytes */
+    uint64_t delivery_ns; /* how late the port may hand over received bytes: a
+                           * host-side gap shorter than this is no silence */
     bool local_echo;      /* the adapter gives back what we send */
 };
 
@@ -207,14 +220,17 @@ struct rtu_line_stats {
     uint64_t broadcasts;     /* requests for unit 0, never executed */
     uint64_t overruns;       /* chunks longer than the receive buffer */
     uint64_t gap_discards;   /* frames with a pause inside them */
-    uint64_t echoes;         /* our frames heard back within the echo window */
+    uint64_t echoes;         /* our frames heard back, skipped */
+    uint64_t repeats;        /* our last reply again within the delivery bound: answered again */
+    uint64_t exceptions;     /* exception-form frames addressed to us, skipped */
     uint64_t collisions;     /* local echo: our frame came back different */
     uint64_t out_of_turn;    /* chunks begun before t3.5 after our frame, not our echo (served) */
     uint64_t executed;       /* requests of ours handed on */
 };
 
 enum rtu_event {
-    RTU_EVENT_ECHO,      /* our frame heard back in its echo window (count in stats) */
+    RTU_EVENT_ECHO,      /* our frame heard back (count in stats) */
+    RTU_EVENT_REPEAT,    /* our reply again within the delivery bound: sent again */
     RTU_EVENT_COLLISION, /* local echo differed from what we sent */
     RTU_EVENT_NO_ECHO,   /* local echo: nothing of our frame came back */
     RTU_EVENT_COUNT      /* how many there are; not an event */
@@ -224,6 +240,9 @@ struct rtu_line_hooks {
     /* A request of ours, to execute and answer: unit id, PDU, CRC. */
     void (*request)(void *user, const uint8_t *frame, size_t size);
     void (*event)(void *user, enum rtu_event event); /* may be NULL */
+    /* Send our last frame again, unchanged (nothing is executed); may be
+     * NULL. */
+    void (*repeat)(void *user);
     void *user;
 };
 
@@ -249,9 +268,10 @@ struct rtu_line {
     uint64_t tx_end_ns; /* our last frame's last byte off the wire; 0: none yet */
     uint8_t sent[RTU_MAX_ADU];
     size_t sent_size;
-    bool echo_seen;    /* our last frame came back (one echo per frame) */
+    bool repeat_answered; /* the request executed last was answered again once */
     bool echo_pending; /* local echo: sent[echo_at..] still to come back */
     size_t echo_at;
+    uint64_t echo_last_ns; /* local echo: when its last bytes were read */
     uint64_t echo_until_ns;
     struct rtu_line_stats stats;
 };
@@ -271,7 +291,7 @@ void rtu_line_input(struct rtu_line *line, const uint8_t *data, size_t size, uin
 /* The same, for a reader that knows more: the bytes arrived after
  * 'after_ns' (the last time it found the port empty) and by 'now_ns'. The
  * silences are judged from 'now_ns'; whether the bytes can be our frame
- * heard back (in its echo window) from 'after_ns', so a loop late to read
+ * heard back (within the delivery bound) from 'after_ns', so a loop late to read
  * an echo cannot make it a request. */
 void rtu_line_input_read(struct rtu_line *line, const uint8_t *data, size_t size, uint64_t now_ns,
                          uint64_t after_ns, const struct rtu_line_hooks *hooks);
@@ -298,9 +318,11 @@ void rtu_line_bytes_out(struct rtu_line *line, size_t size, uint64_t now_ns);
  * left the wire (0: any time). */
 uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line);
 
-/* When our last frame's echo window ends (0: nothing sent): a reader that
- * looks at the port then, and finds it empty, lets what comes later be
- * judged as the master's. */
-uint64_t rtu_line_echo_window_end_ns(const struct rtu_line *line);
+/* When a frame equal to our last one stops being possibly ours (0:
+ * nothing sent): the port's delivery bound after it left the wire, or with
+ * local_echo the end of its echo's wait. A reader that looks at the port
+ * then, and finds it empty, lets what comes later be judged as the
+ * master's. */
+uint64_t rtu_line_bound_end_ns(const struct rtu_line *line);
 
 #endif
