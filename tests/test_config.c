@@ -416,6 +416,10 @@ static void shipped_config_is_valid(void **state)
     config_defaults(&c);
     config_defaults(&d);
     assert_int_equal(config_load(&c, CONFIG_FILE, why, sizeof(why)), 0);
+    /* It names the robot (its default), which the defaults alone do not. */
+    assert_true(c.robot_named);
+    assert_false(d.robot_named);
+    c.robot_named = false;
     /* The shipped file documents the defaults: loading it changes nothing. */
     assert_memory_equal(&c, &d, sizeof(c));
 }

@@ -430,6 +430,13 @@ void config_defaults(struct gw_config *cfg)
         set_key(cfg, &keys[i], keys[i].default_value, why, sizeof(why));
 }
 
+/* A robot named by the file or a flag, not the built-in default. */
+static void note_named(struct gw_config *cfg, const struct key_info *k)
+{
+    if (k->offset == offsetof(struct gw_config, robot_host))
+        cfg->robot_named = true;
+}
+
 static const struct key_info *find_key(const char *section, const char *key)
 {
     for (size_t i = 0; i < N_KEYS; i++) {
@@ -466,7 +473,10 @@ int config_set(struct gw_config *cfg, const char *section, const char *key,
         explain_unknown(section, key, why, why_size);
         return -EINVAL;
     }
-    return set_key(cfg, k, value, why, why_size);
+    if (set_key(cfg, k, value, why, why_size) != 0)
+        return -EINVAL;
+    note_named(cfg, k);
+    return 0;
 }
 
 /*
@@ -682,6 +692,7 @@ static int on_ini_entry(void *user, const char *section, const char *name,
         fail(st, "[%s] %s: %s", section, name, reason);
         return 0;
     }
+    note_named(st->cfg, k);
     st->key_line[k - keys] = st->line;
     return 1;
 }

@@ -32,6 +32,9 @@ struct config_role {
 struct gw_config {
     /* [robot] */
     char robot_host[256];
+    /* Not a key: [robot] host was set by the file or a flag, not left at
+     * its default. A service is not started until it is (--check-start). */
+    bool robot_named;
     uint32_t status_port;
     uint32_t command_port;
     uint32_t connect_timeout_ms;

@@ -126,6 +126,7 @@ def test_package_contents():
             "/usr/share/doc/jakagw/copyright"]
     want += ["/lib/systemd/system/" + u for u in UNITS]
     want.append("/lib/systemd/system-generators/jakagw-generator")
+    want.append("/usr/libexec/jakagw/jakagw-condition")
     for doc in ["README.md", "register-map.md", "register-map.csv", "plc-guide.md",
                 "jakagw.dbc"]:
         if doc == "README.md" or os.path.exists(os.path.join(ROOT, "docs", doc)):
@@ -317,7 +318,8 @@ def generate(*args):
 
 def test_packaged_configuration_names_no_robot():
     """The installed file leaves [robot] host commented out (the units'
-    ExecCondition= then skips them), and is otherwise config/jakagw.conf."""
+    ExecCondition= then skips them: the gateway's parser says so with exit
+    status 1), and is otherwise config/jakagw.conf."""
     with open(os.path.join(ROOT, "config", "jakagw.conf")) as f:
         shipped = f.read()
     text = conf_text()
@@ -328,8 +330,10 @@ def test_packaged_configuration_names_no_robot():
            not l.startswith("host =")], "the packaged file differs in more than [robot] host")
     for unit in ("jakagw.service", "jakagw-socket.service", "jakagw@.service"):
         with open(rootpath("/lib/systemd/system/" + unit)) as f:
-            check("ExecCondition=/bin/sh -c 'grep -Eq \"^host" in f.read(),
-                  "%s has no ExecCondition on [robot] host" % unit)
+            check("ExecCondition=+/usr/libexec/jakagw/jakagw-condition %n /usr/sbin/jakagw -c "
+                  in f.read(), "%s has no ExecCondition= by the gateway's parser" % unit)
+    r = in_root("/usr/sbin/jakagw", "-c", "/etc/jakagw/jakagw.conf", "--check-start", ok=(1,))
+    check("names no robot" in r.stderr, "--check-start: %s" % r.stderr)
 
 
 def test_generator_follows_the_rtu_device():
