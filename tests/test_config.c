@@ -461,6 +461,7 @@ static void keys_compare_by_type(void **state)
         {"robot", "tls_fingerprint", "",
          "abcdef0123456789abcdef0123456789abcdef0123456789abcdef0123456789"},
         {"modbus", "write_allow", "10.0.0.1", "10.0.0.2"},
+        {"modbus", "write_allow", "none", ""},
         {"modbus", "unit_id", "any", "0"},
         {"modbus", "idle_timeout_ms", "60000", "0"},
         {"tls", "client_ca", "/etc/a.crt", "/etc/b.crt"},

@@ -319,15 +319,18 @@ def generate(*args):
 def test_packaged_configuration_names_no_robot():
     """The installed file leaves [robot] host commented out (the units'
     ExecCondition= then skips them: the gateway's parser says so with exit
-    status 1), and is otherwise config/jakagw.conf."""
+    status 1) and takes writes from no plain Modbus TCP client (write_allow
+    = none), and is otherwise config/jakagw.conf."""
     with open(os.path.join(ROOT, "config", "jakagw.conf")) as f:
         shipped = f.read()
     text = conf_text()
     check(not re.search(r"^host\s*=", text, re.M) and re.search(r"^;host = ", text, re.M),
           "the packaged file names a robot")
+    check(re.search(r"^write_allow = none$", text, re.M), "the packaged file takes writes")
     check([l for l in text.splitlines() if not l.startswith(";")] ==
-          [l for l in shipped.splitlines() if not l.startswith(";") and
-           not l.startswith("host =")], "the packaged file differs in more than [robot] host")
+          [l.replace("write_allow =", "write_allow = none") for l in shipped.splitlines()
+           if not l.startswith(";") and not l.startswith("host =")],
+          "the packaged file differs in more than [robot] host and [modbus] write_allow")
     for unit in ("jakagw.service", "jakagw-socket.service", "jakagw@.service"):
         with open(rootpath("/lib/systemd/system/" + unit)) as f:
             check("ExecCondition=+/usr/libexec/jakagw/jakagw-condition %n /usr/sbin/jakagw -c "

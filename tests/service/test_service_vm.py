@@ -467,9 +467,12 @@ def case_boot():
     for code in state["preludes"]:
         v.py(code)
     # The file as the package installs it, and the same with the robot
-    # named, which every case from fresh_install on runs with.
+    # named and writes from any client (the PLCs of the cases are local, the
+    # RTU master has no address), which every case from fresh_install on
+    # runs with; writes_until_allowed runs the packaged write_allow.
     state["packaged"] = v.sh("cat /etc/jakagw/jakagw.conf")
-    state["conf"] = conf_with(state["packaged"], {"robot": {"host": "127.0.0.1"}})
+    state["conf"] = conf_with(state["packaged"], {"robot": {"host": "127.0.0.1"},
+                                                  "modbus": {"write_allow": ""}})
     global COIL_POWER_ON, IR_INTERP, IR_HANDLE
     import csv
     import io
@@ -1545,6 +1548,43 @@ def case_socket_unconfigured():
            "502 served" % (code, ports, said[0][:100]))
 
 
+def case_writes_until_allowed():
+    """The packaged file with the robot named, nothing else changed: a PLC
+    reads the map, but its write is refused (exception 01) and nothing
+    reaches the robot; the journal and the status page say who may write.
+    With [modbus] write_allow naming the PLC, its write reaches the robot
+    once."""
+    v = vm()
+    c = mark()
+    v.write("/etc/jakagw/jakagw.conf", conf_with(state["packaged"], {
+        "robot": {"host": "127.0.0.1"}, "http": {"enabled": "true"}}))
+    restart()
+    wait_robot_link()
+    check(v.py("result = ir(502, 0)[0]") == MAGIC, "a read with the packaged write_allow")
+    got = v.py("result = pulse(502, %d)" % COIL_POWER_ON)
+    check(got == [1, 1], "writes with the packaged write_allow: %s" % got)
+    time.sleep(1)
+    check(not delivered(after=c), "delivered: %s" % delivered(after=c))
+    said = [str(e.get("MESSAGE")) for e in journal("-u jakagw.service", c)
+            if "Modbus writes" in str(e.get("MESSAGE"))]
+    check(said and "no Modbus TCP client" in said[-1], "the journal: %s" % said)
+    page = json.loads(v.sh("python3 -c \"import urllib.request; print(urllib.request.urlopen("
+                           "'http://127.0.0.1:10502/status.json').read().decode())\""))
+    shown = page["gateway"].get("modbus_writes", "")
+    check("no Modbus TCP client" in shown, "the status page: %r" % shown)
+    c2 = mark()
+    v.write("/etc/jakagw/jakagw.conf", conf_with(state["packaged"], {
+        "robot": {"host": "127.0.0.1"}, "modbus": {"write_allow": "127.0.0.1"}}))
+    restart()
+    wait_robot_link()
+    check(v.py("result = pulse(502, %d)" % COIL_POWER_ON) == [0, 0], "a named PLC's write")
+    wait_vm(lambda: len(sim_commands(after=c2, name="power_on")) == 1, 10, "power_on")
+    restore()
+    figure("writes_until_allowed: packaged write_allow: read served, write exception 01, "
+           "nothing delivered; journal %r; status page %r; named 127.0.0.1: power_on once"
+           % (said[-1][:90], shown[:60]))
+
+
 def install_previous(conf_unedited=True):
     """The previous release's package (PREVIOUS of make-service-image.py)
     installed over this one as its own file was, never edited."""
@@ -1607,6 +1647,15 @@ def case_upgrade_from_previous():
         conf = v.sh("cat /etc/jakagw/jakagw.conf")
         check(re.search(r"^host = 127\.0\.0\.1$", conf, re.M), "jakagw.conf lost its robot")
         told = [l for l in out.splitlines() if l.startswith("jakagw: ")]
+        # Writes from any client before: so after, with a warning.
+        check(re.search(r"^write_allow =$", conf, re.M), "write_allow narrowed: %s" % [
+            l for l in conf.splitlines() if "write_allow" in l])
+        warned = [str(e.get("MESSAGE")) for e in journal("-u %s" % unit, c)
+                  if "Modbus writes from any client" in str(e.get("MESSAGE"))]
+        check(warned, "no warning that any client may write")
+        before = mark()
+        check(v.py("result = pulse(502, %d)" % COIL_POWER_ON) == [0, 0], "a write after")
+        wait_vm(lambda: len(sim_commands(after=before, name="power_on")) == 1, 10, "power_on")
         dropin(unit, None)
         seen.append("%s mode: %s -> +upgrade2 in %.1f s, %s active, 502 served (%s)"
                     % (mode, previous, took, unit, "; ".join(told)[:120]))
@@ -1645,9 +1694,9 @@ def run_all():
     cases = [case_boot, case_fresh_install, case_ready, case_reload, case_watchdog, case_socket,
              case_instances, case_credential, case_journal, case_tls_only, case_credential_rtu,
              case_rtu, case_can, case_generator, case_condition_parser, case_failure_is_failure,
-             case_serial_port_taken, case_by_id_links, case_upgrade, case_upgrade_socket,
-             case_upgrade_instance, case_both_enabled, case_socket_unconfigured,
-             case_upgrade_from_previous, case_remove, case_purge, case_seccomp]
+             case_writes_until_allowed, case_serial_port_taken, case_by_id_links, case_upgrade,
+             case_upgrade_socket, case_upgrade_instance, case_both_enabled,
+             case_socket_unconfigured, case_upgrade_from_previous, case_remove, case_purge, case_seccomp]
     only = os.environ.get("JAKAGW_SERVICE_CASES")
     if only:
         cases = [c for c in cases if c is case_boot or c.__name__[5:] in only.split()]
