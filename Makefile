@@ -403,7 +403,9 @@ test-package:
 # unchanged), one qemu of this machine's kernel for every case (one boot,
 # two reboots): fresh_install, ready, reload, watchdog, socket, instances,
 # credential, journal, tls_only, credential_rtu, rtu, can, generator,
-# upgrade, upgrade_socket, upgrade_instance, both_enabled, remove, purge,
+# condition_parser, failure_is_failure, writes_until_allowed,
+# serial_port_taken, by_id_links, upgrade, upgrade_socket, upgrade_instance,
+# both_enabled, socket_unconfigured, upgrade_from_previous, remove, purge,
 # seccomp. make test runs it too, with the first build.
 test-service:
 	@/usr/bin/python3 tests/service/test_service_vm.py $(BUILD)

@@ -1270,9 +1270,13 @@ def case_purge():
     v.sh("systemctl enable jakagw@a.service")
     v.sh("DEBIAN_FRONTEND=noninteractive apt-get purge -y jakagw", timeout=300)
     nothing_left()
+    # deb-systemd-helper's records too, a previous release's (its sockets
+    # had an [Install] of their own; upgrade_from_previous ran it).
     left = v.sh("ls -d /lib/systemd/system/jakagw* /etc/jakagw /var/lib/jakagw "
                 "/var/lib/private/jakagw /run/systemd/generator*/jakagw* "
-                "/usr/sbin/jakagw 2>/dev/null; find /etc/systemd/system -name 'jakagw*'",
+                "/usr/sbin/jakagw 2>/dev/null; find /etc/systemd/system "
+                "/var/lib/systemd/deb-systemd-helper-enabled "
+                "/var/lib/systemd/deb-systemd-helper-masked -name 'jakagw*'",
                 ok=None).split()
     check(not left, "left after purge: %s" % left)
     units = v.sh("systemctl list-units --all --no-legend 'jakagw*'", ok=None).strip()
@@ -1548,8 +1552,13 @@ def case_socket_unconfigured():
     v.sh("systemctl daemon-reload")
     restart("jakagw-socket.service")
     wait_robot_link()
+    # The socket restarts while its service runs (the service with it).
+    code2, out2 = v.rc("systemctl restart jakagw.socket", timeout=60)
+    check(code2 == 0, "systemctl restart jakagw.socket: %s" % out2)
+    wait_robot_link()
     figure("socket_unconfigured: enable --now exit %d; listening %s, 502 refused; %r; named: "
-           "502 served" % (code, ports, said[0][:100]))
+           "502 served; restart jakagw.socket while it serves: exit %d, 502 served again"
+           % (code, ports, said[0][:100], code2))
 
 
 def case_writes_until_allowed():
