@@ -413,7 +413,9 @@ test-service:
 clean:
 	rm -rf build build-san build-fuzz
 
--include $(shell find $(BUILD) -path $(BUILD)/sysroot -prune -o -name '*.d' -type f -print 2>/dev/null)
+# The build's dependency files: not the ARM sysroot's, nor those of the service
+# VM's image while it is built (its root has files named *.d: invoke-rc.d).
+-include $(shell find $(BUILD) -path $(BUILD)/sysroot -prune -o -path $(BUILD)/service-vm -prune -o -name '*.d' -type f -print 2>/dev/null)
 
 # A cross build is made again when its sysroot is (new packages, headers).
 ifneq ($(TRIPLET),)
