@@ -343,8 +343,9 @@ def test_generator_follows_the_rtu_device():
     """jakagw-generator, run as systemd runs it, writes a drop-in giving
     jakagw@cell1 the one serial port its file's [rtu] device names (a by-id
     name's ':' escaped for BindPaths=), and none for jakagw.service, whose
-    file leaves [rtu] disabled; the socket service gets the sockets of
-    jakagw.conf (502 alone: [tls] is off)."""
+    file leaves [rtu] disabled; the socket service gets no socket while
+    jakagw.conf names no robot (as packaged), and once it names one the
+    sockets of its file (502 alone: [tls] is off)."""
     device = "/dev/serial/by-id/usb-FTDI_FT232R_A1-0000:00:14.0-1-if00-port0"
     conf = rootpath("/etc/jakagw/cell1.conf")
     with open(conf, "w") as f:
@@ -363,6 +364,17 @@ def test_generator_follows_the_rtu_device():
         for line in ("BindPaths=-" + device.replace(":", "\\:"), "DeviceAllow=%s rw" % device,
                      "SupplementaryGroups=dialout", "After=dev-serial-by\\x2did-usb"):
             check(line in text, "%r not in the drop-in:\n%s" % (line, text))
+        with open(rootpath("/tmp/gen/jakagw-socket.service.d/50-jakagw-sockets.conf")) as f:
+            sockets = re.findall(r"^Sockets=(.*)$", f.read(), re.M)
+        check(sockets == [], "sockets with no robot named: %s" % sockets)
+        packaged = conf_text()
+        with open(rootpath("/etc/jakagw/jakagw.conf"), "w") as f:
+            f.write(packaged.replace(";host = 192.0.2.10", "host = 192.0.2.10"))
+        try:
+            generate()
+        finally:
+            with open(rootpath("/etc/jakagw/jakagw.conf"), "w") as f:
+                f.write(packaged)
         with open(rootpath("/tmp/gen/jakagw-socket.service.d/50-jakagw-sockets.conf")) as f:
             sockets = re.findall(r"^Sockets=(.*)$", f.read(), re.M)
         check(sockets == ["jakagw.socket"], "the socket service's sockets: %s" % sockets)
