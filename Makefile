@@ -23,6 +23,8 @@ UNITDIR   ?= $(if $(filter /usr,$(PREFIX)),/lib/systemd/system,$(PREFIX)/lib/sys
 # The generator that gives the units the serial port of [rtu] device
 # (systemd/jakagw-generator.in), beside the units' directory.
 GENERATORDIR ?= $(patsubst %/system,%/system-generators,$(UNITDIR))
+# The units' start condition (systemd/jakagw-condition.in).
+LIBEXECDIR ?= $(PREFIX)/libexec/jakagw
 DESTDIR   ?=
 
 # Cross builds for ARM boards (docs/arm.md): make ARCH=arm64 or
@@ -348,7 +350,7 @@ CONF  := $(DESTDIR)$(SYSCONFDIR)/jakagw/jakagw.conf
 # A configuration already there is the user's: it is never overwritten.
 install: all
 	install -d $(DESTDIR)$(SBINDIR) $(DESTDIR)$(BINDIR) $(DESTDIR)$(SYSCONFDIR)/jakagw \
-	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(GENERATORDIR) $(DESTDIR)$(DOCDIR)/docs $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
+	    $(DESTDIR)$(UNITDIR) $(DESTDIR)$(GENERATORDIR) $(DESTDIR)$(LIBEXECDIR) $(DESTDIR)$(DOCDIR)/docs $(DESTDIR)$(MANDIR)/man1 $(DESTDIR)$(MANDIR)/man8
 	install -m 0755 $(BUILD)/jakagw $(DESTDIR)$(SBINDIR)/
 	install -m 0755 $(BUILD)/jakasim $(DESTDIR)$(BINDIR)/
 	@if [ -e $(CONF) ]; then \
@@ -359,13 +361,15 @@ install: all
 	    install -m 0644 config/jakagw.conf $(CONF); \
 	fi
 	for unit in $(UNITS); do \
-	    sed 's|@SBINDIR@|$(SBINDIR)|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g; s|@DOCDIR@|$(DOCDIR)|g' \
+	    sed 's|@SBINDIR@|$(SBINDIR)|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g; s|@DOCDIR@|$(DOCDIR)|g; s|@LIBEXECDIR@|$(LIBEXECDIR)|g' \
 	        systemd/$$unit.in > $(DESTDIR)$(UNITDIR)/$$unit && \
 	    chmod 0644 $(DESTDIR)$(UNITDIR)/$$unit || exit 1; \
 	done
 	sed 's|@SBINDIR@|$(SBINDIR)|g; s|@SYSCONFDIR@|$(SYSCONFDIR)|g' \
 	    systemd/jakagw-generator.in > $(DESTDIR)$(GENERATORDIR)/jakagw-generator
 	chmod 0755 $(DESTDIR)$(GENERATORDIR)/jakagw-generator
+	sed 's|@SBINDIR@|$(SBINDIR)|g' systemd/jakagw-condition.in > $(DESTDIR)$(LIBEXECDIR)/jakagw-condition
+	chmod 0755 $(DESTDIR)$(LIBEXECDIR)/jakagw-condition
 	install -m 0644 man/jakagw.8 $(DESTDIR)$(MANDIR)/man8/
 	install -m 0644 man/jakasim.1 $(DESTDIR)$(MANDIR)/man1/
 	install -m 0644 README.md $(DESTDIR)$(DOCDIR)/
@@ -377,7 +381,7 @@ install: all
 uninstall:
 	rm -f $(DESTDIR)$(SBINDIR)/jakagw $(DESTDIR)$(BINDIR)/jakagw $(DESTDIR)$(BINDIR)/jakasim \
 	    $(addprefix $(DESTDIR)$(UNITDIR)/,$(UNITS)) $(DESTDIR)$(GENERATORDIR)/jakagw-generator \
-	    $(DESTDIR)$(MANDIR)/man8/jakagw.8 $(DESTDIR)$(MANDIR)/man1/jakasim.1
+	    $(DESTDIR)$(LIBEXECDIR)/jakagw-condition $(DESTDIR)$(MANDIR)/man8/jakagw.8 $(DESTDIR)$(MANDIR)/man1/jakasim.1
 	rm -rf $(DESTDIR)$(DOCDIR)
 	@echo "uninstall: $(DESTDIR)$(SYSCONFDIR)/jakagw is kept; remove it when its configuration is no longer wanted"
 
@@ -399,7 +403,9 @@ test-package:
 # unchanged), one qemu of this machine's kernel for every case (one boot,
 # two reboots): fresh_install, ready, reload, watchdog, socket, instances,
 # credential, journal, tls_only, credential_rtu, rtu, can, generator,
-# upgrade, upgrade_socket, upgrade_instance, both_enabled, remove, purge,
+# condition_parser, failure_is_failure, writes_until_allowed,
+# serial_port_taken, by_id_links, upgrade, upgrade_socket, upgrade_instance,
+# both_enabled, socket_unconfigured, upgrade_from_previous, remove, purge,
 # seccomp. make test runs it too, with the first build.
 test-service:
 	@/usr/bin/python3 tests/service/test_service_vm.py $(BUILD)
@@ -407,7 +413,9 @@ test-service:
 clean:
 	rm -rf build build-san build-fuzz
 
--include $(shell find $(BUILD) -path $(BUILD)/sysroot -prune -o -name '*.d' -type f -print 2>/dev/null)
+# The build's dependency files: not the ARM sysroot's, nor those of the service
+# VM's image while it is built (its root has files named *.d: invoke-rc.d).
+-include $(shell find $(BUILD) -path $(BUILD)/sysroot -prune -o -path $(BUILD)/service-vm -prune -o -name '*.d' -type f -print 2>/dev/null)
 
 # A cross build is made again when its sysroot is (new packages, headers).
 ifneq ($(TRIPLET),)

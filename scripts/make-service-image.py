@@ -20,6 +20,12 @@ What else is in it, and why:
     port; jakasim as the robot (robot.service);
   - two newer builds of the same package (VERSION+upgrade1 and +upgrade2,
     repacked from the .deb) in /root/debs for the upgrade cases;
+  - the previous release's package, built from its commit (PREVIOUS, the
+    main this package's series of changes started from: git archive of
+    that commit, its own scripts/build-deb.sh) and given a version below
+    this one (VERSION~PREVIOUS), in /root/debs for upgrade_from_previous;
+    cached as OUTDIR/previous-PREVIOUS.deb, as the commit never changes
+    (needs the repository's history, which CI's clone has);
   - for speed under TCG (DPKG_OPTIONS, UNUSED_DIRS, MASKED_UNITS,
     MASKED_GENERATORS): dpkg without fsync, no other packages'
     translations, manuals and documents, no boot units or generators that
@@ -45,6 +51,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, ".."))
 AGENT = os.path.join(ROOT, "tests", "service", "agent.py")
 
+# The previous release: the commit upgrade_from_previous upgrades from.
+PREVIOUS = "a7d60e1"
 PACKAGES = ["systemd-sysv", "udev", "dbus", "libnss-systemd", "kmod", "iproute2", "can-utils",
             "openssl", "python3", "python3-pymodbus", "python3-serial-asyncio", "procps"]
 # dpkg's settings in the image (/etc/dpkg/dpkg.cfg.d/99mmdebstrap), for the
@@ -156,7 +164,7 @@ def image_key(deb, version):
     for path in [os.path.abspath(__file__), AGENT, deb] + apt_sources():
         h.update(file_hash(path).encode())
     h.update(" ".join(PACKAGES + DPKG_OPTIONS + UNUSED_DIRS + MASKED_UNITS + MASKED_GENERATORS +
-                      MODULE_DIRS + [version, str(IMAGE_MB)]).encode())
+                      MODULE_DIRS + [version, str(IMAGE_MB), PREVIOUS]).encode())
     return h.hexdigest()[:16]
 
 
@@ -193,8 +201,43 @@ def repack(deb, version, out):
         shutil.rmtree(work, True)
 
 
+def previous_deb(outdir, deb):
+    """The previous release's package (PREVIOUS), built once and kept."""
+    deb_version = sh(["dpkg-deb", "-f", deb, "Version"]).strip()
+    out = os.path.join(outdir, "previous-%s.deb" % PREVIOUS)
+    if os.path.isfile(out):
+        return out
+    start = time.monotonic()
+    os.makedirs(outdir, exist_ok=True)
+    r = subprocess.run(["git", "-C", ROOT, "cat-file", "-e", PREVIOUS + "^{commit}"],
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit("make-service-image: the previous release, commit %s, is not in %s's "
+                         "history (a shallow clone?): git fetch --unshallow" % (PREVIOUS, ROOT))
+    work = tempfile.mkdtemp(prefix="previous.", dir=outdir)
+    try:
+        src = os.path.join(work, "src")
+        os.makedirs(src)
+        archive = subprocess.run(["git", "-C", ROOT, "archive", "--format=tar", PREVIOUS],
+                                 capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-C", src, "-xf", "-"], input=archive, check=True)
+        print("make-service-image: building the previous release's package (%s)" % PREVIOUS,
+              file=sys.stderr)
+        built = sh(["scripts/build-deb.sh", os.path.join(work, "deb")], cwd=src,
+                   # Its own tree, not the checkout's git work tree around it.
+                   env=dict(os.environ, DEB_BUILD_OPTIONS="nocheck", GIT_CEILING_DIRECTORIES=work),
+                   timeout=1200).strip().splitlines()[-1]
+        repack(built, "%s~%s" % (deb_version.split("+")[0], PREVIOUS), out + ".tmp")
+        os.rename(out + ".tmp", out)
+    finally:
+        shutil.rmtree(work, True)
+    print("make-service-image: %s in %.0f s" % (out, time.monotonic() - start), file=sys.stderr)
+    return out
+
+
 def build(outdir, deb):
     vmlinuz, initrd, version = kernel()
+    previous = previous_deb(outdir, deb)
     key = image_key(deb, version)
     image = os.path.join(outdir, "image-%s.ext4" % key)
     if os.path.isfile(image):
@@ -211,6 +254,7 @@ def build(outdir, deb):
         debs = os.path.join(work, "debs")
         os.makedirs(debs)
         shutil.copy(deb, debs)
+        shutil.copy(previous, os.path.join(debs, "previous.deb"))
         newer = ["jakagw_%s+upgrade%d.deb" % (deb_version, n) for n in (1, 2)]
         for n, name in enumerate(newer, 1):
             repack(deb, "%s+upgrade%d" % (deb_version, n), os.path.join(debs, name))
@@ -220,7 +264,8 @@ def build(outdir, deb):
            ["--dpkgopt=" + o for o in DPKG_OPTIONS] + [
             "--customize-hook=mkdir -p \"$1/root/debs\"",
             "--customize-hook=copy-in %s /root/debs" % " ".join(
-                os.path.join(debs, name) for name in [os.path.basename(deb)] + newer),
+                os.path.join(debs, name) for name in [os.path.basename(deb), "previous.deb"] +
+                newer),
             "--customize-hook=chroot \"$1\" env DEBIAN_FRONTEND=noninteractive apt-get "
             "install -y --no-install-recommends /root/debs/%s" % os.path.basename(deb),
             # No package lists: the VM is offline, and apt reading them

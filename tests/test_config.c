@@ -416,6 +416,10 @@ static void shipped_config_is_valid(void **state)
     config_defaults(&c);
     config_defaults(&d);
     assert_int_equal(config_load(&c, CONFIG_FILE, why, sizeof(why)), 0);
+    /* It names the robot (its default), which the defaults alone do not. */
+    assert_true(c.robot_named);
+    assert_false(d.robot_named);
+    c.robot_named = false;
     /* The shipped file documents the defaults: loading it changes nothing. */
     assert_memory_equal(&c, &d, sizeof(c));
 }
@@ -457,6 +461,7 @@ static void keys_compare_by_type(void **state)
         {"robot", "tls_fingerprint", "",
          "abcdef0123456789abcdef0123456789abcdef0123456789abcdef0123456789"},
         {"modbus", "write_allow", "10.0.0.1", "10.0.0.2"},
+        {"modbus", "write_allow", "none", ""},
         {"modbus", "unit_id", "any", "0"},
         {"modbus", "idle_timeout_ms", "60000", "0"},
         {"tls", "client_ca", "/etc/a.crt", "/etc/b.crt"},

@@ -351,6 +351,37 @@ static void read_only_and_write_allow(void **state)
     assert_int_equal(write_one("::2", 1, pw.rows.heartbeat, 4), 1);
 }
 
+/* One write over 'transport' ("modbus", "mbaps", "rtu"). */
+static int write_over(const char *transport, uint64_t client_id, const struct regmap_row *row,
+                      uint16_t value)
+{
+    struct mb_write w = {.table = row->table, .address = row->address, .count = 1,
+                         .values = &value, .client = "127.0.0.1", .client_id = client_id,
+                         .rights = REGMAP_RIGHTS_ALL, .transport = transport};
+    assert_int_equal(ip_addr_parse("127.0.0.1", &w.client_addr), 0);
+    int ex = plc_write_judge(&pw, &w);
+    if (ex == 0) {
+        regmap_load(&img, row->table, row->address, 1, &value);
+        plc_write_after(&pw);
+    }
+    return ex;
+}
+
+/* write_allow = none: no plain Modbus TCP client writes, with the reason
+ * the PLC's result registers give; a TLS client and the RTU line write as
+ * their rights allow. */
+static void write_allow_none_refuses_plain_tcp_only(void **state)
+{
+    (void)state;
+    struct plc_write_config wc = {.modbus_writes_none = true};
+    start(&wc, false, false);
+    assert_int_equal(write_over("modbus", 1, pw.rows.heartbeat, 1), 1);
+    assert_non_null(strstr(pw.why, "write_allow = none"));
+    assert_false(policy.heartbeat_armed);
+    assert_int_equal(write_over("mbaps", 2, pw.rows.heartbeat, 1), 0);
+    assert_int_equal(write_over("rtu", 2, pw.rows.heartbeat, 2), 0);
+}
+
 
 /* One write from connection 'client_id' at 'peer' ("address:port"). */
 static int write_from_peer(const char *peer, uint64_t client_id, const struct regmap_row *row,
@@ -393,6 +424,7 @@ int main(void)
         cmocka_unit_test_teardown(owner_is_the_plc_and_named_with_its_port, teardown),
         cmocka_unit_test_teardown(motion_enable_drop_pauses_through_the_transaction, teardown),
         cmocka_unit_test_teardown(read_only_and_write_allow, teardown),
+        cmocka_unit_test_teardown(write_allow_none_refuses_plain_tcp_only, teardown),
         cmocka_unit_test_teardown(drop_right_after_a_start_pauses, teardown),
         cmocka_unit_test_teardown(start_after_a_drop_is_refused_and_latches, teardown),
         cmocka_unit_test_teardown(start_before_motion_enable_is_armed_is_only_refused, teardown),

@@ -303,6 +303,12 @@ static int set_key(struct gw_config *cfg, const struct key_info *k,
             snprintf(why, why_size, "must be at most %zu characters", k->size - 1);
             return -EINVAL;
         }
+        if (strcmp(value, CONFIG_WRITE_ALLOW_NONE) == 0) {
+            /* No address: no plain Modbus TCP client may write. */
+            memset(&cfg->write_allow_addrs, 0, sizeof(cfg->write_allow_addrs));
+            memcpy(member, value, strlen(value) + 1);
+            return 0;
+        }
         if (ip_allow_parse(value, &parsed, reason, sizeof(reason)) != 0) {
             snprintf(why, why_size, "%s", reason);
             return -EINVAL;
@@ -431,6 +437,13 @@ void config_defaults(struct gw_config *cfg)
         set_key(cfg, &keys[i], keys[i].default_value, why, sizeof(why));
 }
 
+/* A robot named by the file or a flag, not the built-in default. */
+static void note_named(struct gw_config *cfg, const struct key_info *k)
+{
+    if (k->offset == offsetof(struct gw_config, robot_host))
+        cfg->robot_named = true;
+}
+
 static const struct key_info *find_key(const char *section, const char *key)
 {
     for (size_t i = 0; i < N_KEYS; i++) {
@@ -467,7 +480,10 @@ int config_set(struct gw_config *cfg, const char *section, const char *key,
         explain_unknown(section, key, why, why_size);
         return -EINVAL;
     }
-    return set_key(cfg, k, value, why, why_size);
+    if (set_key(cfg, k, value, why, why_size) != 0)
+        return -EINVAL;
+    note_named(cfg, k);
+    return 0;
 }
 
 /*
@@ -683,6 +699,7 @@ static int on_ini_entry(void *user, const char *section, const char *name,
         fail(st, "[%s] %s: %s", section, name, reason);
         return 0;
     }
+    note_named(st->cfg, k);
     st->key_line[k - keys] = st->line;
     return 1;
 }
@@ -931,7 +948,8 @@ bool config_key_equal(const struct gw_config *a, const struct gw_config *b, size
         return strcmp(ma, mb) == 0;
     case KEY_IP_LIST:
         /* The addresses, as parsed: the same list however it is spelt. */
-        if (a->write_allow_addrs.count != b->write_allow_addrs.count)
+        if (config_writes_from_nobody(a) != config_writes_from_nobody(b) ||
+            a->write_allow_addrs.count != b->write_allow_addrs.count)
             return false;
         for (unsigned n = 0; n < a->write_allow_addrs.count; n++)
             if (memcmp(&a->write_allow_addrs.addrs[n], &b->write_allow_addrs.addrs[n],
@@ -1033,4 +1051,23 @@ void config_print(const struct gw_config *cfg, FILE *out)
         fprintf(out, "%s = ", name);
         print_text(out, cfg->roles[i].text);
     }
+}
+
+bool config_writes_from_nobody(const struct gw_config *cfg)
+{
+    return strcmp(cfg->write_allow, CONFIG_WRITE_ALLOW_NONE) == 0;
+}
+
+void config_describe_writes(const struct gw_config *cfg, char *out, size_t size)
+{
+    if (cfg->read_only)
+        snprintf(out, size, "from no client: [modbus] read_only = true");
+    else if (config_writes_from_nobody(cfg))
+        snprintf(out, size, "from no Modbus TCP client until [modbus] write_allow names the "
+                            "PLCs that may write (it is 'none'); TLS clients by their role");
+    else if (cfg->write_allow_addrs.count == 0)
+        snprintf(out, size, "from any client: [modbus] write_allow is empty; name the PLCs "
+                            "that may write");
+    else
+        snprintf(out, size, "from %s only ([modbus] write_allow)", cfg->write_allow);
 }

@@ -32,6 +32,9 @@ struct config_role {
 struct gw_config {
     /* [robot] */
     char robot_host[256];
+    /* Not a key: [robot] host was set by the file or a flag, not left at
+     * its default. A service is not started until it is (--check-start). */
+    bool robot_named;
     uint32_t status_port;
     uint32_t command_port;
     uint32_t connect_timeout_ms;
@@ -55,7 +58,8 @@ struct gw_config {
     /* Not a key: a listening socket passed by systemd, 0: bind and port. */
     int modbus_listen_fd;
     bool read_only;        /* no Modbus write at all */
-    char write_allow[400]; /* client addresses that may write, as written; "" any */
+    char write_allow[400]; /* client addresses that may write, as written; "" any,
+                            * "none" no plain Modbus TCP client */
     struct ip_allow write_allow_addrs; /* the same, parsed once when set */
     /* [commands] */
     bool motion;             /* motion commands allowed */
@@ -171,5 +175,14 @@ const char *config_key_section(size_t i);
 const char *config_key_name(size_t i);
 bool config_key_equal(const struct gw_config *a, const struct gw_config *b, size_t i);
 void config_key_format(const struct gw_config *cfg, size_t i, char *out, size_t size);
+
+/* [modbus] write_allow = none: no plain Modbus TCP client may write (TLS
+ * clients write as their role allows). */
+#define CONFIG_WRITE_ALLOW_NONE "none"
+bool config_writes_from_nobody(const struct gw_config *cfg);
+
+/* Who may write, in words, for the log and the status page: "from any
+ * client: ...", "from 10.0.0.5 only ...". */
+void config_describe_writes(const struct gw_config *cfg, char *out, size_t size);
 
 #endif

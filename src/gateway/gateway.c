@@ -819,7 +819,18 @@ static int start_writes(struct gateway *gw)
     struct plc_write_config wc = {
         .read_only = gw->cfg.read_only,
         .write_allow = gw->cfg.write_allow_addrs,
+        .modbus_writes_none = config_writes_from_nobody(&gw->cfg),
     };
+    char writes[160];
+
+    /* Who may write, once at start: a gateway that takes writes from any
+     * client says so as a warning (the packaged file takes none). */
+    config_describe_writes(&gw->cfg, writes, sizeof(writes));
+    if (!gw->cfg.read_only && gw->cfg.write_allow_addrs.count == 0 &&
+        !config_writes_from_nobody(&gw->cfg))
+        log_warn("Modbus writes %s", writes);
+    else
+        log_notice("Modbus writes %s", writes);
     struct plc_write_hooks hooks = {
         .now_ms = loop_now_ms_of_gateway,
         .robot_may_move = robot_may_move,

@@ -25,6 +25,10 @@
 #include <uv.h>
 
 #define EXIT_CONFIG 2
+/* --check-start's answers, as systemd's ExecCondition= reads them: 1-254
+ * skip the start (the unit is not failed), 255 fails the unit. */
+#define EXIT_CHECK_NO_ROBOT 1
+#define EXIT_CHECK_CANNOT_START 255
 
 struct service {
     uv_loop_t *loop;
@@ -52,6 +56,9 @@ static void usage(FILE *out)
             "      --modbus-port N      Modbus TCP port (default 502)\n"
             "      --log-level LEVEL    error, warning, notice, info or debug\n"
             "      --check-config       check the configuration, print it, exit\n"
+            "      --check-start        with the flags the service runs with: exit 0 if\n"
+            "                           it would start, 1 if no robot is named, 255 if\n"
+            "                           it cannot start (the reason on stderr)\n"
             "      --print-map FORMAT   print the register map as csv, md or st, exit\n"
             "      --print-config-keys  print every configuration key, its default and\n"
             "                           whether a reload (SIGHUP) applies it, exit\n"
@@ -347,7 +354,8 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
 {
     enum { OPT_ROBOT_HOST = 256, OPT_STATUS_PORT, OPT_COMMAND_PORT,
            OPT_MODBUS_BIND, OPT_MODBUS_PORT, OPT_LOG_LEVEL, OPT_CHECK,
-           OPT_PRINT_MAP, OPT_VERSION, OPT_PRINT_DBC, OPT_PRINT_KEYS };
+           OPT_PRINT_MAP, OPT_VERSION, OPT_PRINT_DBC, OPT_PRINT_KEYS,
+           OPT_CHECK_START };
     static const struct option options[] = {
         {"config", required_argument, NULL, 'c'},
         {"robot-host", required_argument, NULL, OPT_ROBOT_HOST},
@@ -357,6 +365,7 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
         {"modbus-port", required_argument, NULL, OPT_MODBUS_PORT},
         {"log-level", required_argument, NULL, OPT_LOG_LEVEL},
         {"check-config", no_argument, NULL, OPT_CHECK},
+        {"check-start", no_argument, NULL, OPT_CHECK_START},
         {"print-map", required_argument, NULL, OPT_PRINT_MAP},
         {"print-dbc", no_argument, NULL, OPT_PRINT_DBC},
         {"print-config-keys", no_argument, NULL, OPT_PRINT_KEYS},
@@ -377,6 +386,7 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
         case OPT_VERSION: printf("jakagw %s (register map %d)\n", JAKAGW_VERSION,
                                  REGMAP_VERSION); exit(0);
         case OPT_CHECK: *check_only = true; continue;
+        case OPT_CHECK_START: continue; /* found by wants_check_start() */
         case OPT_PRINT_MAP: *print_format = optarg; continue;
         case OPT_PRINT_DBC: *print_dbc_only = true; continue;
         case OPT_PRINT_KEYS: *print_keys = true; continue;
@@ -417,6 +427,38 @@ static int parse_flags(int argc, char **argv, struct gw_config *cfg,
     return 0;
 }
 
+/* --check-start, wherever it is: a bad flag before it is still its
+ * answer (255), not the service's exit status 2. */
+static bool wants_check_start(int argc, char **argv)
+{
+    for (int i = 1; i < argc && strcmp(argv[i], "--") != 0; i++)
+        if (strcmp(argv[i], "--check-start") == 0)
+            return true;
+    return false;
+}
+
+/*
+ * Would the service start with these flags and this file? The units ask
+ * before each start (ExecCondition=), with the command line the service
+ * runs with, drop-ins' flags included, in the service's own sandbox: so
+ * the gateway's parser decides, never a guess at the file's text. A file
+ * that names no robot is a skip, any reason not to start a failure.
+ */
+static int check_start(const struct gw_config *cfg, bool file_read)
+{
+    const char *path = flags.config_path ? flags.config_path : CONFIG_DEFAULT_PATH;
+
+    if (!cfg->robot_named) {
+        log_plain("jakagw: %s%s names no robot ([robot] host is commented out or missing, "
+                  "and no --robot-host flag): not started; name the robot, then restart the "
+                  "service",
+                  file_read ? "" : "no configuration file: ", path);
+        return EXIT_CHECK_NO_ROBOT;
+    }
+    printf("jakagw: %s: robot %s: the service starts\n", path, cfg->robot_host);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     struct service svc;
@@ -430,8 +472,15 @@ int main(int argc, char **argv)
     char status[160];
 
     if (parse_flags(argc, argv, &cfg, &check_only, &print_format, &file_read,
-                    &print_dbc_only, &print_keys))
+                    &print_dbc_only, &print_keys)) {
+        if (wants_check_start(argc, argv)) {
+            log_plain("jakagw: the service cannot start (the line above says why)");
+            return EXIT_CHECK_CANNOT_START;
+        }
         return EXIT_CONFIG;
+    }
+    if (wants_check_start(argc, argv))
+        return check_start(&cfg, file_read);
     if (print_keys)
         return config_reload_print_keys(stdout) == 0 && fflush(stdout) == 0 ? 0 : 1;
     if (print_dbc_only)

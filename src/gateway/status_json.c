@@ -488,6 +488,9 @@ char *status_json_render(struct gateway *gw, bool registers, size_t *size)
     snprintf(crc, sizeof(crc), "%08X", (unsigned)v[GW_map_crc]);
     cJSON_AddStringToObject(g, "map_crc", crc);
     cJSON_AddStringToObject(g, "robot", gw->cfg.robot_host);
+    char writes[160];
+    config_describe_writes(&gw->cfg, writes, sizeof(writes));
+    cJSON_AddStringToObject(g, "modbus_writes", writes);
     cJSON *links = cJSON_AddObjectToObject(root, "links");
     add_link(links, "status", v[GW_status_link_state], v[GW_status_link_up],
              v[GW_status_reconnects]);

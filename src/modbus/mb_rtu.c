@@ -7,6 +7,7 @@
 #include <linux/serial.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/file.h>
 #include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <sys/sysmacros.h>
@@ -180,18 +181,54 @@ static void set_up_delivery(struct mb_rtu *rtu, int fd)
 
 static void on_serial(uv_poll_t *p, int status, int events);
 
+/*
+ * A serial port has one owner: two masters' frames on one line split it
+ * (each gets some of the replies) and two robots' commands mix. The lock is
+ * the one pyserial's exclusive=True and other Linux serial programs take,
+ * flock() on the device, held while it is open; TIOCEXCL then refuses any
+ * later open(2) of the tty by a program that does not lock (but root's).
+ * -ENOTTY with 'why' when another program has it: a configuration error,
+ * never a line fault retried in silence.
+ */
+static int own_port(int fd, char *why, size_t why_size)
+{
+    if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
+        if (errno == EWOULDBLOCK) {
+            snprintf(why, why_size, "the port is taken: another program (another gateway "
+                                    "whose [rtu] device is this port?) holds its lock");
+            return -ENOTTY;
+        }
+        snprintf(why, why_size, "cannot lock the port: %s", strerror(errno));
+        return -errno;
+    }
+    if (ioctl(fd, TIOCEXCL) < 0 && errno != ENOTTY) {
+        snprintf(why, why_size, "cannot make the port exclusive (TIOCEXCL): %s",
+                 strerror(errno));
+        return -ENOTTY;
+    }
+    return 0;
+}
+
 /* Opens and sets up the device. 0, -ENOTTY (why set) or -errno (why set). */
 static int open_line(struct mb_rtu *rtu, char *why, size_t why_size)
 {
     int fd = open(rtu->device, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
     int rc;
 
+    if (fd < 0 && errno == EBUSY) {
+        /* TIOCEXCL of the program that has it. */
+        snprintf(why, why_size, "the port is taken: another program has it open "
+                                "exclusively (TIOCEXCL)");
+        return -ENOTTY;
+    }
     if (fd < 0) {
         rc = -errno;
         snprintf(why, why_size, "%s", strerror(errno));
         return rc;
     }
-    rc = configure_port(rtu, fd, why, why_size);
+    rc = own_port(fd, why, why_size);
+    if (rc == 0)
+        rc = configure_port(rtu, fd, why, why_size);
     if (rc == 0) {
         rc = uv_poll_init(rtu->loop, &rtu->serial, fd);
         if (rc < 0)

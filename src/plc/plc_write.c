@@ -46,9 +46,18 @@ void plc_write_free(struct plc_write *pw)
     pw->elements = NULL;
 }
 
+/* A client of plain Modbus TCP (not TLS, whose role says what it may write,
+ * nor the RTU line, whose [rtu] rights do). */
+static bool is_plain_tcp(const struct mb_write *w)
+{
+    return w->transport && strcmp(w->transport, "modbus") == 0;
+}
+
 int plc_write_authorize(const struct plc_write *pw, const struct mb_write *w)
 {
     if (pw->cfg.read_only)
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    if (pw->cfg.modbus_writes_none && is_plain_tcp(w))
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
     if (pw->cfg.write_allow.count > 0 &&
         !ip_allow_contains(&pw->cfg.write_allow, &w->client_addr))
@@ -138,6 +147,9 @@ static void why_unauthorized(struct plc_write *pw, const struct mb_write *w)
 {
     if (pw->cfg.read_only)
         snprintf(pw->why, sizeof(pw->why), "read only: [modbus] read_only = true");
+    else if (pw->cfg.modbus_writes_none && is_plain_tcp(w))
+        snprintf(pw->why, sizeof(pw->why),
+                 "no PLC may write yet: [modbus] write_allow = none");
     else if (pw->cfg.write_allow.count > 0 && !ip_allow_contains(&pw->cfg.write_allow,
                                                                  &w->client_addr))
         snprintf(pw->why, sizeof(pw->why), "client not in [modbus] write_allow");

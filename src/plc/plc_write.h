@@ -51,6 +51,7 @@
 struct plc_write_config {
     bool read_only;              /* no write at all */
     struct ip_allow write_allow; /* count 0: any client may write */
+    bool modbus_writes_none;     /* no plain Modbus TCP client may write */
 };
 
 struct plc_write_hooks {

@@ -21,12 +21,18 @@ EXPOSURE_LIMITS = {"jakagw.service": 1.9, "jakagw@.service": 1.9, "jakagw-socket
 
 
 def filled_units(directory, sbindir):
-    """The unit templates with the paths filled in as make install does."""
+    """The unit templates with the paths filled in as make install does
+    (their start condition, jakagw-condition, beside them)."""
+    with open(os.path.join(ROOT, "systemd", "jakagw-condition.in")) as f:
+        condition = os.path.join(directory, "jakagw-condition")
+        with open(condition, "w") as out:
+            out.write(f.read().replace("@SBINDIR@", sbindir))
+        os.chmod(condition, 0o755)
     for unit in UNITS:
         with open(os.path.join(ROOT, "systemd", unit + ".in")) as f:
             text = f.read()
         text = (text.replace("@SBINDIR@", sbindir).replace("@SYSCONFDIR@", "/etc")
-                .replace("@DOCDIR@", "/usr/share/doc/jakagw"))
+                .replace("@DOCDIR@", "/usr/share/doc/jakagw").replace("@LIBEXECDIR@", directory))
         check(not re.search(r"@[A-Z]+@", text), "%s: a path left unfilled" % unit)
         with open(os.path.join(directory, unit), "w") as f:
             f.write(text)
@@ -70,7 +76,7 @@ def test_units_restart_forever_and_reload():
         with open(os.path.join(ROOT, "systemd", unit + ".in")) as f:
             text = f.read()
         for line in ("StartLimitIntervalSec=0", "Restart=always", "RestartSec=2s",
-                     "RestartPreventExitStatus=2", "ExecReload=/bin/kill -HUP $MAINPID",
+                     "RestartPreventExitStatus=2 226", "ExecReload=/bin/kill -HUP $MAINPID",
                      "Type=notify", "WatchdogSec=10s", "DynamicUser=yes"):
             check(line in text.splitlines(), "%s lacks %s" % (unit, line))
 
@@ -114,6 +120,10 @@ def test_make_install_usr():
         check("Documentation=man:jakagw(8) file:///usr/share/doc/jakagw/README.md" in unit, unit)
         instance = read(os.path.join(stage, "lib/systemd/system/jakagw@.service"))
         check("ExecStart=/usr/sbin/jakagw -c /etc/jakagw/%i.conf" in instance, instance)
+        check("ExecCondition=+/usr/libexec/jakagw/jakagw-condition %n /usr/sbin/jakagw -c "
+              "/etc/jakagw/%i.conf" in instance, instance)
+        check(os.access(os.path.join(stage, "usr/libexec/jakagw/jakagw-condition"), os.X_OK),
+              "the units' start condition is not installed")
 
 
 def test_make_install_local_keeps_the_configuration():

@@ -126,6 +126,7 @@ def test_package_contents():
             "/usr/share/doc/jakagw/copyright"]
     want += ["/lib/systemd/system/" + u for u in UNITS]
     want.append("/lib/systemd/system-generators/jakagw-generator")
+    want.append("/usr/libexec/jakagw/jakagw-condition")
     for doc in ["README.md", "register-map.md", "register-map.csv", "plc-guide.md",
                 "jakagw.dbc"]:
         if doc == "README.md" or os.path.exists(os.path.join(ROOT, "docs", doc)):
@@ -317,27 +318,34 @@ def generate(*args):
 
 def test_packaged_configuration_names_no_robot():
     """The installed file leaves [robot] host commented out (the units'
-    ExecCondition= then skips them), and is otherwise config/jakagw.conf."""
+    ExecCondition= then skips them: the gateway's parser says so with exit
+    status 1) and takes writes from no plain Modbus TCP client (write_allow
+    = none), and is otherwise config/jakagw.conf."""
     with open(os.path.join(ROOT, "config", "jakagw.conf")) as f:
         shipped = f.read()
     text = conf_text()
     check(not re.search(r"^host\s*=", text, re.M) and re.search(r"^;host = ", text, re.M),
           "the packaged file names a robot")
+    check(re.search(r"^write_allow = none$", text, re.M), "the packaged file takes writes")
     check([l for l in text.splitlines() if not l.startswith(";")] ==
-          [l for l in shipped.splitlines() if not l.startswith(";") and
-           not l.startswith("host =")], "the packaged file differs in more than [robot] host")
+          [l.replace("write_allow =", "write_allow = none") for l in shipped.splitlines()
+           if not l.startswith(";") and not l.startswith("host =")],
+          "the packaged file differs in more than [robot] host and [modbus] write_allow")
     for unit in ("jakagw.service", "jakagw-socket.service", "jakagw@.service"):
         with open(rootpath("/lib/systemd/system/" + unit)) as f:
-            check("ExecCondition=/bin/sh -c 'grep -Eq \"^host" in f.read(),
-                  "%s has no ExecCondition on [robot] host" % unit)
+            check("ExecCondition=+/usr/libexec/jakagw/jakagw-condition %n /usr/sbin/jakagw -c "
+                  in f.read(), "%s has no ExecCondition= by the gateway's parser" % unit)
+    r = in_root("/usr/sbin/jakagw", "-c", "/etc/jakagw/jakagw.conf", "--check-start", ok=(1,))
+    check("names no robot" in r.stderr, "--check-start: %s" % r.stderr)
 
 
 def test_generator_follows_the_rtu_device():
     """jakagw-generator, run as systemd runs it, writes a drop-in giving
     jakagw@cell1 the one serial port its file's [rtu] device names (a by-id
     name's ':' escaped for BindPaths=), and none for jakagw.service, whose
-    file leaves [rtu] disabled; the socket service gets the sockets of
-    jakagw.conf (502 alone: [tls] is off)."""
+    file leaves [rtu] disabled; the socket service gets no socket while
+    jakagw.conf names no robot (as packaged), and once it names one the
+    sockets of its file (502 alone: [tls] is off)."""
     device = "/dev/serial/by-id/usb-FTDI_FT232R_A1-0000:00:14.0-1-if00-port0"
     conf = rootpath("/etc/jakagw/cell1.conf")
     with open(conf, "w") as f:
@@ -356,6 +364,17 @@ def test_generator_follows_the_rtu_device():
         for line in ("BindPaths=-" + device.replace(":", "\\:"), "DeviceAllow=%s rw" % device,
                      "SupplementaryGroups=dialout", "After=dev-serial-by\\x2did-usb"):
             check(line in text, "%r not in the drop-in:\n%s" % (line, text))
+        with open(rootpath("/tmp/gen/jakagw-socket.service.d/50-jakagw-sockets.conf")) as f:
+            sockets = re.findall(r"^Sockets=(.*)$", f.read(), re.M)
+        check(sockets == [], "sockets with no robot named: %s" % sockets)
+        packaged = conf_text()
+        with open(rootpath("/etc/jakagw/jakagw.conf"), "w") as f:
+            f.write(packaged.replace(";host = 192.0.2.10", "host = 192.0.2.10"))
+        try:
+            generate()
+        finally:
+            with open(rootpath("/etc/jakagw/jakagw.conf"), "w") as f:
+                f.write(packaged)
         with open(rootpath("/tmp/gen/jakagw-socket.service.d/50-jakagw-sockets.conf")) as f:
             sockets = re.findall(r"^Sockets=(.*)$", f.read(), re.M)
         check(sockets == ["jakagw.socket"], "the socket service's sockets: %s" % sockets)

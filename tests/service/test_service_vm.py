@@ -467,9 +467,12 @@ def case_boot():
     for code in state["preludes"]:
         v.py(code)
     # The file as the package installs it, and the same with the robot
-    # named, which every case from fresh_install on runs with.
+    # named and writes from any client (the PLCs of the cases are local, the
+    # RTU master has no address), which every case from fresh_install on
+    # runs with; writes_until_allowed runs the packaged write_allow.
     state["packaged"] = v.sh("cat /etc/jakagw/jakagw.conf")
-    state["conf"] = conf_with(state["packaged"], {"robot": {"host": "127.0.0.1"}})
+    state["conf"] = conf_with(state["packaged"], {"robot": {"host": "127.0.0.1"},
+                                                  "modbus": {"write_allow": ""}})
     global COIL_POWER_ON, IR_INTERP, IR_HANDLE
     import csv
     import io
@@ -1267,9 +1270,13 @@ def case_purge():
     v.sh("systemctl enable jakagw@a.service")
     v.sh("DEBIAN_FRONTEND=noninteractive apt-get purge -y jakagw", timeout=300)
     nothing_left()
+    # deb-systemd-helper's records too, a previous release's (its sockets
+    # had an [Install] of their own; upgrade_from_previous ran it).
     left = v.sh("ls -d /lib/systemd/system/jakagw* /etc/jakagw /var/lib/jakagw "
                 "/var/lib/private/jakagw /run/systemd/generator*/jakagw* "
-                "/usr/sbin/jakagw 2>/dev/null; find /etc/systemd/system -name 'jakagw*'",
+                "/usr/sbin/jakagw 2>/dev/null; find /etc/systemd/system "
+                "/var/lib/systemd/deb-systemd-helper-enabled "
+                "/var/lib/systemd/deb-systemd-helper-masked -name 'jakagw*'",
                 ok=None).split()
     check(not left, "left after purge: %s" % left)
     units = v.sh("systemctl list-units --all --no-legend 'jakagw*'", ok=None).strip()
@@ -1331,6 +1338,374 @@ def case_generator():
            % (mem[0], took, fifo[0], code))
 
 
+# ---- the units decide with the gateway's parser; upgrades keep serving ----
+
+DROPIN_DIR = "/etc/systemd/system/%s.d"
+
+
+def dropin(unit, text):
+    """A local drop-in for 'unit', as 'systemctl edit' writes it (None:
+    removed), then daemon-reload."""
+    v = vm()
+    path = DROPIN_DIR % unit + "/override.conf"
+    if text is None:
+        v.sh("rm -f %s; rmdir %s 2>/dev/null; systemctl daemon-reload" % (path, DROPIN_DIR % unit))
+    else:
+        v.sh("mkdir -p %s" % DROPIN_DIR % unit)
+        v.write(path, text)
+        v.sh("systemctl daemon-reload")
+
+
+def robot_flag_dropin(flags):
+    return "[Service]\nExecStart=\nExecStart=/usr/sbin/jakagw -c /etc/jakagw/jakagw.conf %s\n" \
+        % flags
+
+
+def start_outcome(unit="jakagw.service", verb="restart"):
+    """systemctl restart's exit status and systemd's view after it:
+    ('active' | 'skipped' | 'failed', details)."""
+    v = vm()
+    code, out = v.rc("systemctl %s %s" % (verb, unit), timeout=60)
+    p = show(unit, "ActiveState", "Result", "ExecMainStatus")
+    if p["ActiveState"] == "active":
+        return "active", p
+    if p["ActiveState"] == "failed":
+        failed = v.sh("systemctl --failed --no-legend --plain", ok=None)
+        return ("failed" if unit in failed else "failed, not listed"), dict(p, rc=code, out=out)
+    return ("skipped" if p["Result"] == "exec-condition" and code == 0 else "other"), \
+        dict(p, rc=code, out=out)
+
+
+def condition_line(unit, after):
+    """What the start condition said in the journal."""
+    return [str(e.get("MESSAGE")) for e in journal("-u %s" % unit, after)
+            if "names no robot" in str(e.get("MESSAGE", "")) or
+            "cannot start" in str(e.get("MESSAGE", "")) or
+            "configuration error" in str(e.get("MESSAGE", ""))]
+
+
+def case_condition_parser():
+    """The units' start condition is the gateway's parser with the unit's
+    own command line: 'host: X' (the parser takes the colon), an indented
+    host line, a drop-in adding --robot-host, a drop-in naming another file
+    with -c all start the gateway; a commented host with a [roles] line
+    'host = read' is a skip (no robot), its reason in the journal."""
+    v = vm()
+    packaged = state["packaged"]
+    other = "/etc/jakagw/other.conf"
+    spellings = [
+        ("'host: 127.0.0.1'", packaged.replace(";host = 192.0.2.10", "host: 127.0.0.1"), None,
+         "active"),
+        ("an indented host line", packaged.replace(";host = 192.0.2.10", "  host = 127.0.0.1"),
+         None, "active"),
+        ("a drop-in with --robot-host", packaged, robot_flag_dropin("--robot-host 127.0.0.1"),
+         "active"),
+        ("a drop-in with -c other.conf", packaged,
+         "[Service]\nExecStart=\nExecStart=/usr/sbin/jakagw -c %s\n" % other, "active"),
+        ("a commented host and [roles] host = read", packaged + "\n[roles]\nhost = read\n",
+         None, "skipped"),
+    ]
+    check(";host = 192.0.2.10" in packaged, "the packaged file's host line changed")
+    v.write(other, state["conf"])
+    seen = []
+    dropped = None
+    try:
+        for what, text, drop, want in spellings:
+            v.write("/etc/jakagw/jakagw.conf", text)
+            if drop != dropped:  # one daemon-reload from one drop-in to the next
+                dropin("jakagw.service", drop)
+                dropped = drop
+            c = mark()
+            got, p = start_outcome()
+            check(got == want, "%s: %s, expected %s: %s\n%s" % (what, got, want, p,
+                                                               unit_story("jakagw.service")))
+            if want == "skipped":
+                why = wait_vm(lambda: condition_line("jakagw.service", c), 10,
+                              "the skip's reason in the journal")
+                check(not gateways(), "%s: a gateway runs" % what)
+                seen.append("%s: skipped (%r)" % (what, why[0][:90]))
+            else:
+                # Active is READY (Type=notify): the gateway parsed its file,
+                # bound 502 and runs.
+                seen.append("%s: %s" % (what, got))
+    finally:
+        v.sh("rm -f %s" % other)
+        if dropped:
+            dropin("jakagw.service", None)
+    restore()
+    wait_robot_link()
+    figure("condition_parser: " + "; ".join(seen))
+
+
+def case_failure_is_failure():
+    """What stops a start is a failure, listed by systemctl --failed, never
+    a skip: a configuration file of mode 0600 (the service's user cannot
+    read it), an instance with no file, a bad value."""
+    v = vm()
+    seen = []
+    v.sh("chmod 0600 /etc/jakagw/jakagw.conf")
+    try:
+        got, p = start_outcome()
+    finally:
+        v.sh("chmod 0644 /etc/jakagw/jakagw.conf")
+    check(got == "failed", "mode 0600: %s: %s\n%s" % (got, p, unit_story("jakagw.service")))
+    seen.append("mode 0600: %s (status %s)" % (got, p["ExecMainStatus"]))
+    got, p = start_outcome("jakagw@nosuchname.service", "start")
+    check(got == "failed", "an instance without a file: %s: %s" % (got, p))
+    seen.append("jakagw@nosuchname: %s" % got)
+    c = mark()
+    set_conf({"modbus": {"port": "99999"}})
+    got, p = start_outcome()
+    check(got == "failed", "a bad value: %s: %s" % (got, p))
+    said = condition_line("jakagw.service", c)
+    check(any("port" in m for m in said), "no line names the bad key: %s" % said)
+    seen.append("[modbus] port = 99999: %s (%r)" % (got, said[0][:80]))
+    v.sh("systemctl reset-failed 'jakagw*'", ok=None)
+    set_conf({})  # the next case starts the gateway on it
+    figure("failure_is_failure: " + "; ".join(seen))
+
+
+def case_serial_port_taken():
+    """jakagw.conf and an instance's file both name /dev/ttyS1: the
+    generator says so in the journal at the daemon-reload; the gateway that
+    opens it first has it, the second refuses to start with a clear line
+    (failed, not restarted)."""
+    v = vm()
+    c = mark()
+    set_conf({"rtu": {"enabled": "true", "device": "/dev/ttyS1"}})
+    v.write("/etc/jakagw/a.conf", conf_with(state["conf"], {
+        "modbus": {"port": "1502"}, "rtu": {"enabled": "true", "device": "/dev/ttyS1"}}))
+    restart(daemon_reload=True)
+    warned = wait_vm(lambda: [e.get("MESSAGE") for e in journal("-t jakagw-generator", c)
+                              if "both name the serial port" in str(e.get("MESSAGE"))], 10,
+                     "the generator's line about one port in two files")
+    wait_vm(lambda: "rtu: /dev/ttyS1" in v.sh("journalctl --no-pager -o cat -u jakagw.service "
+                                              "-n 30"), 10, "jakagw.service's line open")
+    got, p = start_outcome("jakagw@a.service", "start")
+    check(got == "failed", "the second gateway on /dev/ttyS1: %s: %s\n%s"
+          % (got, p, unit_story("jakagw@a.service")))
+    lines = [str(e.get("MESSAGE")) for e in journal("-u jakagw@a.service", c)
+             if "taken" in str(e.get("MESSAGE"))]
+    check(lines, "no line says the port is taken: %s" % unit_story("jakagw@a.service"))
+    check(active("jakagw.service"), "the first gateway stopped")
+    # by_id_links, next, sets up the files and drop-ins again.
+    v.sh("rm -f /etc/jakagw/a.conf; systemctl reset-failed jakagw@a.service", ok=None)
+    figure("serial_port_taken: generator %r; jakagw@a failed: %r" % (warned[0][:100],
+                                                                     lines[0][:100]))
+
+
+def case_by_id_links():
+    """A /dev/serial/by-id link that loops (jakagw.conf) and one that leads
+    nowhere (an instance's file), in one daemon-reload: no drop-in for
+    either, a journal line each, and both gateways start and serve Modbus
+    TCP (a loop bound into the unit failed it, TCP side too)."""
+    v = vm()
+    loop, dangling = "/dev/serial/by-id/usb-jakagw-test-loop", \
+        "/dev/serial/by-id/usb-jakagw-test-gone"
+    v.sh("mkdir -p /dev/serial/by-id && ln -sfn %s %s && ln -sfn /dev/ttyUSB9 %s"
+         % (loop, loop, dangling))
+    c = mark()
+    try:
+        set_conf({"rtu": {"enabled": "true", "device": loop}})
+        v.write("/etc/jakagw/a.conf", conf_with(state["conf"], {
+            "modbus": {"port": "1502"}, "rtu": {"enabled": "true", "device": dangling}}))
+        restart(daemon_reload=True)
+        made = v.sh("ls /run/systemd/generator/", ok=None).split()
+        check("jakagw.service.d" not in made and "jakagw@a.service.d" not in made,
+              "a drop-in for a link that leads nowhere: %s" % made)
+        said = wait_vm(lambda: [str(e.get("MESSAGE")) for e in journal("-t jakagw-generator", c)
+                                if "leads nowhere" in str(e.get("MESSAGE"))], 10,
+                       "the generator's lines for the two links")
+        check(len(said) >= 2, "one line for two links: %s" % said)
+        wait_robot_link()
+        start_instance()
+        check(v.py("result = ir(1502, 0)[0]") == MAGIC, "1502 beside a dangling link")
+    finally:
+        v.sh("systemctl stop jakagw@a.service; rm -f %s %s /etc/jakagw/a.conf" % (loop, dangling),
+             ok=None)
+    restore(daemon_reload=True)
+    figure("by_id_links: no drop-in, %d journal lines (%r); 502 and 1502 served"
+           % (len(said), said[0][:100]))
+
+
+def case_socket_unconfigured():
+    """Socket mode enabled with the packaged file (no robot named): no port
+    is opened (502 and 802 refused, the sockets not started), the generator
+    says why; with the robot named, a daemon-reload and a restart, 502 is
+    served. Ends in socket mode."""
+    v = vm()
+    v.sh("systemctl stop jakagw-socket.service jakagw.socket jakagw-mbaps.socket", timeout=60)
+    c = mark()
+    v.write("/etc/jakagw/jakagw.conf", state["packaged"])
+    v.sh("systemctl daemon-reload")
+    code, out = v.rc("systemctl enable --now jakagw-socket.service", timeout=120)
+    ports = listening_ports()
+    check(502 not in ports and 802 not in ports, "listening with no robot named: %s" % ports)
+    check(refused(502), "a connection to 502 was accepted")
+    check(not gateways(), "a gateway runs: %s" % gateways())
+    for sock in ("jakagw.socket", "jakagw-mbaps.socket"):
+        check(not active(sock), "%s is active" % sock)
+    said = wait_vm(lambda: [str(e.get("MESSAGE")) for e in journal("-t jakagw-generator", c)
+                            if "gets no socket" in str(e.get("MESSAGE"))], 10,
+                   "the generator's line")
+    v.write("/etc/jakagw/jakagw.conf", state["conf"])
+    v.sh("systemctl daemon-reload")
+    restart("jakagw-socket.service")
+    wait_robot_link()
+    # The socket restarts while its service runs (the service with it).
+    code2, out2 = v.rc("systemctl restart jakagw.socket", timeout=60)
+    check(code2 == 0, "systemctl restart jakagw.socket: %s" % out2)
+    wait_robot_link()
+    figure("socket_unconfigured: enable --now exit %d; listening %s, 502 refused; %r; named: "
+           "502 served; restart jakagw.socket while it serves: exit %d, 502 served again"
+           % (code, ports, said[0][:100], code2))
+
+
+def case_writes_until_allowed():
+    """The packaged file with the robot named, nothing else changed: a PLC
+    reads the map, but its write is refused (exception 01) and nothing
+    reaches the robot; the journal and the status page say who may write.
+    With [modbus] write_allow naming the PLC, its write reaches the robot
+    once."""
+    v = vm()
+    c = mark()
+    v.write("/etc/jakagw/jakagw.conf", conf_with(state["packaged"], {
+        "robot": {"host": "127.0.0.1"}, "http": {"enabled": "true"}}))
+    restart()
+    wait_robot_link()
+    check(v.py("result = ir(502, 0)[0]") == MAGIC, "a read with the packaged write_allow")
+    got = v.py("result = pulse(502, %d)" % COIL_POWER_ON)
+    check(got == [1, 1], "writes with the packaged write_allow: %s" % got)
+    time.sleep(1)
+    check(not delivered(after=c), "delivered: %s" % delivered(after=c))
+    said = [str(e.get("MESSAGE")) for e in journal("-u jakagw.service", c)
+            if "Modbus writes" in str(e.get("MESSAGE"))]
+    check(said and "no Modbus TCP client" in said[-1], "the journal: %s" % said)
+    page = json.loads(v.sh("python3 -c \"import urllib.request; print(urllib.request.urlopen("
+                           "'http://127.0.0.1:10502/status.json').read().decode())\""))
+    shown = page["gateway"].get("modbus_writes", "")
+    check("no Modbus TCP client" in shown, "the status page: %r" % shown)
+    c2 = mark()
+    v.write("/etc/jakagw/jakagw.conf", conf_with(state["packaged"], {
+        "robot": {"host": "127.0.0.1"}, "modbus": {"write_allow": "127.0.0.1"}}))
+    restart()
+    wait_robot_link()
+    check(v.py("result = pulse(502, %d)" % COIL_POWER_ON) == [0, 0], "a named PLC's write")
+    wait_vm(lambda: len(sim_commands(after=c2, name="power_on")) == 1, 10, "power_on")
+    set_conf({})  # the next case starts the gateway on it
+    figure("writes_until_allowed: packaged write_allow: read served, write exception 01, "
+           "nothing delivered; journal %r; status page %r; named 127.0.0.1: power_on once"
+           % (said[-1][:90], shown[:60]))
+
+
+def install_previous():
+    """The previous release's package (PREVIOUS of make-service-image.py)
+    installed over this one as its own file was, never edited (its
+    postinst restarts jakagw.service, with the drop-ins in place)."""
+    v = vm()
+    v.sh("dpkg -i --force-confnew --force-downgrade /root/debs/previous.deb", timeout=300)
+    version = v.sh("dpkg-query -W -f='${Version}' jakagw")
+    check("~" in version, "the previous release is not installed: %s" % version)
+    shipped = v.sh("dpkg-query -W -f='${Conffiles}' jakagw").split()
+    md5 = v.sh("md5sum < /etc/jakagw/jakagw.conf").split()[0]
+    check(md5 in shipped and "host = 127.0.0.1" in v.sh("cat /etc/jakagw/jakagw.conf"),
+          "jakagw.conf is not the previous package's own file: %s %s" % (md5, shipped))
+    return version
+
+
+def upgrade_as_unattended(with_apt):
+    """The upgrade as unattended-upgrades runs it: no question, an edited
+    conffile kept, an unedited one replaced (dpkg's --force-confdef
+    --force-confold, through apt, or dpkg itself, which applies them).
+    Its time, a journal mark before it, what it printed."""
+    v = vm()
+    c = mark()
+    t0 = time.monotonic()
+    deb = v.sh("ls /root/debs/*+upgrade2.deb").strip()
+    if with_apt:
+        cmd = ("DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends "
+               "-o Dpkg::Options::=--force-confdef -o Dpkg::Options::=--force-confold %s" % deb)
+    else:
+        cmd = "dpkg -i --force-confdef --force-confold %s" % deb
+    code, out = v.rc(cmd + " 2>&1", timeout=300)
+    check(code == 0, "the upgrade failed: %s" % out[-2000:])
+    return time.monotonic() - t0, c, out
+
+
+def served_after_upgrade(unit, c):
+    """After an upgrade from the previous release: 'unit' runs the new
+    binary and serves 502; jakagw.conf still names its robot and takes
+    writes from any client, as it did, with the gateway's warning; a PLC's
+    power_on reaches the robot once."""
+    v = vm()
+    wait_vm(lambda: active(unit), 30, "%s after the upgrade: %s" % (unit, unit_story(unit)))
+    exe = gateways().get(int(show(unit, "MainPID")["MainPID"]), "none")
+    check("deleted" not in exe and exe != "none", "%s runs %s" % (unit, exe))
+    wait_robot_link()
+    conf = v.sh("cat /etc/jakagw/jakagw.conf")
+    check(re.search(r"^host = 127\.0\.0\.1$", conf, re.M), "jakagw.conf lost its robot")
+    check(re.search(r"^write_allow =$", conf, re.M), "write_allow narrowed: %s" % [
+        line for line in conf.splitlines() if "write_allow" in line])
+    warned = [str(e.get("MESSAGE")) for e in journal("-u %s" % unit, c)
+              if "Modbus writes from any client" in str(e.get("MESSAGE"))]
+    check(warned, "no warning that any client may write")
+    before = mark()
+    check(v.py("result = pulse(502, %d)" % COIL_POWER_ON) == [0, 0], "a PLC's write after")
+    wait_vm(lambda: len(sim_commands(after=before, name="power_on")) == 1, 10, "power_on")
+
+
+def case_upgrade_from_previous():
+    """The previous release (commit PREVIOUS, built from it) as a plant ran
+    it: its own jakagw.conf never edited, the robot named in a drop-in
+    (--robot-host, as its jakagw(8) allowed), in the default mode and then
+    in socket mode; each upgraded as unattended-upgrades does (apt, then
+    dpkg, --force-confdef --force-confold). After each, the same service
+    serves 502 on the new binary, jakagw.conf still names its robot and
+    takes writes from any client (with a warning), and a PLC's write
+    reaches the robot. Ends in socket mode."""
+    v = vm()
+    import importlib.util
+    spec = importlib.util.spec_from_file_location(
+        "msi", os.path.join(ROOT, "scripts", "make-service-image.py"))
+    msi = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(msi)
+    seen = []
+    # Default mode: the drop-in and the mode in place before the previous
+    # package goes in, whose postinst then reloads and restarts them.
+    t0 = time.monotonic()
+    v.sh("systemctl disable --now jakagw-socket.service", timeout=120)
+    v.sh("mkdir -p %s" % DROPIN_DIR % "jakagw.service")
+    v.write(DROPIN_DIR % "jakagw.service" + "/override.conf",
+            robot_flag_dropin("--robot-host 127.0.0.1"))
+    previous = install_previous()
+    wait_vm(lambda: active("jakagw.service"), 30, "the previous release's jakagw.service")
+    wait_robot_link()
+    set_up = time.monotonic() - t0
+    took, c, out = upgrade_as_unattended(with_apt=True)
+    served_after_upgrade("jakagw.service", c)
+    told = [line for line in out.splitlines() if line.startswith("jakagw: ")]
+    seen.append("default mode: %s installed and serving in %.1f s, apt upgrade to +upgrade2 in "
+                "%.1f s, jakagw.service serving after (%s)" % (previous, set_up, took,
+                                                              "; ".join(told)[:160]))
+    # Socket mode, by the previous release's own command
+    # (its docs/service.md), the drop-in the socket service's.
+    t0 = time.monotonic()
+    v.sh("rm -rf %s" % DROPIN_DIR % "jakagw.service")
+    v.sh("mkdir -p %s" % DROPIN_DIR % "jakagw-socket.service")
+    v.write(DROPIN_DIR % "jakagw-socket.service" + "/override.conf",
+            robot_flag_dropin("--robot-host 127.0.0.1"))
+    install_previous()
+    v.sh("systemctl disable --now jakagw; systemctl enable --now jakagw-socket.service",
+         timeout=120)
+    wait_robot_link()
+    set_up = time.monotonic() - t0
+    took, c, out = upgrade_as_unattended(with_apt=False)
+    served_after_upgrade("jakagw-socket.service", c)
+    seen.append("socket mode: set up in %.1f s, dpkg upgrade in %.1f s, jakagw-socket.service "
+                "serving after" % (set_up, took))
+    v.sh("rm -rf %s" % DROPIN_DIR % "jakagw-socket.service")
+    figure("upgrade_from_previous (commit %s): %s" % (msi.PREVIOUS, " | ".join(seen)))
+
 def case_seccomp():
     """Every case ran under the units' SystemCallFilter: no SIGSYS and no
     'audit: type=1326' line in the whole boot (the probe's aside)."""
@@ -1361,8 +1736,10 @@ def main():
 def run_all():
     cases = [case_boot, case_fresh_install, case_ready, case_reload, case_watchdog, case_socket,
              case_instances, case_credential, case_journal, case_tls_only, case_credential_rtu,
-             case_rtu, case_can, case_generator, case_upgrade, case_upgrade_socket,
-             case_upgrade_instance, case_both_enabled, case_remove, case_purge, case_seccomp]
+             case_rtu, case_can, case_generator, case_condition_parser, case_failure_is_failure,
+             case_writes_until_allowed, case_serial_port_taken, case_by_id_links, case_upgrade,
+             case_upgrade_socket, case_upgrade_instance, case_both_enabled,
+             case_socket_unconfigured, case_upgrade_from_previous, case_remove, case_purge, case_seccomp]
     only = os.environ.get("JAKAGW_SERVICE_CASES")
     if only:
         cases = [c for c in cases if c is case_boot or c.__name__[5:] in only.split()]
