@@ -152,6 +152,11 @@ $(BUILD)/bench/ref_slave: bench/ref_slave.c
 	@mkdir -p $(dir $@)
 	$(CC) $(ALL_CFLAGS) $< -o $@ $(ALL_LDFLAGS) $(PKG_LIBS)
 
+# The floor bench_forward measures jakagw against: an epoll loop, no library.
+$(BUILD)/bench/floor_forwarder: bench/floor_forwarder.c
+	@mkdir -p $(dir $@)
+	$(CC) $(ALL_CFLAGS) $< -o $@ $(ALL_LDFLAGS)
+
 # Prints costs as ratios to references measured in the same run: a status
 # document's whole ingest path against cJSON's parse and delete of it, in
 # instructions counted by callgrind (valgrind, from make deps) and in time,

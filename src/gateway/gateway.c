@@ -84,6 +84,7 @@ static void on_status_document(struct robot_link *link, const char *json,
 {
     struct gateway *gw = gateway_of_link(link);
     bool was_fresh = gateway_status_fresh(gw);
+    status_marks_of(json, size, &gw->last_marks);
     /* Parse aside: a bad document must not wipe the last good status. */
     int rc = status_parse(gw->scratch, json, size);
 
@@ -121,6 +122,24 @@ static void on_status_document(struct robot_link *link, const char *json,
         notify_change(gw);
     else
         events_check(gw); /* the robot's state may have changed */
+}
+
+/*
+ * A document a newer one replaced before it was parsed (the gateway fell
+ * behind the stream). The status is a snapshot, so the newer one says all
+ * a PLC can read; but a document that changes what the events log and the
+ * motion tracker follow (status.h, STATUS_MARK_MEMBERS) is parsed all the
+ * same, so that no transition is lost, however short.
+ */
+static bool on_status_superseded(struct robot_link *link, const char *json, size_t size)
+{
+    struct gateway *gw = gateway_of_link(link);
+    struct status_marks marks;
+
+    status_marks_of(json, size, &marks);
+    bool changes = status_marks_differ(&marks, &gw->last_marks);
+    gw->last_marks = marks;
+    return changes;
 }
 
 static void on_status_framing(struct robot_link *link, enum framer_event event,
@@ -652,10 +671,14 @@ static int start_links(struct gateway *gw)
         .user_timeout_ms = cfg->status_timeout_ms + 1000,
         .max_object = cfg->max_document_bytes,
         .tls = tls,
+        /* A document is the robot's whole state: a command must not wait
+         * behind documents that a newer one makes stale. */
+        .newest_only = true,
     };
     struct robot_link_callbacks status_cb = {
         .on_object = on_status_document,
         .on_framing_error = on_status_framing,
+        .on_superseded = on_status_superseded,
         .on_state = on_link_state,
     };
     rc = robot_link_init(gw->loop, &gw->status_link, &lc, &status_cb, gw);
@@ -665,6 +688,7 @@ static int start_links(struct gateway *gw)
     }
     gw->parts |= GATEWAY_PART_STATUS_LINK;
     lc.name = "command";
+    lc.newest_only = false; /* every reply counts */
     lc.port = (uint16_t)cfg->command_port;
     /* Replies come only when asked; silence is normal there, and the link
      * check (link_check_ms) asks when it lasts. */
