@@ -21,6 +21,7 @@
 
 #include <cJSON.h>
 
+#include "audit.h"
 #include "command.h"
 #include "log.h"
 #include "plc_commands.h"
@@ -1308,6 +1309,70 @@ static void table_commands_need_no_cjson_allocation(void **state)
                                "\"speed\":5,\"accel\":5,\"relFlag\":0}");
 }
 
+/* What the audit trail records of each command's members. */
+static struct audit_record audited[8];
+static unsigned audited_count;
+
+static void audit_to_list(void *user, const struct audit_record *r)
+{
+    (void)user;
+    if (audited_count < 8)
+        audited[audited_count++] = *r;
+}
+
+/*
+ * The audit trail records a command's members as sent, without cmdName:
+ * from the bytes already built for a table's command (no parse), from the
+ * PLC's own text for the JSON mailbox; the same records as when both were
+ * parsed and printed again.
+ */
+static void audit_records_the_members_as_sent(void **state)
+{
+    (void)state;
+    static struct audit audit;
+    struct audit_sink sink = {.emit = audit_to_list};
+    struct plc_commands_config with_audit = {.audit = &audit, .motion = true};
+
+    struct audit_clock clock = {.now_ms = fake_now, .user = &robot};
+
+    audit_init(&audit, &clock, &sink);
+    audited_count = 0;
+    start(&with_audit);
+    const struct regmap_row *centroid = cmd_row("set_payload.centroid[*]");
+    write_f32(cmd_row("set_payload.mass"), 0, 2.5);
+    write_f32(centroid, 0, 0.1);
+    write_f32(centroid, 1, -20);
+    write_f32(centroid, 2, 30.25);
+    assert_int_equal(trigger("set_payload"), EX_NONE);
+    reply_ok();
+    while (cmd_queue_pending(&queue))
+        reply_ok();
+    assert_int_equal(write_u16(cmd_row("rapid_rate.rate_value"), 0, 500), EX_NONE);
+    reply_ok();
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    reply_ok();
+    assert_int_equal(json_mailbox("{ \"cmdName\": \"get_joint_pos\", \"b\" : [1, 2.50] }"),
+                     EX_NONE);
+    reply_ok();
+    audit_flush(&audit);
+    const char *expected[][2] = {
+        {"set_payload", "{\"mass\":2.5,\"centroid\":[0.1,-20,30.25]}"},
+        {"rapid_rate", "{\"rate_value\":0.5}"},
+        {"power_on", ""},
+        {"get_joint_pos", "{\"b\":[1,2.5]}"},
+    };
+    unsigned found = 0;
+    for (unsigned i = 0; i < audited_count; i++)
+        for (unsigned e = 0; e < 4; e++)
+            if (strcmp(audited[i].command, expected[e][0]) == 0) {
+                assert_string_equal(audited[i].what, expected[e][1]);
+                found |= 1u << e;
+            }
+    assert_int_equal(found, 15);
+    start(&(struct plc_commands_config){0});
+    audit_finish(&audit);
+}
+
 /* The parameter rows and the command table cannot drift apart: a row the
  * table does not know, or of another length, stops the start. */
 static void parameter_rows_are_checked_against_the_command_table(void **state)
@@ -1694,6 +1759,7 @@ int main(void)
         T(json_mailbox_refuses_names_outside_the_table),
         T(parameter_rows_are_checked_against_the_command_table),
         T(table_commands_need_no_cjson_allocation),
+        T(audit_records_the_members_as_sent),
         T(count_changes_with_every_trigger),
         T(count_wraps),
         T(relative_move_never_sent_twice_across_a_reconnect),

@@ -516,7 +516,11 @@ static void on_command_sent(void *user, const struct cmd_def *def, const char *j
         motion_stopped(&gw->motion, now, "stop_program from a PLC");
     if (policy_command_starts_motion(def))
         policy_start_kind(&gw->policy, !def || (def->flags & CMD_MOTION));
-    motion_sent(&gw->motion, now, json);
+    /* Only a move has a target to follow: the table says which commands
+     * are moves, so the others are not parsed again (a name the table
+     * does not know is no move the tracker knows either). */
+    if (def && (def->flags & CMD_MOTION))
+        motion_sent(&gw->motion, now, json);
 }
 
 static void on_command_answered(void *user, const struct cmd_def *def,

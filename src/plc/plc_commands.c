@@ -766,30 +766,57 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
 static void on_done(void *user, const struct cmd_result *r);
 static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state);
 
-/* The command's name for the audit trail: the table's, or the JSON's. */
+/*
+ * What a command carries, for the audit trail: its members after cmdName,
+ * as an object ({"rate_value":0.5}), or "" when it has none. A command
+ * built from the table starts '{"cmdName":"<its name>"' as cmd_json
+ * writes it, so its members are the bytes after that: taken as they are,
+ * which is what printing it again without cmdName gave.
+ */
+static void members_of_built(const char *json, const char *name, char *what, size_t size)
+{
+    size_t head = strlen("{\"cmdName\":\"") + strlen(name) + 1;
+
+    what[0] = '\0';
+    if (strncmp(json, "{\"cmdName\":\"", 12) != 0 || strncmp(json + 12, name, strlen(name)) != 0 ||
+        strlen(json) <= head || json[head] != ',')
+        return; /* no members */
+    snprintf(what, size, "{%s", json + head + 1);
+}
+
+/* The same for the JSON mailbox's request, the PLC's own text. */
+static void members_of_request(const char *json, char *name, size_t name_size, char *what,
+                               size_t size)
+{
+    cJSON *doc = cJSON_Parse(json);
+    const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+
+    snprintf(name, name_size, "%s", cJSON_IsString(n) ? n->valuestring : "?");
+    cJSON_DeleteItemFromObjectCaseSensitive(doc, "cmdName");
+    char *params = doc && cJSON_GetArraySize(doc) > 0 ? cJSON_PrintUnformatted(doc) : NULL;
+    snprintf(what, size, "%s", params ? params : "");
+    cJSON_free(params);
+    cJSON_Delete(doc);
+}
+
+/* The command's name and members for the audit trail: the table's and the
+ * bytes already built, or, for the PLC's own JSON, read from its text. */
 static void audit_sent(struct plc_commands *pc, struct plc_slot *slot, const char *json,
                        const struct cmd_def *def, bool own)
 {
     char name[48] = "";
-
     char what[256] = "";
 
     if (!pc->cfg.audit)
         return;
-    /* What it carries, as sent without its name: a setpoint's value is
-     * part of the record. */
-    cJSON *doc = cJSON_Parse(json);
-    const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
-    if (def)
+    if (slot != &pc->json && def) {
         snprintf(name, sizeof(name), "%s", def->name);
-    else
-        snprintf(name, sizeof(name), "%s", cJSON_IsString(n) ? n->valuestring : "?");
-    cJSON_DeleteItemFromObjectCaseSensitive(doc, "cmdName");
-    char *params = doc && cJSON_GetArraySize(doc) > 0 ? cJSON_PrintUnformatted(doc) : NULL;
-    if (params)
-        snprintf(what, sizeof(what), "%s", params);
-    cJSON_free(params);
-    cJSON_Delete(doc);
+        members_of_built(json, def->name, what, sizeof(what));
+    } else {
+        members_of_request(json, name, sizeof(name), what, sizeof(what));
+        if (def)
+            snprintf(name, sizeof(name), "%s", def->name);
+    }
     audit_command_sent_what(pc->cfg.audit, slot, name, what, own, pc->sending_frequent);
 }
 
