@@ -470,6 +470,7 @@ static int setup(void **state)
     commands.img = &img;
     commands.mailbox_arg = regmap_find_path(&map, REGMAP_SRC_PATH, "mailbox.arg[*]");
     assert_non_null(commands.mailbox_arg);
+    find_parameter_spans(&commands);
     return 0;
 }
 

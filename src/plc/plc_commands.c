@@ -191,6 +191,25 @@ static int check_parameter_rows(const struct regmap *map)
     return 0;
 }
 
+static bool is_param_of(const struct regmap_row *row, const char *name);
+
+/* Where each command's parameter rows lie in the map (none: 0, 0). */
+static void find_parameter_spans(struct plc_commands *pc)
+{
+    const struct regmap *map = pc->img->map;
+
+    for (unsigned i = 0; i < cmd_table_count; i++) {
+        pc->param_first[i] = pc->param_end[i] = 0;
+        for (unsigned r = 0; r < map->row_count; r++) {
+            if (!is_param_of(&map->rows[r], cmd_table[i].name))
+                continue;
+            if (pc->param_end[i] == 0)
+                pc->param_first[i] = (uint16_t)r;
+            pc->param_end[i] = (uint16_t)(r + 1);
+        }
+    }
+}
+
 int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
                       struct cmd_queue *queue, const struct plc_commands_config *cfg,
                       uint64_t (*now_ms)(void *clock), void *clock)
@@ -215,6 +234,7 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
     pc->params_written = calloc(img->map->row_count, sizeof(*pc->params_written));
     if (!pc->params_written)
         return -ENOMEM;
+    find_parameter_spans(pc);
     for (unsigned i = 0; i < cmd_table_count; i++) {
         struct plc_slot *slot = &pc->slots[i];
         slot->pc = pc;
@@ -316,8 +336,10 @@ static bool is_param_of(const struct regmap_row *row, const char *name)
 static enum build_result build_triggered(const struct plc_commands *pc,
                                          const struct cmd_def *def, struct cmd_json *cmd)
 {
+    unsigned c = (unsigned)(def - cmd_table);
+
     cmd_json_begin(cmd, def->name);
-    for (unsigned r = 0; r < pc->img->map->row_count; r++) {
+    for (unsigned r = pc->param_first[c]; r < pc->param_end[c]; r++) {
         const struct regmap_row *row = &pc->img->map->rows[r];
         if (!is_param_of(row, def->name))
             continue;
@@ -436,7 +458,11 @@ enum action { ACT_NONE, ACT_TRIGGER, ACT_STALE, ACT_SETPOINT, ACT_MAILBOX, ACT_J
 static const struct cmd_def *command_of(const char *path)
 {
     char name[64];
-    snprintf(name, sizeof(name), "%.*s", (int)strcspn(path, "."), path);
+    size_t n = strcspn(path, ".");
+    if (n >= sizeof(name))
+        return NULL;
+    memcpy(name, path, n);
+    name[n] = '\0';
     return cmd_find(name);
 }
 

@@ -644,13 +644,24 @@ static void on_written(uv_write_t *req, int status)
     free(req);
 }
 
-/* Queues bytes as they go on the wire (ciphertext with TLS). */
+/*
+ * Sends bytes as they go on the wire (ciphertext with TLS): written at
+ * once when nothing waits before them, as nearly always (no copy, and no
+ * write request whose completion costs libuv an epoll_ctl); the rest, or
+ * all of it after an error, queued in a copy.
+ */
 static int write_raw(struct robot_link *link, const void *data, size_t size)
 {
     struct send_req *sr;
-    uv_buf_t buf;
-    int rc;
+    uv_buf_t buf = uv_buf_init((char *)data, (unsigned)size);
+    int rc = uv_try_write((uv_stream_t *)&link->tcp, &buf, 1);
 
+    if (rc > 0) {
+        if ((size_t)rc == size)
+            return 0;
+        data = (const char *)data + rc;
+        size -= (size_t)rc;
+    }
     sr = malloc(sizeof(*sr) + size);
     if (!sr)
         return -ENOMEM;
