@@ -274,10 +274,15 @@ static size_t write_string(char *out, const char *s, size_t size)
 
 void cmd_json_begin(struct cmd_json *j, const char *name)
 {
+    size_t n = strlen(name);
+
     j->member_count = 0;
     j->text_used = 0;
-    j->overflow = strlen(name) >= sizeof(j->name);
-    snprintf(j->name, sizeof(j->name), "%s", name);
+    j->overflow = n >= sizeof(j->name);
+    if (j->overflow)
+        n = sizeof(j->name) - 1;
+    memcpy(j->name, name, n);
+    j->name[n] = '\0';
 }
 
 /* Keeps 'size' bytes in the text pool; its offset, or -1 when full. */
