@@ -154,12 +154,19 @@ $(BUILD)/bench/ref_slave: bench/ref_slave.c
 	@mkdir -p $(dir $@)
 	$(CC) $(ALL_CFLAGS) $< -o $@ $(ALL_LDFLAGS) $(PKG_LIBS)
 
+# The floor bench_forward measures jakagw against: an epoll loop, no library.
+$(BUILD)/bench/floor_forwarder: bench/floor_forwarder.c
+	@mkdir -p $(dir $@)
+	$(CC) $(ALL_CFLAGS) $< -o $@ $(ALL_LDFLAGS)
+
 # Prints costs as ratios to references measured in the same run: a status
 # document's whole ingest path against cJSON's parse and delete of it, in
 # instructions counted by callgrind (valgrind, from make deps) and in time,
 # with the ten functions that cost the most; a command from a Modbus write
-# to the robot's socket through the whole gateway, and Modbus reads through
-# jakagw (jakasim streaming at 125 Hz) against a plain libmodbus slave, with
+# to the robot's socket through the whole gateway, and beside a floor
+# forwarder of its own at idle, with 1 kHz status and after a backlog of
+# 50 documents, with system calls and instructions per command
+# (bench_forward, about 3 minutes); Modbus reads through jakagw (jakasim streaming at 125 Hz) against a plain libmodbus slave, with
 # server CPU, the stream's cost and memory. About 5 minutes: the memory
 # figure feeds a million documents (BENCH_MODBUS_FLAGS="--documents N" for
 # fewer). Then Modbus/TCP Security against plain Modbus TCP in one jakagw:
@@ -168,9 +175,10 @@ $(BUILD)/bench/ref_slave: bench/ref_slave.c
 # Modbus TCP alone and with an RTU master polling (bench_rtu, socat).
 bench: all $(BUILD)/bench/bench_pipeline $(BUILD)/bench/bench_commands \
        $(BUILD)/bench/bench_modbus $(BUILD)/bench/ref_slave $(BUILD)/bench/bench_tls \
-       $(BUILD)/bench/bench_rtu
+       $(BUILD)/bench/bench_rtu $(BUILD)/bench/bench_forward $(BUILD)/bench/floor_forwarder
 	@$(BUILD)/bench/bench_pipeline tests/data/status-controller-a.json
 	@$(BUILD)/bench/bench_commands
+	@$(BUILD)/bench/bench_forward
 	@$(BUILD)/bench/bench_modbus --document tests/data/status-controller-a.json $(BENCH_MODBUS_FLAGS)
 	@$(BUILD)/bench/bench_tls
 	@$(BUILD)/bench/bench_rtu

@@ -4,7 +4,8 @@
  * in-process TCP server: silence detection must not mistake the time spent
  * handling a large document for silence from the robot; a connection
  * dropped for a fault ends with an RST, never a FIN; keepalive and
- * TCP_USER_TIMEOUT are set on the socket.
+ * TCP_USER_TIMEOUT are set on the socket; with newest_only, a burst of
+ * documents hands over the newest and every one that changes a mark.
  */
 #include <setjmp.h>
 #include <stdarg.h>
@@ -22,9 +23,11 @@
 
 #include "log.h"
 #include "robot_link.h"
+#include "status.h"
 
 #define SILENCE_MS 150
 #define DOC "{\"len\": 19, \"n\": 1}"
+#define BURST_DOCS 40
 
 struct fixture {
     uv_loop_t loop;
@@ -42,6 +45,13 @@ struct fixture {
     char peer_buf[4096];
     ssize_t peer_end;  /* how the first connection ended for the robot: 0 not */
     int keepalive, keepidle, keepintvl, user_timeout; /* on the link's socket */
+    /* newest_only: a burst written at once on accept; what was handed over. */
+    bool newest_only;
+    char burst[8192];
+    size_t burst_size;
+    int handed[BURST_DOCS];
+    int handed_count;
+    struct status_marks marks; /* of the last document seen */
 };
 
 static void on_peer_alloc(uv_handle_t *h, size_t suggested, uv_buf_t *buf)
@@ -103,19 +113,39 @@ static void on_peer(uv_stream_t *server, int status)
     assert_int_equal(uv_accept(server, (uv_stream_t *)&fx->peer), 0);
     fx->peer_open = true;
     assert_int_equal(uv_read_start((uv_stream_t *)&fx->peer, on_peer_alloc, on_peer_read), 0);
+    if (fx->burst_size) {
+        uv_buf_t buf = uv_buf_init(fx->burst, (unsigned)fx->burst_size);
+        assert_int_equal(uv_try_write((uv_stream_t *)&fx->peer, &buf, 1), (int)fx->burst_size);
+    }
 }
 
 static void on_object(struct robot_link *link, const char *json, size_t size)
 {
     struct fixture *fx = link->user;
-    (void)json;
-    (void)size;
+    if (fx->newest_only) {
+        status_marks_of(json, size, &fx->marks);
+        const char *n = strstr(json, "\"n\": ");
+        assert_non_null(n);
+        assert_true(fx->handed_count < BURST_DOCS);
+        fx->handed[fx->handed_count++] = atoi(n + 5);
+    }
     if (fx->objects++ == 0 && fx->busy_ms) {
         /* Stands for parsing a large document: the loop is busy. */
         uint64_t until = uv_hrtime() + (uint64_t)fx->busy_ms * 1000000;
         while (uv_hrtime() < until)
             ;
     }
+}
+
+/* As the gateway decides: handed over all the same when a mark changes. */
+static bool on_superseded(struct robot_link *link, const char *json, size_t size)
+{
+    struct fixture *fx = link->user;
+    struct status_marks marks;
+    status_marks_of(json, size, &marks);
+    bool changes = status_marks_differ(&marks, &fx->marks);
+    fx->marks = marks;
+    return changes;
 }
 
 static void on_state(struct robot_link *link, enum robot_link_state state)
@@ -172,8 +202,10 @@ static void run_link(struct fixture *fx, unsigned run_ms)
         .silence_timeout_ms = SILENCE_MS,
         .user_timeout_ms = 1500,
         .max_object = 4096,
+        .newest_only = fx->newest_only,
     };
-    struct robot_link_callbacks cb = {.on_object = on_object, .on_state = on_state};
+    struct robot_link_callbacks cb = {.on_object = on_object, .on_state = on_state,
+                                      .on_superseded = on_superseded};
     assert_int_equal(robot_link_init(&fx->loop, &fx->link, &cfg, &cb, fx), 0);
     assert_int_equal(robot_link_start(&fx->link), 0);
     uv_timer_init(&fx->loop, &fx->pusher);
@@ -233,6 +265,49 @@ static void fault_close_is_abortive(void **state)
     assert_int_equal(fx.user_timeout, 1500);
 }
 
+/* Document n of a burst: "enabled" is true for 17 and 18 only, "inpos"
+ * changes at 30 and stays; "len" frames each. */
+static size_t burst_document(char *out, size_t room, int n)
+{
+    char body[128];
+    int body_size = snprintf(body, sizeof(body), ", \"n\": %d, \"enabled\": %s, \"inpos\": %d, "
+                             "\"joint_actual_position\": [%d.5, 0, 0, 0, 0, 0]}",
+                             n, n == 17 || n == 18 ? "true" : "false", n >= 30, n);
+    /* '{"len": ' + its digits + body: three digits always. */
+    int size = (int)strlen("{\"len\": 000") + body_size;
+    return (size_t)snprintf(out, room, "{\"len\": %03d%s", size, body);
+}
+
+/*
+ * 40 documents arrive at once: only the newest is handed over, and every
+ * one whose marks differ from the document before it (the two that
+ * enable, the one after that disables, the one that reaches position),
+ * so no transition is lost; positions alone change nothing to hand over.
+ */
+static void burst_hands_over_the_newest_and_every_transition(void **state)
+{
+    (void)state;
+    struct fixture fx;
+    memset(&fx, 0, sizeof(fx));
+    fx.newest_only = true;
+    fx.push_limit = -1; /* the pusher stays quiet */
+    for (int n = 0; n < BURST_DOCS; n++)
+        fx.burst_size += burst_document(fx.burst + fx.burst_size,
+                                        sizeof(fx.burst) - fx.burst_size, n);
+    run_link(&fx, SILENCE_MS * 2);
+    assert_true(fx.handed_count >= 4);
+    assert_int_equal(fx.handed[fx.handed_count - 1], BURST_DOCS - 1);
+    bool seen[BURST_DOCS] = {false};
+    for (int i = 0; i < fx.handed_count; i++) {
+        assert_true(i == 0 || fx.handed[i] > fx.handed[i - 1]); /* in order */
+        seen[fx.handed[i]] = true;
+    }
+    assert_true(seen[17] && seen[19] && seen[30]);
+    /* One read took the burst: the rest were superseded unhandled. */
+    assert_int_equal(fx.handed_count + (int)fx.link.superseded, BURST_DOCS);
+    assert_true(fx.link.superseded >= 30);
+}
+
 int main(void)
 {
     signal(SIGPIPE, SIG_IGN); /* a write to a closed peer must not end the test */
@@ -241,6 +316,7 @@ int main(void)
         cmocka_unit_test(long_handling_is_not_silence),
         cmocka_unit_test(real_silence_restarts),
         cmocka_unit_test(fault_close_is_abortive),
+        cmocka_unit_test(burst_hands_over_the_newest_and_every_transition),
     };
     return cmocka_run_group_tests_name("robot_link", tests, NULL, NULL);
 }

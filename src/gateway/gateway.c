@@ -84,6 +84,7 @@ static void on_status_document(struct robot_link *link, const char *json,
 {
     struct gateway *gw = gateway_of_link(link);
     bool was_fresh = gateway_status_fresh(gw);
+    status_marks_of(json, size, &gw->last_marks);
     /* Parse aside: a bad document must not wipe the last good status. */
     int rc = status_parse(gw->scratch, json, size);
 
@@ -121,6 +122,24 @@ static void on_status_document(struct robot_link *link, const char *json,
         notify_change(gw);
     else
         events_check(gw); /* the robot's state may have changed */
+}
+
+/*
+ * A document a newer one replaced before it was parsed (the gateway fell
+ * behind the stream). The status is a snapshot, so the newer one says all
+ * a PLC can read; but a document that changes what the events log and the
+ * motion tracker follow (status.h, STATUS_MARK_MEMBERS) is parsed all the
+ * same, so that no transition is lost, however short.
+ */
+static bool on_status_superseded(struct robot_link *link, const char *json, size_t size)
+{
+    struct gateway *gw = gateway_of_link(link);
+    struct status_marks marks;
+
+    status_marks_of(json, size, &marks);
+    bool changes = status_marks_differ(&marks, &gw->last_marks);
+    gw->last_marks = marks;
+    return changes;
 }
 
 static void on_status_framing(struct robot_link *link, enum framer_event event,
@@ -498,7 +517,11 @@ static void on_command_sent(void *user, const struct cmd_def *def, const char *j
         motion_stopped(&gw->motion, now, "stop_program from a PLC");
     if (policy_command_starts_motion(def))
         policy_start_kind(&gw->policy, !def || (def->flags & CMD_MOTION));
-    motion_sent(&gw->motion, now, json);
+    /* Only a move has a target to follow: the table says which commands
+     * are moves, so the others are not parsed again (a name the table
+     * does not know is no move the tracker knows either). */
+    if (def && (def->flags & CMD_MOTION))
+        motion_sent(&gw->motion, now, json);
 }
 
 static void on_command_answered(void *user, const struct cmd_def *def,
@@ -657,10 +680,14 @@ static int start_links(struct gateway *gw)
         .user_timeout_ms = cfg->status_timeout_ms + 1000,
         .max_object = cfg->max_document_bytes,
         .tls = tls,
+        /* A document is the robot's whole state: a command must not wait
+         * behind documents that a newer one makes stale. */
+        .newest_only = true,
     };
     struct robot_link_callbacks status_cb = {
         .on_object = on_status_document,
         .on_framing_error = on_status_framing,
+        .on_superseded = on_status_superseded,
         .on_state = on_link_state,
     };
     rc = robot_link_init(gw->loop, &gw->status_link, &lc, &status_cb, gw);
@@ -670,6 +697,7 @@ static int start_links(struct gateway *gw)
     }
     gw->parts |= GATEWAY_PART_STATUS_LINK;
     lc.name = "command";
+    lc.newest_only = false; /* every reply counts */
     lc.port = (uint16_t)cfg->command_port;
     /* Replies come only when asked; silence is normal there, and the link
      * check (link_check_ms) asks when it lasts. */

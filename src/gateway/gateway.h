@@ -92,6 +92,9 @@ struct gateway {
     uint64_t started_ms;
     uint64_t last_document_ms; /* 0: none yet */
     size_t last_document_bytes;
+    /* The marks of the last document seen, handled or superseded: a
+     * superseded one that changes them is handled all the same. */
+    struct status_marks last_marks;
     /* The status's stale streak (gateway_status_stale_ms): since when it
      * has been stale, 0 healthy; since when it has been fresh again. */
     uint64_t status_stale_since_ms;

@@ -34,9 +34,13 @@ static void lite_printf(struct strbuf_lite *b, const char *fmt, ...)
         b->used = b->used + (size_t)n < b->size ? b->used + (size_t)n : b->size - 1;
 }
 
+/* Copies 'in' (NULL: "") into 'out', cut to fit: on every write, so no printf. */
 static void copy(char *out, size_t size, const char *in)
 {
-    snprintf(out, size, "%s", in ? in : "");
+    size_t n = in ? strnlen(in, size - 1) : 0;
+    if (n)
+        memcpy(out, in, n);
+    out[n] = '\0';
 }
 
 static uint64_t system_wall_ms(void)

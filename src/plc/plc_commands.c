@@ -2,6 +2,7 @@
 /* plc_commands.c - PLC writes that command the robot (plc_commands.h). */
 #include "plc_commands.h"
 
+#include "cmd_json.h"
 #include "log.h"
 #include "policy.h"
 
@@ -190,6 +191,25 @@ static int check_parameter_rows(const struct regmap *map)
     return 0;
 }
 
+static bool is_param_of(const struct regmap_row *row, const char *name);
+
+/* Where each command's parameter rows lie in the map (none: 0, 0). */
+static void find_parameter_spans(struct plc_commands *pc)
+{
+    const struct regmap *map = pc->img->map;
+
+    for (unsigned i = 0; i < cmd_table_count; i++) {
+        pc->param_first[i] = pc->param_end[i] = 0;
+        for (unsigned r = 0; r < map->row_count; r++) {
+            if (!is_param_of(&map->rows[r], cmd_table[i].name))
+                continue;
+            if (pc->param_end[i] == 0)
+                pc->param_first[i] = (uint16_t)r;
+            pc->param_end[i] = (uint16_t)(r + 1);
+        }
+    }
+}
+
 int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
                       struct cmd_queue *queue, const struct plc_commands_config *cfg,
                       uint64_t (*now_ms)(void *clock), void *clock)
@@ -214,6 +234,7 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
     pc->params_written = calloc(img->map->row_count, sizeof(*pc->params_written));
     if (!pc->params_written)
         return -ENOMEM;
+    find_parameter_spans(pc);
     for (unsigned i = 0; i < cmd_table_count; i++) {
         struct plc_slot *slot = &pc->slots[i];
         slot->pc = pc;
@@ -275,102 +296,33 @@ static void set_result(struct plc_slot *slot, enum cmd_outcome outcome, long cod
     regmap_set_text(img, slot->error_msg, 0, msg);
 }
 
-/* A number as JSON shows it: floats from f32 registers at their precision. */
-static cJSON *number_item(double v, bool from_float)
-{
-    if (from_float) {
-        char text[32];
-        snprintf(text, sizeof(text), "%.7g", v);
-        v = strtod(text, NULL);
-    }
-    return cJSON_CreateNumber(v);
-}
-
 /* Why a command could not be built from what the PLC wrote. */
 enum build_result {
     BUILT = 0,
     BUILD_INVALID,   /* the PLC's values do not make a command: 03 */
-    BUILD_NO_MEMORY, /* cJSON could not allocate: 04, nothing sent */
+    BUILD_NO_MEMORY, /* the command does not fit, or no memory: 04, nothing sent */
 };
 
-/*
- * Sets obj.key, where key may be "name[i]" (the array grows with nulls).
- * Takes 'item', which may be NULL (its allocation failed). Returns false
- * when an allocation failed: 'item' is freed then, and 'obj' stays valid.
- */
-static bool set_member(cJSON *obj, const char *key, cJSON *item)
-{
-    char name[64];
-    const char *bracket = strchr(key, '[');
-
-    if (!item)
-        return false;
-    if (!bracket) {
-        cJSON_DeleteItemFromObjectCaseSensitive(obj, key);
-        if (!cJSON_AddItemToObject(obj, key, item)) {
-            cJSON_Delete(item);
-            return false;
-        }
-        return true;
-    }
-    snprintf(name, sizeof(name), "%.*s", (int)(bracket - key), key);
-    int index = atoi(bracket + 1);
-    cJSON *array = cJSON_GetObjectItemCaseSensitive(obj, name);
-    if (!cJSON_IsArray(array)) {
-        array = cJSON_CreateArray();
-        if (!array || !cJSON_AddItemToObject(obj, name, array)) {
-            cJSON_Delete(array);
-            cJSON_Delete(item);
-            return false;
-        }
-    }
-    /* Every create is checked: an unchecked one left the array short and
-     * this loop spinning for ever. */
-    while (cJSON_GetArraySize(array) <= index) {
-        cJSON *filler = cJSON_CreateNull();
-        if (!filler || !cJSON_AddItemToArray(array, filler)) {
-            cJSON_Delete(filler);
-            cJSON_Delete(item);
-            return false;
-        }
-    }
-    if (!cJSON_ReplaceItemInArray(array, index, item)) {
-        cJSON_Delete(item);
-        return false;
-    }
-    return true;
-}
-
-/* Adds the value of element 'i' of a parameter row under its JSON path. */
-static enum build_result add_param(const struct plc_commands *pc, cJSON *obj,
+/* Sets element 'i' of a parameter row under its JSON path. */
+static enum build_result add_param(const struct plc_commands *pc, struct cmd_json *cmd,
                                    const struct regmap_row *row, unsigned i)
 {
     char path[96];
     regmap_expand(path, sizeof(path), row->path, row->index + i, i);
     const char *key = strchr(path, '.') + 1;
-    cJSON *item;
 
     if (row->type == REGMAP_STR) {
         char text[256];
         regmap_get_text(pc->img, row, i, text, sizeof(text));
         if (!text[0])
             return BUILD_INVALID; /* a text parameter must be given */
-        item = cJSON_CreateString(text);
+        cmd_json_set_string(cmd, key, text);
     } else {
-        item = number_item(regmap_get_number(pc->img, row, i), row->type == REGMAP_F32);
+        /* Floats from f32 registers at their precision. */
+        cmd_json_set_number(cmd, key, regmap_get_number(pc->img, row, i),
+                            row->type == REGMAP_F32);
     }
-    return set_member(obj, key, item) ? BUILT : BUILD_NO_MEMORY;
-}
-
-/* A new object with cmdName first, as the manual writes commands. */
-static cJSON *new_command(const char *name)
-{
-    cJSON *obj = cJSON_CreateObject();
-    if (obj && !cJSON_AddStringToObject(obj, "cmdName", name)) {
-        cJSON_Delete(obj);
-        return NULL;
-    }
-    return obj;
+    return cmd->overflow ? BUILD_NO_MEMORY : BUILT;
 }
 
 static bool is_param_of(const struct regmap_row *row, const char *name)
@@ -381,76 +333,51 @@ static bool is_param_of(const struct regmap_row *row, const char *name)
 }
 
 /* The command 'def' with the parameters in its holding registers. */
-static cJSON *build_triggered(const struct plc_commands *pc, const struct cmd_def *def,
-                              enum build_result *result)
+static enum build_result build_triggered(const struct plc_commands *pc,
+                                         const struct cmd_def *def, struct cmd_json *cmd)
 {
-    cJSON *obj = new_command(def->name);
+    unsigned c = (unsigned)(def - cmd_table);
 
-    *result = obj ? BUILT : BUILD_NO_MEMORY;
-    for (unsigned r = 0; obj && r < pc->img->map->row_count; r++) {
+    cmd_json_begin(cmd, def->name);
+    for (unsigned r = pc->param_first[c]; r < pc->param_end[c]; r++) {
         const struct regmap_row *row = &pc->img->map->rows[r];
         if (!is_param_of(row, def->name))
             continue;
         for (unsigned i = 0; i < row->elements; i++) {
-            *result = add_param(pc, obj, row, i);
-            if (*result != BUILT) {
-                cJSON_Delete(obj);
-                return NULL;
-            }
+            enum build_result result = add_param(pc, cmd, row, i);
+            if (result != BUILT)
+                return result;
         }
     }
-    return obj;
+    return BUILT;
 }
 
 /* A setpoint row's command: its fixed members and the value written. */
-static cJSON *build_setpoint(const struct regmap_written *w, const struct cmd_def *def,
-                             enum build_result *result)
+static enum build_result build_setpoint(const struct regmap_written *w,
+                                        const struct cmd_def *def, struct cmd_json *cmd)
 {
     const struct regmap_row *row = w->row;
-    char fixed[160], text[176], path[96];
+    char fixed[160], path[96];
 
-    *result = BUILD_NO_MEMORY;
+    cmd_json_begin(cmd, def->name);
     regmap_expand(fixed, sizeof(fixed), row->fixed, w->source_index, w->element);
-    snprintf(text, sizeof(text), "{%s}", fixed);
-    /* The members come from the register table, so only a failed
-     * allocation keeps them from parsing. */
-    cJSON *members = cJSON_Parse(text);
-    cJSON *obj = cJSON_IsObject(members) ? new_command(def->name) : NULL;
-    if (!obj) {
-        cJSON_Delete(members);
-        return NULL;
-    }
-    while (members->child) {
-        cJSON *m = cJSON_DetachItemViaPointer(members, members->child);
-        if (!cJSON_AddItemToObject(obj, m->string, m)) {
-            cJSON_Delete(m);
-            cJSON_Delete(members);
-            cJSON_Delete(obj);
-            return NULL;
-        }
-    }
-    cJSON_Delete(members);
+    /* The members come from the register table (test_regmap checks their
+     * form), so only a row written wrongly can fail here. */
+    if (cmd_json_set_fixed(cmd, fixed) != 0)
+        return BUILD_NO_MEMORY;
     regmap_expand(path, sizeof(path), row->path, w->source_index, w->element);
-    if (!set_member(obj, strchr(path, '.') + 1,
-                    number_item(w->value, row->type == REGMAP_F32))) {
-        cJSON_Delete(obj);
-        return NULL;
-    }
-    *result = BUILT;
-    return obj;
+    cmd_json_set_number(cmd, strchr(path, '.') + 1, w->value, row->type == REGMAP_F32);
+    return cmd->overflow ? BUILD_NO_MEMORY : BUILT;
 }
 
 /* The mailbox's command, from its code and arguments (cmd_def.mailbox_args). */
-static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def *def,
-                            enum build_result *result)
+static enum build_result build_mailbox(const struct plc_commands *pc,
+                                       const struct cmd_def *def, struct cmd_json *cmd)
 {
     char args[128], name[64];
     unsigned next = 0;
-    cJSON *obj = new_command(def->name);
 
-    *result = BUILD_NO_MEMORY;
-    if (!obj)
-        return NULL;
+    cmd_json_begin(cmd, def->name);
     snprintf(args, sizeof(args), "%s", def->mailbox_args);
     for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
          tok = strtok_r(NULL, ",", &save)) {
@@ -462,9 +389,9 @@ static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def 
             snprintf(path, sizeof(path), "%s.%s", def->name, tok);
             const struct regmap_row *row =
                 regmap_find_path(pc->img->map, REGMAP_SRC_CMD, path);
-            *result = row ? add_param(pc, obj, row, 0) : BUILD_INVALID;
-            if (*result != BUILT)
-                goto fail;
+            enum build_result result = row ? add_param(pc, cmd, row, 0) : BUILD_INVALID;
+            if (result != BUILT)
+                return result;
             continue;
         }
         unsigned count = 1;
@@ -475,27 +402,18 @@ static cJSON *build_mailbox(const struct plc_commands *pc, const struct cmd_def 
         }
         for (unsigned k = 0; k < count; k++) {
             if (next >= pc->mailbox_arg->elements)
-                goto invalid;
+                return BUILD_INVALID;
             double v = regmap_get_number(pc->img, pc->mailbox_arg, next++);
             if (mark == '#' && v != nearbyint(v))
-                goto invalid; /* a whole number was expected */
+                return BUILD_INVALID; /* a whole number was expected */
             if (bracket)
                 snprintf(name, sizeof(name), "%s[%u]", tok, k);
             else
                 snprintf(name, sizeof(name), "%s", tok);
-            if (!set_member(obj, name, number_item(v, mark != '#'))) {
-                *result = BUILD_NO_MEMORY;
-                goto fail;
-            }
+            cmd_json_set_number(cmd, name, v, mark != '#');
         }
     }
-    *result = BUILT;
-    return obj;
-invalid:
-    *result = BUILD_INVALID;
-fail:
-    cJSON_Delete(obj);
-    return NULL;
+    return cmd->overflow ? BUILD_NO_MEMORY : BUILT;
 }
 
 /*
@@ -540,7 +458,11 @@ enum action { ACT_NONE, ACT_TRIGGER, ACT_STALE, ACT_SETPOINT, ACT_MAILBOX, ACT_J
 static const struct cmd_def *command_of(const char *path)
 {
     char name[64];
-    snprintf(name, sizeof(name), "%.*s", (int)strcspn(path, "."), path);
+    size_t n = strcspn(path, ".");
+    if (n >= sizeof(name))
+        return NULL;
+    memcpy(name, path, n);
+    name[n] = '\0';
     return cmd_find(name);
 }
 
@@ -595,24 +517,33 @@ static enum action action_of(struct plc_commands *pc, const struct regmap_writte
     return ACT_NONE;
 }
 
-static cJSON *build(struct plc_commands *pc, enum action act, const struct regmap_written *w,
-                    const struct cmd_def **def, enum build_result *result)
+/*
+ * Builds what writing 'w' asks for: a table command as bytes in 'cmd', or
+ * the JSON mailbox's request parsed into '*request' (judged as the robot
+ * reads it, and sent as the PLC wrote it).
+ */
+static enum build_result build(struct plc_commands *pc, enum action act,
+                               const struct regmap_written *w, const struct cmd_def **def,
+                               struct cmd_json *cmd, cJSON **request)
 {
-    *result = BUILD_INVALID;
+    enum build_result result = BUILD_INVALID;
+
+    *request = NULL;
     switch (act) {
     case ACT_TRIGGER:
-        return build_triggered(pc, *def, result);
+        return build_triggered(pc, *def, cmd);
     case ACT_SETPOINT:
-        return build_setpoint(w, *def, result);
+        return build_setpoint(w, *def, cmd);
     case ACT_MAILBOX:
-        return *def ? build_mailbox(pc, *def, result) : NULL;
+        return *def ? build_mailbox(pc, *def, cmd) : BUILD_INVALID;
     case ACT_JSON:
-        return parse_json_request(pc, def, result);
+        *request = parse_json_request(pc, def, &result);
+        return result;
     case ACT_STALE:
     case ACT_NONE:
         break;
     }
-    return NULL;
+    return result;
 }
 
 void plc_commands_begin(struct plc_commands *pc, uint64_t writer,
@@ -823,8 +754,10 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
         return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED, "trigger still 1: write 0 first");
     if (act == ACT_MAILBOX && !mailbox_whole(pc, def))
         return refuse(pc, slot, EX_INVALID, CMD_INVALID, "write code, args and seq in one write");
-    cJSON *cmd = build(pc, act, w, &def, &built);
-    if (!cmd)
+    struct cmd_json cmd;
+    cJSON *request;
+    built = build(pc, act, w, &def, &cmd, &request);
+    if (built != BUILT)
         return built == BUILD_NO_MEMORY
                    ? refuse(pc, slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent")
                    : refuse(pc, slot, EX_INVALID, CMD_INVALID,
@@ -832,13 +765,12 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
                             : act == ACT_JSON          ? "not a JSON command with a cmdName"
                                                        : "invalid parameters");
     if (act == ACT_JSON && !def && !pc->cfg.motion)
-        ex = refuse_unknown_json_command(pc, cmd);
+        ex = refuse_unknown_json_command(pc, request);
     else
         ex = gate(pc, act, def, slot);
-    if (ex) {
-        cJSON_Delete(cmd);
+    cJSON_Delete(request);
+    if (ex)
         return ex;
-    }
     /* Built once, here: applying sends exactly what was judged. */
     char *json;
     if (act == ACT_JSON) {
@@ -847,9 +779,8 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
         regmap_get_text(pc->img, pc->json_request, 0, text, sizeof(text));
         json = strdup(text);
     } else {
-        json = cJSON_PrintUnformatted(cmd);
+        json = cmd_json_finish(&cmd);
     }
-    cJSON_Delete(cmd);
     if (!json)
         return refuse(pc, slot, EX_FAILURE, CMD_REFUSED, "out of memory: nothing sent");
     pc->staged_cmds[pc->staged].json = json;
@@ -861,30 +792,57 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
 static void on_done(void *user, const struct cmd_result *r);
 static void set_handle_state(struct plc_commands *pc, enum plc_handle_state state);
 
-/* The command's name for the audit trail: the table's, or the JSON's. */
+/*
+ * What a command carries, for the audit trail: its members after cmdName,
+ * as an object ({"rate_value":0.5}), or "" when it has none. A command
+ * built from the table starts '{"cmdName":"<its name>"' as cmd_json
+ * writes it, so its members are the bytes after that: taken as they are,
+ * which is what printing it again without cmdName gave.
+ */
+static void members_of_built(const char *json, const char *name, char *what, size_t size)
+{
+    size_t head = strlen("{\"cmdName\":\"") + strlen(name) + 1;
+
+    what[0] = '\0';
+    if (strncmp(json, "{\"cmdName\":\"", 12) != 0 || strncmp(json + 12, name, strlen(name)) != 0 ||
+        strlen(json) <= head || json[head] != ',')
+        return; /* no members */
+    snprintf(what, size, "{%s", json + head + 1);
+}
+
+/* The same for the JSON mailbox's request, the PLC's own text. */
+static void members_of_request(const char *json, char *name, size_t name_size, char *what,
+                               size_t size)
+{
+    cJSON *doc = cJSON_Parse(json);
+    const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+
+    snprintf(name, name_size, "%s", cJSON_IsString(n) ? n->valuestring : "?");
+    cJSON_DeleteItemFromObjectCaseSensitive(doc, "cmdName");
+    char *params = doc && cJSON_GetArraySize(doc) > 0 ? cJSON_PrintUnformatted(doc) : NULL;
+    snprintf(what, size, "%s", params ? params : "");
+    cJSON_free(params);
+    cJSON_Delete(doc);
+}
+
+/* The command's name and members for the audit trail: the table's and the
+ * bytes already built, or, for the PLC's own JSON, read from its text. */
 static void audit_sent(struct plc_commands *pc, struct plc_slot *slot, const char *json,
                        const struct cmd_def *def, bool own)
 {
     char name[48] = "";
-
     char what[256] = "";
 
     if (!pc->cfg.audit)
         return;
-    /* What it carries, as sent without its name: a setpoint's value is
-     * part of the record. */
-    cJSON *doc = cJSON_Parse(json);
-    const cJSON *n = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
-    if (def)
+    if (slot != &pc->json && def) {
         snprintf(name, sizeof(name), "%s", def->name);
-    else
-        snprintf(name, sizeof(name), "%s", cJSON_IsString(n) ? n->valuestring : "?");
-    cJSON_DeleteItemFromObjectCaseSensitive(doc, "cmdName");
-    char *params = doc && cJSON_GetArraySize(doc) > 0 ? cJSON_PrintUnformatted(doc) : NULL;
-    if (params)
-        snprintf(what, sizeof(what), "%s", params);
-    cJSON_free(params);
-    cJSON_Delete(doc);
+        members_of_built(json, def->name, what, sizeof(what));
+    } else {
+        members_of_request(json, name, sizeof(name), what, sizeof(what));
+        if (def)
+            snprintf(name, sizeof(name), "%s", def->name);
+    }
     audit_command_sent_what(pc->cfg.audit, slot, name, what, own, pc->sending_frequent);
 }
 

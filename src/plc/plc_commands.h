@@ -153,6 +153,9 @@ struct plc_commands {
     /* The parameter rows' elements written since start and not refused
      * since: a bit per element, by row index in the map. */
     uint32_t *params_written;
+    /* Each command's parameter rows lie in rows [first, end) of the map:
+     * building a triggered command looks only there. */
+    uint16_t param_first[PLC_MAX_COMMANDS], param_end[PLC_MAX_COMMANDS];
     bool sending_frequent; /* the command being sent is a setpoint's */
     struct log_ratelimit refuse_log_limit;
     char refusal[96]; /* why the last plc_commands_check refused */

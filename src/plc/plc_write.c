@@ -183,6 +183,10 @@ static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_
 /* A refused write: its parameters count as not written (plc_commands.h). */
 static int refused(struct plc_write *pw, const struct mb_write *w, int ex)
 {
+    /* Named only when refused (no printf on a write that goes through):
+     * the element that refused it, else the range written. */
+    if (!pw->where[0])
+        plc_write_name_range(pw, w);
     plc_commands_write_refused(pw->commands, w->table, w->address, w->count);
     return ex;
 }
@@ -202,7 +206,7 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     pw->awaiting_after = false;
     pw->element_count = 0;
     pw->why[0] = '\0';
-    plc_write_name_range(pw, w);
+    pw->where[0] = '\0';
     if (ex) {
         snprintf(pw->why, sizeof(pw->why), "outside role \"%s\"", w->role ? w->role : "");
         return refused(pw, w, ex);
@@ -214,6 +218,7 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     }
     if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS) {
         snprintf(pw->why, sizeof(pw->why), "invalid count");
+        plc_write_name_range(pw, w);
         return MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
     }
     pw->w = w;

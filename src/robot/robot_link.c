@@ -15,6 +15,7 @@
 
 static void start_connect(struct robot_link *link);
 static void on_connect_timeout(uv_timer_t *t);
+static void on_check(uv_check_t *c);
 
 static void set_state(struct robot_link *link, enum robot_link_state state)
 {
@@ -23,6 +24,40 @@ static void set_state(struct robot_link *link, enum robot_link_state state)
     link->state = state;
     if (link->cb.on_state)
         link->cb.on_state(link, state);
+}
+
+/* Hands an object to the owner; the silence watchdog counts from after it. */
+static void deliver(struct robot_link *link, const char *data, size_t size)
+{
+    link->cb.on_object(link, data, size);
+    /* Handling the object may have taken long (a large document): the
+     * silence watchdog must count from now, not from the loop time
+     * cached before it, or it would take the work for silence. */
+    uv_update_time(link->loop);
+    link->last_object_ms = uv_now(link->loop);
+}
+
+/*
+ * newest_only: keeps 'data' as the object to hand over in the check phase.
+ * One held before is superseded: handed over now only if the owner says
+ * it carries a change, else dropped.
+ */
+static void hold(struct robot_link *link, const char *data, size_t size)
+{
+    if (link->holding) {
+        link->holding = false;
+        if (link->cb.on_superseded && link->cb.on_superseded(link, link->held, link->held_size))
+            deliver(link, link->held, link->held_size);
+        else
+            link->superseded++;
+        if (link->state != ROBOT_LINK_CONNECTED)
+            return; /* the owner restarted the link: nothing more is held */
+    }
+    memcpy(link->held, data, size);
+    link->held_size = size;
+    link->holding = true;
+    link->held_turns = 0;
+    uv_check_start(&link->check, on_check);
 }
 
 static void on_framer_event(void *user, enum framer_event event,
@@ -42,12 +77,12 @@ static void on_framer_event(void *user, enum framer_event event,
             link->unstable = false;
             link->quiet_reconnects = 0;
         }
-        link->cb.on_object(link, data, size);
-        /* Handling the object may have taken long (a large document): the
-         * silence watchdog must count from now, not from the loop time
-         * cached before it, or it would take the work for silence. */
-        uv_update_time(link->loop);
-        link->last_object_ms = uv_now(link->loop);
+        if (link->cfg.newest_only) {
+            link->last_object_ms = uv_now(link->loop);
+            hold(link, data, size);
+            return;
+        }
+        deliver(link, data, size);
         return;
     }
     if (link->cb.on_framing_error)
@@ -74,6 +109,13 @@ int robot_link_init(uv_loop_t *loop, struct robot_link *link,
     rc = framer_init(&link->framer, cfg->max_object, on_framer_event, link);
     if (rc)
         return rc;
+    if (cfg->newest_only) {
+        link->held = malloc(cfg->max_object);
+        if (!link->held) {
+            framer_free(&link->framer);
+            return -ENOMEM;
+        }
+    }
     if (cfg->tls)
         tls_context_ref(cfg->tls);
     uv_timer_init(loop, &link->timer);
@@ -83,6 +125,9 @@ int robot_link_init(uv_loop_t *loop, struct robot_link *link,
     /* A robot that drops connections while sending: one line per 5 s. */
     link->loss_log.interval_ms = 5000;
     link->open_handles = 2;
+    uv_check_init(loop, &link->check);
+    link->check.data = link;
+    link->open_handles++;
     return 0;
 }
 
@@ -215,6 +260,10 @@ static void drop_connection(struct robot_link *link)
     uv_timer_stop(&link->timer);
     uv_timer_stop(&link->watchdog);
     framer_reset(&link->framer);
+    /* What the lost connection held is not handed over after it. */
+    link->holding = false;
+    link->read_paused = false;
+    uv_check_stop(&link->check);
     /* No close_notify: closing the handle would cancel its write anyway,
      * and the controller learns of the end from the TCP close. */
     tls_conn_free(link->tls_conn);
@@ -392,6 +441,12 @@ static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
             read_tls(link, buf->base, (size_t)nread);
         else
             framer_feed(&link->framer, buf->base, (size_t)nread);
+        /* A full buffer: more bytes wait. Let the loop serve the other
+         * sockets (a PLC's command) before taking more, and decide the
+         * held object first. */
+        if (link->holding && (size_t)nread == sizeof(link->read_buf) &&
+            link->state == ROBOT_LINK_CONNECTED && uv_read_stop(s) == 0)
+            link->read_paused = true;
         return;
     }
     if (nread == 0)
@@ -400,6 +455,43 @@ static void on_read(uv_stream_t *s, ssize_t nread, const uv_buf_t *buf)
              nread == UV_EOF ? "closed by the robot" : uv_strerror((int)nread));
     link->last_error = (int)nread;
     drop_connection(link);
+}
+
+/* Bytes waiting in the socket, 0 when unknown. */
+static size_t bytes_waiting(struct robot_link *link)
+{
+    int fd = -1, waiting = 0;
+    if (uv_fileno((uv_handle_t *)&link->tcp, &fd) != 0 || ioctl(fd, FIONREAD, &waiting) != 0)
+        return 0;
+    return waiting > 0 ? (size_t)waiting : 0;
+}
+
+/*
+ * The loop's check phase, after it served every socket ready this turn:
+ * the held object is handed over, unless reading paused with a newer whole
+ * object possibly waiting (then it waits for that one, a bounded number of
+ * turns, so that a stream faster than the parse still gets parsed).
+ */
+static void on_check(uv_check_t *c)
+{
+    struct robot_link *link = c->data;
+    bool resume = link->read_paused;
+
+    link->read_paused = false;
+    if (link->holding && resume && link->held_turns < ROBOT_LINK_HOLD_TURNS &&
+        bytes_waiting(link) >= link->held_size) {
+        link->held_turns++;
+    } else if (link->holding) {
+        link->holding = false;
+        uv_check_stop(c);
+        deliver(link, link->held, link->held_size);
+    } else {
+        uv_check_stop(c);
+    }
+    if (resume && link->state == ROBOT_LINK_CONNECTED && link->tcp_open &&
+        !uv_is_closing((uv_handle_t *)&link->tcp) &&
+        uv_read_start((uv_stream_t *)&link->tcp, on_alloc, on_read) != 0)
+        robot_link_restart(link, "cannot read again after a pause");
 }
 
 static void on_connected(uv_connect_t *req, int status)
@@ -552,13 +644,24 @@ static void on_written(uv_write_t *req, int status)
     free(req);
 }
 
-/* Queues bytes as they go on the wire (ciphertext with TLS). */
+/*
+ * Sends bytes as they go on the wire (ciphertext with TLS): written at
+ * once when nothing waits before them, as nearly always (no copy, and no
+ * write request whose completion costs libuv an epoll_ctl); the rest, or
+ * all of it after an error, queued in a copy.
+ */
 static int write_raw(struct robot_link *link, const void *data, size_t size)
 {
     struct send_req *sr;
-    uv_buf_t buf;
-    int rc;
+    uv_buf_t buf = uv_buf_init((char *)data, (unsigned)size);
+    int rc = uv_try_write((uv_stream_t *)&link->tcp, &buf, 1);
 
+    if (rc > 0) {
+        if ((size_t)rc == size)
+            return 0;
+        data = (const char *)data + rc;
+        size -= (size_t)rc;
+    }
     sr = malloc(sizeof(*sr) + size);
     if (!sr)
         return -ENOMEM;
@@ -593,6 +696,16 @@ static void on_timer_closed(uv_handle_t *h)
         link->close_cb(link);
 }
 
+/* The held copy goes last: a callback that closed the link may still
+ * read the object it was handed. */
+static void on_check_closed(uv_handle_t *h)
+{
+    struct robot_link *link = h->data;
+    free(link->held);
+    link->held = NULL;
+    on_timer_closed(h);
+}
+
 void robot_link_close(struct robot_link *link,
                       void (*cb)(struct robot_link *link))
 {
@@ -607,6 +720,8 @@ void robot_link_close(struct robot_link *link,
     link->cfg.tls = NULL;
     uv_close((uv_handle_t *)&link->timer, on_timer_closed);
     uv_close((uv_handle_t *)&link->watchdog, on_timer_closed);
+    link->holding = false;
+    uv_close((uv_handle_t *)&link->check, on_check_closed);
     if (link->tcp_open && !uv_is_closing((uv_handle_t *)&link->tcp))
         uv_close((uv_handle_t *)&link->tcp, on_tcp_closed);
     if (link->resolving)

@@ -26,6 +26,18 @@
  * sockets have tuned keepalive and TCP_USER_TIMEOUT (cfg.user_timeout_ms).
  * robot_link_close, a clean stop, closes normally.
  *
+ * With cfg.newest_only (the status port: each document is a whole
+ * snapshot), a complete object is held, not handed over at once, and
+ * handed over from a uv_check handle, after the loop has served every
+ * other socket that was ready in the same turn; when a newer object is
+ * complete first, the held one is superseded: on_superseded decides
+ * whether it must still be handled (it carries a change that the newer
+ * one would hide), else it is dropped unhandled. A read that fills the
+ * whole buffer (more bytes are waiting) pauses reading until the held
+ * object is decided, so a backlog is taken one buffer per loop turn, and
+ * a held object is not handed over while a newer whole one may already be
+ * waiting in the socket, at most ROBOT_LINK_HOLD_TURNS turns in a row.
+ *
  * Life cycle, as libuv handles: robot_link_init(), robot_link_start(),
  * robot_link_close(cb); the memory is the caller's until cb runs.
  * Nothing here blocks: resolving runs on libuv's thread pool.
@@ -49,6 +61,9 @@
 /* Bytes queued to a robot that does not read, before sends fail. */
 #define ROBOT_LINK_MAX_QUEUED (64 * 1024)
 
+/* Turns a held object waits for a newer one already in the socket. */
+#define ROBOT_LINK_HOLD_TURNS 8
+
 enum robot_link_state {
     ROBOT_LINK_DISCONNECTED = 0,
     ROBOT_LINK_CONNECTING = 1,
@@ -65,6 +80,9 @@ struct robot_link_callbacks {
                              size_t size);
     /* The state changed. */
     void (*on_state)(struct robot_link *link, enum robot_link_state state);
+    /* cfg.newest_only: a held object a newer one replaced; return true to
+     * have it handed to on_object all the same (at once). NULL: dropped. */
+    bool (*on_superseded)(struct robot_link *link, const char *json, size_t size);
 };
 
 struct robot_link_config {
@@ -83,6 +101,9 @@ struct robot_link_config {
     /* NULL: plain TCP. Else TLS with this client context, of which the
      * link keeps its own reference (robot_link_set_tls to change it). */
     struct tls_context *tls;
+    /* Objects are snapshots: only the newest of several waiting is handed
+     * over (see above). */
+    bool newest_only;
 };
 
 struct robot_link {
@@ -130,6 +151,16 @@ struct robot_link {
     uint64_t connections; /* successful connects, ever */
     uint64_t last_object_ms;
     bool watchdog_waited; /* gave bytes waiting in the socket one more look */
+
+    /* cfg.newest_only: the object held until the loop's check phase, and
+     * whether reading waits for it to be decided. */
+    uv_check_t check;
+    char *held;
+    size_t held_size;
+    bool holding;
+    bool read_paused;
+    unsigned held_turns;
+    uint64_t superseded; /* objects dropped unhandled for a newer one */
 };
 
 /* Returns 0, or a negative errno (-EINVAL for a bad config, -ENOMEM). */

@@ -438,3 +438,115 @@ void status_parse_release(void)
 {
     json_arena_free(&arena);
 }
+
+/* ---- marks: the members whose changes are events, without a parse ---- */
+
+static const struct {
+    const char *name;
+    size_t size;
+} mark_members[STATUS_MARK_COUNT] = {
+#define STATUS_MARK_ROW(n) {n, sizeof(n) - 1},
+    STATUS_MARK_MEMBERS(STATUS_MARK_ROW)
+#undef STATUS_MARK_ROW
+};
+
+static int mark_of(const char *key, size_t size)
+{
+    for (int i = 0; i < STATUS_MARK_COUNT; i++)
+        if (mark_members[i].size == size && memcmp(mark_members[i].name, key, size) == 0)
+            return i;
+    return -1;
+}
+
+/* FNV-1a of a value's text, never 0 (0 is "absent"). */
+static uint64_t hash_text(const char *p, size_t n)
+{
+    uint64_t h = UINT64_C(0xcbf29ce484222325);
+    for (size_t i = 0; i < n; i++)
+        h = (h ^ (uint8_t)p[i]) * UINT64_C(0x100000001b3);
+    return h ? h : 1;
+}
+
+/* The end of the string whose opening quote is at json[p]: after its closing quote. */
+static size_t skip_string(const char *json, size_t p, size_t size)
+{
+    for (p++; p < size; p++) {
+        if (json[p] == '\\')
+            p++;
+        else if (json[p] == '"')
+            return p + 1;
+    }
+    return size;
+}
+
+/* The end of the value at json[p]: a string, a scalar or a nested value. */
+static size_t skip_value(const char *json, size_t p, size_t size)
+{
+    int depth = 0;
+
+    while (p < size) {
+        char c = json[p];
+        if (c == '"') {
+            p = skip_string(json, p, size);
+            if (depth == 0)
+                return p;
+            continue;
+        }
+        if (c == '{' || c == '[') {
+            depth++;
+        } else if (c == '}' || c == ']') {
+            if (depth == 0)
+                return p;
+            if (--depth == 0)
+                return p + 1;
+        } else if (depth == 0 && (c == ',' || c == ' ' || c == '\t' || c == '\r' || c == '\n')) {
+            return p;
+        }
+        p++;
+    }
+    return size;
+}
+
+static size_t skip_blanks(const char *json, size_t p, size_t size)
+{
+    while (p < size && (json[p] == ' ' || json[p] == '\t' || json[p] == '\r' || json[p] == '\n'))
+        p++;
+    return p;
+}
+
+void status_marks_of(const char *json, size_t size, struct status_marks *m)
+{
+    size_t p = skip_blanks(json, 0, size);
+
+    memset(m, 0, sizeof(*m));
+    if (p >= size || json[p] != '{')
+        return;
+    p++;
+    /* Members of the top-level object: "key" : value , ... */
+    while (p < size) {
+        p = skip_blanks(json, p, size);
+        if (p >= size || json[p] != '"')
+            return; /* '}' or not JSON: done */
+        size_t key = p + 1;
+        p = skip_string(json, p, size);
+        size_t key_size = p - 1 - key;
+        p = skip_blanks(json, p, size);
+        if (p >= size || json[p] != ':')
+            return;
+        p = skip_blanks(json, p + 1, size);
+        size_t value = p;
+        p = skip_value(json, p, size);
+        int mark = mark_of(json + key, key_size);
+        if (mark >= 0 && m->value[mark] == 0)
+            m->value[mark] = hash_text(json + value, p - value);
+        p = skip_blanks(json, p, size);
+        if (p >= size || json[p] != ',')
+            return;
+        p++;
+    }
+}
+
+bool status_marks_differ(const struct status_marks *a, const struct status_marks *b)
+{
+    return memcmp(a->value, b->value, sizeof(a->value)) != 0;
+}

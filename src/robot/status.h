@@ -222,6 +222,42 @@ int status_parse(struct jaka_status *out, const char *json, size_t size);
  */
 void status_parse_release(void);
 
+/*
+ * The top-level members whose changes are events: the events log's robot
+ * view (power, enable, program, stops, mode, speed override), the motion
+ * tracker's states (in position, program), errors. A document that changes
+ * one of them from the document before must be handled even when a newer
+ * one already waits (robot_link.h, newest_only): its marks tell, from a
+ * scan of its bytes without a parse.
+ */
+#define STATUS_MARK_MEMBERS(X)                                                 \
+    X("powered_on") X("enabled") X("interp_state") X("task_state")             \
+    X("task_mode") X("task mode") X("emergency_stop") X("protective_stop")     \
+    X("inpos") X("paused") X("errcode") X("rapidrate") X("motion_mode")
+
+enum {
+#define STATUS_MARK_COUNT_ONE(name) +1
+    STATUS_MARK_COUNT = 0 STATUS_MARK_MEMBERS(STATUS_MARK_COUNT_ONE)
+#undef STATUS_MARK_COUNT_ONE
+};
+
+/* A document's marks: a hash of each mark member's text as written (0: absent). */
+struct status_marks {
+    uint64_t value[STATUS_MARK_COUNT];
+};
+
+/*
+ * The marks of the object 'json' of 'size' bytes (complete, as the framer
+ * cut it): one pass over its bytes, members nested in others skipped. A
+ * member given twice counts with its first value, as status_parse reads it.
+ * Text that differs in form only ("1" and "1.0") counts as a change: at
+ * worst a document is parsed that need not have been.
+ */
+void status_marks_of(const char *json, size_t size, struct status_marks *m);
+
+/* Does any mark differ? */
+bool status_marks_differ(const struct status_marks *a, const struct status_marks *b);
+
 /* The numeric slot 'index' of numeric field 'field' (index < capacity). */
 const struct status_num *status_num_at(const struct jaka_status *s,
                                        enum status_field field, unsigned index);
