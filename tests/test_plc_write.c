@@ -351,6 +351,49 @@ static void read_only_and_write_allow(void **state)
     assert_int_equal(write_one("::2", 1, pw.rows.heartbeat, 4), 1);
 }
 
+/*
+ * A write refused for who sent it (write_allow, the owner) changes nothing:
+ * the owner's parameters stay written, judged or refused by the server.
+ */
+static void refused_writer_changes_nothing(void **state)
+{
+    (void)state;
+    char why[96];
+    struct plc_write_config wc = {0};
+    assert_int_equal(ip_allow_parse("127.0.0.1 127.0.0.2", &wc.write_allow, why, sizeof(why)),
+                     0);
+    start(&wc, true, false);
+    const struct regmap_row *rel = regmap_find_path(&map, REGMAP_SRC_CMD, "joint_move.relFlag");
+    unsigned bit = (unsigned)(rel - map.rows);
+    assert_int_equal(write_one("127.0.0.1", 1, pw.rows.heartbeat, 1), 0);
+    assert_int_equal(write_one("127.0.0.1", 1, rel, 0), 0);
+    assert_true(pc.params_written[bit] & 1);
+    /* Not in write_allow: judged and refused, or refused by the server. */
+    assert_int_equal(write_one("192.0.2.7", 2, rel, 1), 1);
+    assert_true(pc.params_written[bit] & 1);
+    uint16_t one = 1;
+    struct mb_write w = {.table = rel->table, .address = rel->address, .count = 1,
+                         .values = &one, .client = "192.0.2.7", .client_id = 2,
+                         .rights = REGMAP_RIGHTS_ALL};
+    assert_int_equal(ip_addr_parse("192.0.2.7", &w.client_addr), 0);
+    plc_write_refused_unjudged(&pw, &w);
+    assert_true(pc.params_written[bit] & 1);
+    /* Allowed, but not the owner: the same. */
+    assert_int_equal(write_one("127.0.0.2", 3, rel, 1), 1);
+    assert_true(pc.params_written[bit] & 1);
+    w.client = "127.0.0.2";
+    w.client_id = 3;
+    assert_int_equal(ip_addr_parse("127.0.0.2", &w.client_addr), 0);
+    plc_write_refused_unjudged(&pw, &w);
+    assert_true(pc.params_written[bit] & 1);
+    /* The owner's own refused write withdraws what it meant to replace. */
+    w.client = "127.0.0.1";
+    w.client_id = 1;
+    assert_int_equal(ip_addr_parse("127.0.0.1", &w.client_addr), 0);
+    plc_write_refused_unjudged(&pw, &w);
+    assert_false(pc.params_written[bit] & 1);
+}
+
 
 /* One write from connection 'client_id' at 'peer' ("address:port"). */
 static int write_from_peer(const char *peer, uint64_t client_id, const struct regmap_row *row,
@@ -393,6 +436,7 @@ int main(void)
         cmocka_unit_test_teardown(owner_is_the_plc_and_named_with_its_port, teardown),
         cmocka_unit_test_teardown(motion_enable_drop_pauses_through_the_transaction, teardown),
         cmocka_unit_test_teardown(read_only_and_write_allow, teardown),
+        cmocka_unit_test_teardown(refused_writer_changes_nothing, teardown),
         cmocka_unit_test_teardown(drop_right_after_a_start_pauses, teardown),
         cmocka_unit_test_teardown(start_after_a_drop_is_refused_and_latches, teardown),
         cmocka_unit_test_teardown(start_before_motion_enable_is_armed_is_only_refused, teardown),

@@ -729,7 +729,12 @@ static int refuse(struct plc_commands *pc, struct plc_slot *slot, int ex,
 {
     /* The same words for the audit trail (plc_commands_refusal). */
     snprintf(pc->refusal, sizeof(pc->refusal), "%s", why);
-    if (slot && slot->state && !slot->pending) {
+    if (slot && slot->state) {
+        /* The count moved for this request: the result is its own. The
+         * commands still pending no longer write theirs when they end,
+         * except the mailbox's: done_seq says whose result it shows. */
+        if (slot->kind != PLC_SLOT_MAILBOX)
+            slot->superseded = slot->pending;
         set_result(slot, outcome, 0, why);
         /* The previous command's reply is no answer to this one. */
         if (slot == &pc->json) {
@@ -789,15 +794,15 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
         if (ex)
             return refuse(pc, slot, ex, CMD_REFUSED, why);
     }
+    /* A PLC's pause or stop is never refused busy: it goes ahead of the
+     * queue and takes out what would move the arm (cmd_queue_submit_urgent). */
+    if (halts)
+        return 0;
     /* A setpoint may queue behind itself; a command or mailbox may not. */
-    if (act != ACT_SETPOINT && slot->pending) {
-        snprintf(pc->refusal, sizeof(pc->refusal), "busy: the previous one is pending");
-        return EX_BUSY;
-    }
-    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY) {
-        snprintf(pc->refusal, sizeof(pc->refusal), "busy: the command queue is full");
-        return EX_BUSY;
-    }
+    if (act != ACT_SETPOINT && slot->pending)
+        return refuse(pc, slot, EX_BUSY, CMD_REFUSED, "busy: the previous one is pending");
+    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY)
+        return refuse(pc, slot, EX_BUSY, CMD_REFUSED, "busy: the command queue is full");
     return 0;
 }
 
@@ -1084,6 +1089,10 @@ static void on_done(void *user, const struct cmd_result *r)
     if (pc->cfg.answered && slot->kind != PLC_SLOT_INFO && slot->kind != PLC_SLOT_HANDLE)
         pc->cfg.answered(pc->cfg.gate_user, slot->def, r);
     slot->pending--;
+    /* A later request's refusal wrote the result registers: they are its. */
+    bool superseded = slot->superseded > 0;
+    if (superseded)
+        slot->superseded--;
     if (slot->starts_pending > 0) {
         /* One pending at a time for these slots: this is the start. */
         slot->starts_pending--;
@@ -1117,11 +1126,12 @@ static void on_done(void *user, const struct cmd_result *r)
                     cmd_outcome_name(r->outcome), r->error_code, r->error_msg);
         return;
     }
-    set_result(slot, r->outcome, r->error_code, r->error_msg);
+    if (!superseded)
+        set_result(slot, r->outcome, r->error_code, r->error_msg);
     if (slot->kind == PLC_SLOT_MAILBOX)
         regmap_set_number(pc->img, pc->mailbox_done, 0,
                           regmap_get_number(pc->img, pc->mailbox_ack, 0), true);
-    if (slot->kind == PLC_SLOT_JSON)
+    if (slot->kind == PLC_SLOT_JSON && !superseded)
         record_json_reply(pc, r);
     if (r->outcome != CMD_DONE)
         log_notice("command %s: %s (%ld) %s",

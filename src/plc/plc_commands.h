@@ -122,6 +122,9 @@ struct plc_slot {
     uint64_t trigger_by;       /* the connection that set its trigger to 1 */
     unsigned pending;
     unsigned starts_pending;   /* of them, commands that start motion */
+    /* Of them, those whose result a later request's refusal replaced: a
+     * PLC reads the result of the request that moved the count. */
+    unsigned superseded;
     bool failed;               /* a failure among the pending ones */
     struct cmd_result failure; /* the first of them */
 };

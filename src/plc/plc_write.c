@@ -168,16 +168,30 @@ static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_
     }
 }
 
-/* A refused write: its parameters count as not written (plc_commands.h). */
+/* A refused write of a writer allowed to write there: its parameters count
+ * as not written (plc_commands.h). */
 static int refused(struct plc_write *pw, const struct mb_write *w, int ex)
 {
     plc_commands_write_refused(pw->commands, w->table, w->address, w->count);
     return ex;
 }
 
+/*
+ * Only a connection that may write there can withdraw what was written:
+ * a write refused for its rights, write_allow or the owner changes
+ * nothing, or any client could make the owner's next move trigger read
+ * "target not written".
+ */
+static bool may_write(struct plc_write *pw, const struct mb_write *w)
+{
+    return regmap_write_allowed(pw->img->map, w->table, w->address, w->count, w->rights) == 0 &&
+           plc_write_authorize(pw, w) == 0;
+}
+
 void plc_write_refused_unjudged(struct plc_write *pw, const struct mb_write *w)
 {
-    plc_commands_write_refused(pw->commands, w->table, w->address, w->count);
+    if (w->count > 0 && may_write(pw, w))
+        plc_commands_write_refused(pw->commands, w->table, w->address, w->count);
 }
 
 int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
@@ -193,12 +207,12 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     plc_write_name_range(pw, w);
     if (ex) {
         snprintf(pw->why, sizeof(pw->why), "outside role \"%s\"", w->role ? w->role : "");
-        return refused(pw, w, ex);
+        return ex; /* changes nothing (may_write) */
     }
     ex = plc_write_authorize(pw, w);
     if (ex) {
         why_unauthorized(pw, w);
-        return refused(pw, w, ex);
+        return ex;
     }
     if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS) {
         snprintf(pw->why, sizeof(pw->why), "invalid count");

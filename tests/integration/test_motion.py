@@ -350,8 +350,52 @@ def test_robot_that_never_stops_reads_still_moving():
     escalation(0)
 
 
+H_RAPID_RATE = addr("holding_register", "rapid_rate")
+I_JOINT_MOVE_STATE = addr("input_register", "result_joint_move_state")
+I_JOINT_MOVE_MSG = addr("input_register", "result_joint_move_error_msg")
+I_INTERP_STATE = addr("input_register", "interp_state")
+NOT_SENT = 8
+
+
+def reason(plc, address):
+    regs = plc.ir(address, 20)
+    return b"".join(struct.pack(">H", r) for r in regs).rstrip(b"\0").decode()
+
+
+def test_fault_with_a_move_waiting_in_the_queue():
+    """A joint_move waits in the gateway's queue behind a slow rapid_rate
+    reply (jakasim --reply-delay rapid_rate:600) when motion enable drops:
+    the stop takes the move out of the queue (its result 8, "not sent: a
+    safety action took its place"); the robot receives no motion command
+    after the stop and the arm never leaves home."""
+    sim_args = SIM + ["--reply-delay", "rapid_rate:600", "--stop-time-ms", "300"]
+    with running(sim_args, config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        check(plc.reg(H_RAPID_RATE, 1000) == 0, "rapid_rate refused")
+        check(plc.joint_move([30, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        check(plc.coil(C_MOTION_ENABLE, 0) == 0, "drop refused")
+        wait_until(lambda: "stop_program" in sim_names(sim), 3, "stop_program at the robot")
+        wait_until(lambda: plc.ir(I_JOINT_MOVE_STATE)[0] not in (0, 1), 3,
+                   "joint_move's result")
+        travel, _ = watch_travel(plc, 0, 0.0, time.monotonic(), after_s=1.2)
+        names = [n for n in sim_names(sim) if n in ("rapid_rate", "joint_move", "stop_program",
+                                                     "pause_program")]
+        state, why = plc.ir(I_JOINT_MOVE_STATE)[0], reason(plc, I_JOINT_MOVE_MSG)
+        print("  the robot received %s; joint 1 went %.2f deg; joint_move's result %d '%s'; "
+              "motion state %d, reaction %d" % (names, travel, state, why,
+                                                plc.ir(I_MOTION_STATE)[0], plc.ir(I_REACTION)[0]))
+        after = names[names.index("stop_program"):]
+        check("joint_move" not in after, "joint_move reached the robot after the stop: %s" % names)
+        check(travel < 0.01, "the arm moved %.2f deg" % travel)
+        check(state == NOT_SENT and why == "not sent: a safety action took its place",
+              "joint_move's result %d '%s'" % (state, why))
+        plc.close()
+
+
 if __name__ == "__main__":
     run([test_motion_enable_drop_stops_a_joint_move, test_heartbeat_loss_stops_a_joint_move,
          test_motion_state_first_reading_and_arrival, test_stops_read_stopped_before_arriving,
          test_move_never_shown_times_out, test_robot_that_does_not_stop_is_escalated,
-         test_robot_that_never_stops_reads_still_moving])
+         test_robot_that_never_stops_reads_still_moving,
+         test_fault_with_a_move_waiting_in_the_queue])
