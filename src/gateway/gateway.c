@@ -449,6 +449,12 @@ static enum policy_robot robot_seen(void *user)
     return motion_robot(&gw->motion, gateway_status_fresh(gw));
 }
 
+static double arm_step(void *user)
+{
+    struct gateway *gw = user;
+    return gateway_status_fresh(gw) ? motion_step_deg(&gw->motion) : -1;
+}
+
 /* What the robot did about the action: one log line per change. */
 static void on_reaction(void *user, enum policy_reaction reaction, enum policy_action sent,
                         uint64_t after_ms)
@@ -482,9 +488,9 @@ static void on_reaction(void *user, enum policy_reaction reaction, enum policy_a
 static void on_own_answered(void *user, const struct cmd_def *def, const struct cmd_result *r)
 {
     struct gateway *gw = user;
-    (void)def, (void)r;
+    (void)def;
     if (gw->parts & GATEWAY_PART_POLICY)
-        policy_action_answered(&gw->policy, uv_now(gw->loop));
+        policy_action_answered(&gw->policy, uv_now(gw->loop), r->outcome == CMD_DONE);
 }
 
 /* Every command sent for a PLC: a move followed, a stop, a start's kind. */
@@ -776,10 +782,12 @@ static int start_policy(struct gateway *gw)
         .owner_by_connection = cfg->ne_owner == 1,
         .require_heartbeat = cfg->ne_require_heartbeat,
         .start_unshown_max_ms = cfg->status_timeout_ms,
+        .stop_time_ms = cfg->ne_stop_time_ms,
     };
     struct policy_sink sink = {.send_action = send_policy_action,
                                .on_stall = on_loop_stall,
                                .robot = robot_seen,
+                               .step = arm_step,
                                .on_reaction = on_reaction,
                                .user = gw};
 

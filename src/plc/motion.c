@@ -321,6 +321,18 @@ bool motion_check(struct motion *m, uint64_t now_ms)
     return true;
 }
 
+double motion_step_deg(const struct motion *m)
+{
+    double step = 0;
+
+    if (!m->have_last || !m->have_previous || !m->last.have_joints ||
+        !m->previous.have_joints)
+        return -1;
+    for (int i = 0; i < 6; i++)
+        step = fmax(step, fabs(m->last.joints[i] - m->previous.joints[i]));
+    return step;
+}
+
 enum policy_robot motion_robot(const struct motion *m, bool fresh)
 {
     if (!fresh || !m->have_last)

@@ -131,6 +131,10 @@ bool motion_check(struct motion *m, uint64_t now_ms);
 /* The move's bound, ms from its reply: travel / speed * factor + margin. */
 uint64_t motion_bound_ms(double travel, double speed);
 
+/* The largest joint change between the last two documents, in degrees
+ * (the policy's step(): braking shows as a falling step); -1 unknown. */
+double motion_step_deg(const struct motion *m);
+
 /* What the arm does, from the last two documents ('fresh': the status is). */
 enum policy_robot motion_robot(const struct motion *m, bool fresh);
 

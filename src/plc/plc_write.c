@@ -53,7 +53,8 @@ int plc_write_authorize(const struct plc_write *pw, const struct mb_write *w)
     if (pw->cfg.write_allow.count > 0 &&
         !ip_allow_contains(&pw->cfg.write_allow, &w->client_addr))
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
-    return policy_may_write_from(pw->policy, w->client_id, w->peer ? w->peer : w->client);
+    return policy_may_write_via(pw->policy, w->client_id, w->peer ? w->peer : w->client,
+                                w->transport);
 }
 
 static bool is_command_row(const struct regmap_row *row)
@@ -156,6 +157,7 @@ static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_
     if (e->row == rows->heartbeat) {
         policy_heartbeat(pw->policy, now, pw->w->client_id,
                          pw->w->peer ? pw->w->peer : pw->w->client, e->value);
+        policy_owner_transport(pw->policy, pw->w->client_id, pw->w->transport);
     } else if (e->row == rows->fault_reset) {
         if (e->value != 0 && !drops_enable)
             reset_fault(pw);
@@ -239,8 +241,28 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     const struct regmap_written *enable = element_of(pw, pw->rows.motion_enable);
     const struct regmap_written *reset = element_of(pw, pw->rows.fault_reset);
     bool drops_enable = enable && enable->value == 0;
+    const struct regmap_written *beat = element_of(pw, pw->rows.heartbeat);
+    if (beat && policy_may_feed_heartbeat(pw->policy, w->client_id) != 0) {
+        snprintf(pw->why, sizeof(pw->why), "only the owner's connection feeds the heartbeat");
+        name_element(pw, beat);
+        regmap_load(img, w->table, w->address, w->count, pw->saved);
+        pw->element_count = 0;
+        pw->w = NULL;
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    /* A reset while the reaction is judged or the arm moves would cancel
+     * a second stop: refused, busy, with why; a drop with it still goes. */
+    bool reset_refused = reset && reset->value != 0 &&
+                         policy_may_reset(pw->policy, pw->why, sizeof(pw->why)) != 0;
+    if (reset_refused && !drops_enable) {
+        name_element(pw, reset);
+        regmap_load(img, w->table, w->address, w->count, pw->saved);
+        pw->element_count = 0;
+        pw->w = NULL;
+        return MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY;
+    }
     if (drops_enable) {
-        if (reset && reset->value != 0)
+        if (reset && reset->value != 0 && !reset_refused)
             reset_fault(pw);
         policy_motion_enable(pw->policy, now, false, pw->hooks.robot_may_move(pw->hooks.user));
     }

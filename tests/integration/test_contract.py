@@ -231,7 +231,7 @@ def test_mailbox_sequence_alone_is_refused():
 # ---- items 5 and 6: the owner is a PLC; no motion without a heartbeat ----
 
 def test_owner_is_a_plc_not_a_socket():
-    sim, gw = started()
+    sim, gw = started(CONTRACT + "owner = host\n")
     reader = writer = None
     try:
         reader = Plc(gw)
@@ -245,13 +245,17 @@ def test_owner_is_a_plc_not_a_socket():
         print("  second connection of the owner's host: %s; IR 66 %r" %
               ("accepted" if ex == 0 else "exception %02x" % ex, owner))
         check(ex == 0, "the owner PLC's second connection refused: %02x" % ex)
+        # Yet only the owner's connection feeds the heartbeat: another
+        # program on the PLC's host cannot keep it alive.
+        check(writer.reg(H_HEARTBEAT, 4242) == EX_NOT_PERMITTED,
+              "a second connection fed the heartbeat")
         port = reader.client.socket.getsockname()[1]
         check(owner == "127.0.0.1:%d" % port, "IR 66 reads %r" % owner)
     finally:
         stop(sim, gw, *[p for p in (reader, writer) if p])
-    # owner = connection: only the heartbeat's connection writes, and the
-    # refusal names its address and port.
-    sim, gw = started(CONTRACT + "owner = connection\n")
+    # owner = connection (the default): only the heartbeat's connection
+    # writes, and the refusal names its address and port.
+    sim, gw = started()
     try:
         reader = Plc(gw)
         reader.ready()

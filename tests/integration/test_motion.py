@@ -393,9 +393,71 @@ def test_fault_with_a_move_waiting_in_the_queue():
         plc.close()
 
 
+def braking(stop_ms, program):
+    """A program runs (or a joint_move at 60 deg/s) on a robot that brakes
+    over 'stop_ms' when motion enable drops: one command (pause_program
+    for the program, which stays paused and resumable; stop_program for
+    the move), reaction 3 or 4, never 6."""
+    sim_args = SIM + ["--stop-time-ms", str(stop_ms)]
+    with running(sim_args, config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        if program:
+            check(plc.regs(addr("holding_register", "load_program_name"),
+                           list(struct.unpack(">32H", b"demo.jks".ljust(64, b"\0")))) == 0,
+                  "program name")
+            check(plc.pulse(addr("coil", "cmd_load_program")) == 0, "load_program")
+            check(plc.pulse(addr("coil", "cmd_play_program")) == 0, "play_program")
+            wait_until(lambda: plc.ir(I_INTERP_STATE)[0] == 3, 5, "the program running")
+        else:
+            check(plc.joint_move([90, 90, 90, 0, 90, 0], speed=60) == 0, "joint_move refused")
+        first = plc.joints()
+        if program:
+            wait_until(lambda: plc.joints() != first, 5, "the arm moving")
+        else:  # past its ramp (15 deg at most): at full speed
+            wait_until(lambda: plc.joints()[0] > 20, 5, "joint 1 past 20 deg")
+        check(plc.coil(C_MOTION_ENABLE, 0) == 0, "drop refused")
+        seen = set()
+        def settled():
+            seen.add(plc.ir(I_REACTION)[0])
+            return plc.ir(I_REACTION)[0] in (R_PAUSED, R_STOPPED, R_STILL_MOVING)
+        wait_until(settled, 5, "the reaction")
+        last = [plc.joints()]
+        def at_rest():
+            now, last[0] = plc.joints(), last[0]
+            same = now == last[0]
+            last[0] = now
+            return same
+        wait_until(at_rest, 3, "the arm at rest", interval=0.05)
+        halts = [n for n in sim_names(sim) if n in ("pause_program", "stop_program")]
+        interp = plc.ir(I_INTERP_STATE)[0]
+        print("  %s, %d ms of braking: sent %s, reaction %d (seen %s), interp_state %d"
+              % ("program" if program else "joint_move", stop_ms, halts,
+                 plc.ir(I_REACTION)[0], sorted(seen), interp))
+        want = ["pause_program"] if program else ["stop_program"]
+        check(halts == want, "%d ms: sent %s" % (stop_ms, halts))
+        check(R_STILL_MOVING not in seen and R_ESCALATED not in seen,
+              "%d ms: reaction 5 or 6 seen: %s" % (stop_ms, sorted(seen)))
+        check(plc.ir(I_REACTION)[0] == (R_PAUSED if program else R_STOPPED),
+              "reaction %d" % plc.ir(I_REACTION)[0])
+        if program:
+            check(interp == 2, "%d ms: interp_state %d, not paused" % (stop_ms, interp))
+        plc.close()
+
+
+def test_braking_300_ms_is_stopping():
+    braking(300, True)
+    braking(300, False)
+
+
+def test_braking_500_ms_is_stopping():
+    braking(500, True)
+    braking(500, False)
+
 if __name__ == "__main__":
     run([test_motion_enable_drop_stops_a_joint_move, test_heartbeat_loss_stops_a_joint_move,
          test_motion_state_first_reading_and_arrival, test_stops_read_stopped_before_arriving,
          test_move_never_shown_times_out, test_robot_that_does_not_stop_is_escalated,
          test_robot_that_never_stops_reads_still_moving,
-         test_fault_with_a_move_waiting_in_the_queue])
+         test_fault_with_a_move_waiting_in_the_queue, test_braking_300_ms_is_stopping,
+         test_braking_500_ms_is_stopping])
