@@ -182,6 +182,9 @@ static void on_command_state(struct command_port *cp, enum robot_link_state stat
             check_policy(gw);
     } else {
         plc_commands_link_down(&gw->commands);
+        /* What the robot does with the moves it holds is unknown now (its
+         * handler pauses or stops them): the PLC learns it at once. */
+        motion_link_lost(&gw->motion, uv_now(gw->loop), "the command link was lost");
     }
     notify_change(gw);
 }
@@ -430,7 +433,7 @@ static bool send_policy_action(void *user, enum policy_action action,
     const char *name = action == POLICY_STOP ? "stop_program" : "pause_program";
     int rc = plc_commands_send_now(&gw->commands, name);
     if (rc == 0 && action == POLICY_STOP)
-        motion_stopped(&gw->motion, uv_now(gw->loop), "stopped by the network-exception policy");
+        motion_stop_sent(&gw->motion, uv_now(gw->loop), "stopped by the network-exception policy");
     if (rc == 0)
         log_warn("network exception: %s while the robot may move: sent %s%s; "
                  "commands are refused until the PLC resets the fault",
@@ -494,25 +497,29 @@ static void on_own_answered(void *user, const struct cmd_def *def, const struct 
 }
 
 /* Every command sent for a PLC: a move followed, a stop, a start's kind. */
-static void on_command_sent(void *user, const struct cmd_def *def, const char *json)
+static void on_command_sent(void *user, const struct cmd_def *def, const char *json,
+                            const void *tag)
 {
     struct gateway *gw = user;
     uint64_t now = uv_now(gw->loop);
 
     if (def && strcmp(def->name, "stop_program") == 0)
-        motion_stopped(&gw->motion, now, "stop_program from a PLC");
+        motion_stop_sent(&gw->motion, now, "stop_program from a PLC");
     if (policy_command_starts_motion(def))
         policy_start_kind(&gw->policy, !def || (def->flags & CMD_MOTION));
-    motion_sent(&gw->motion, now, json);
+    motion_sent(&gw->motion, now, json, tag);
 }
 
-static void on_command_answered(void *user, const struct cmd_def *def,
+static void on_command_answered(void *user, const struct cmd_def *def, const void *tag,
                                 const struct cmd_result *r)
 {
     struct gateway *gw = user;
-    if (def)
-        motion_answered(&gw->motion, uv_now(gw->loop), def->name, r->outcome == CMD_DONE,
-                        r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN);
+    uint64_t now = uv_now(gw->loop);
+    /* A stop ends the moves only once the robot accepted it. */
+    if (def && strcmp(def->name, "stop_program") == 0)
+        motion_stop_answered(&gw->motion, now, r->outcome == CMD_DONE);
+    motion_answered(&gw->motion, now, tag, r->outcome == CMD_DONE,
+                    r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN);
 }
 
 /* The policy saw the loop stand still: logged once per stall, as the

@@ -925,7 +925,7 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
     if (slot->state)
         set_result(slot, CMD_PENDING, 0, "");
     if (pc->cfg.sent)
-        pc->cfg.sent(pc->cfg.gate_user, def, json);
+        pc->cfg.sent(pc->cfg.gate_user, def, json, slot);
     /* The policy counts the robot as running from now on, until the
      * status can show it. */
     if (policy_command_starts_motion(def)) {
@@ -1087,7 +1087,7 @@ static void on_done(void *user, const struct cmd_result *r)
     if (slot->kind != PLC_SLOT_INFO)
         audit_command_done(pc->cfg.audit, slot, r);
     if (pc->cfg.answered && slot->kind != PLC_SLOT_INFO && slot->kind != PLC_SLOT_HANDLE)
-        pc->cfg.answered(pc->cfg.gate_user, slot->def, r);
+        pc->cfg.answered(pc->cfg.gate_user, slot->def, slot, r);
     slot->pending--;
     /* A later request's refusal wrote the result registers: they are its. */
     bool superseded = slot->superseded > 0;

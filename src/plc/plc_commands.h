@@ -87,10 +87,13 @@ struct plc_commands_config {
      * the table does not know); every result of a command or mailbox
      * (any outcome); every result of a command plc_commands_send_now sent.
      * For the motion tracker and the policy's check of its own action.
-     * Called with 'gate_user'; each may be NULL.
+     * 'tag' says whose: the same for a command's send and its result, and
+     * never shared by two commands pending at once. Called with
+     * 'gate_user'; each may be NULL.
      */
-    void (*sent)(void *user, const struct cmd_def *def, const char *json);
-    void (*answered)(void *user, const struct cmd_def *def, const struct cmd_result *r);
+    void (*sent)(void *user, const struct cmd_def *def, const char *json, const void *tag);
+    void (*answered)(void *user, const struct cmd_def *def, const void *tag,
+                     const struct cmd_result *r);
     void (*own_answered)(void *user, const struct cmd_def *def, const struct cmd_result *r);
     /* The audit trail: every command sent and its result (NULL: none). */
     struct audit *audit;

@@ -277,6 +277,8 @@ def test_stops_read_stopped_before_arriving():
         check(plc.joint_move([40, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
         wait_until(lambda: plc.joints()[0] > 2, 5, "the move to show")
         check(plc.pulse(C_STOP) == 0, "stop_program refused")
+        # 3 once the robot accepted the stop and the status shows the arm still.
+        wait_until(lambda: plc.state()[0] != MOVING, 2, "the stop to show")
         check(plc.state()[0] == STOPPED, "after stop_program: state %d" % plc.state()[0])
         # An emergency stop (SIGRTMIN) and a protective stop (SIGUSR2).
         for sig, what in ((signal.SIGUSR2, "protective stop"), (signal.SIGRTMIN, "emergency stop")):
@@ -393,6 +395,35 @@ def test_fault_with_a_move_waiting_in_the_queue():
         plc.close()
 
 
+def test_queued_move_reads_2_only_at_the_last_target():
+    """Out 60 deg and back, the second joint_move (through the exactly-once
+    mailbox) queued behind the first at the robot (manual 4.7): IR 5600
+    never reads 2 before the arm went out and came back; a stop the robot
+    refuses ends nothing."""
+    with running(SIM + ["--stop-time-ms", "200"], config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        check(plc.joint_move([60, 90, 90, 0, 90, 0], speed=120) == 0, "joint_move refused")
+        check(plc.regs(H_MAILBOX, [MAILBOX_JOINT_MOVE] + f32_regs(HOME + [120, 100, 0, 0, 0, 0])
+                       + [1]) == 0, "the move back refused")
+        t0, most, early = time.monotonic(), 0.0, None
+        while True:
+            state = plc.ir(I_MOTION_STATE)[0]
+            j1 = plc.joints()[0]
+            most = max(most, j1)
+            if state == ARRIVED and early is None and most < 59.9:
+                early = (time.monotonic() - t0, j1)
+            if state != MOVING:
+                break
+            check(time.monotonic() - t0 < 10, "the moves never ended")
+        print("  out 60 deg and back: state %d with joint 1 at %.2f deg, having reached %.2f deg"
+              "%s" % (state, j1, most, "" if early is None else
+                      "; 2 at %.0f ms with joint 1 at %.2f" % (1000 * early[0], early[1])))
+        check(early is None and state == ARRIVED and most >= 59.9 and abs(j1) <= JOINT_TOL,
+              "state %d at joint 1 %.2f deg, furthest %.2f deg" % (state, j1, most))
+        plc.close()
+
+
 def braking(stop_ms, program):
     """A program runs (or a joint_move at 60 deg/s) on a robot that brakes
     over 'stop_ms' when motion enable drops: one command (pause_program
@@ -460,4 +491,4 @@ if __name__ == "__main__":
          test_move_never_shown_times_out, test_robot_that_does_not_stop_is_escalated,
          test_robot_that_never_stops_reads_still_moving,
          test_fault_with_a_move_waiting_in_the_queue, test_braking_300_ms_is_stopping,
-         test_braking_500_ms_is_stopping])
+         test_braking_500_ms_is_stopping, test_queued_move_reads_2_only_at_the_last_target])
