@@ -424,6 +424,40 @@ def test_queued_move_reads_2_only_at_the_last_target():
         plc.close()
 
 
+def test_cut_command_link_mid_move_reads_at_once():
+    """The command link cut (an RST both ways, through a relay) while a
+    joint_move runs: IR 5600 leaves 1 within the link bound (1.5 s), not
+    after the move's bound (60 deg at 20 deg/s: 5.5 s)."""
+    from harness import Gateway, Sim
+    from test_plc_model import Ports, Relay
+    sim = Sim(*SIM)
+    relay = Relay(sim.command_port)
+    gw = None
+    try:
+        gw = Gateway(Ports(sim.status_port, relay.port), config())
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        check(plc.joint_move([60, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        wait_until(lambda: plc.joints()[0] > 5, 5, "the move to show")
+        cut = time.monotonic()
+        relay.cut()
+        wait_until(lambda: plc.state()[0] != MOVING, 8, "IR 5600 to leave 1")
+        took = time.monotonic() - cut
+        state = plc.state()[0]
+        print("  command link cut at joint 1 past 5 deg: IR 5600 %d after %.0f ms"
+              % (state, 1000 * took))
+        check(state == TIMED_OUT and took <= 1.5, "IR 5600 %d after %.2f s" % (state, took))
+        check(log_lines(gw, "the command link was lost"), "no log line saying why")
+        plc.close()
+    finally:
+        try:
+            if gw:
+                gw.stop()
+        finally:
+            relay.close()
+            sim.stop()
+
+
 def braking(stop_ms, program):
     """A program runs (or a joint_move at 60 deg/s) on a robot that brakes
     over 'stop_ms' when motion enable drops: one command (pause_program
@@ -491,4 +525,5 @@ if __name__ == "__main__":
          test_move_never_shown_times_out, test_robot_that_does_not_stop_is_escalated,
          test_robot_that_never_stops_reads_still_moving,
          test_fault_with_a_move_waiting_in_the_queue, test_braking_300_ms_is_stopping,
-         test_braking_500_ms_is_stopping, test_queued_move_reads_2_only_at_the_last_target])
+         test_braking_500_ms_is_stopping, test_queued_move_reads_2_only_at_the_last_target,
+         test_cut_command_link_mid_move_reads_at_once])
