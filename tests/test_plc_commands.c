@@ -997,6 +997,26 @@ static void halts_own_the_queue(void **state)
     assert_int_equal(result_state("stop_program"), CMD_DONE);
 }
 
+/* A number that is not finite never goes out: 1e999 reads as infinity. */
+static void json_mailbox_refuses_non_finite_numbers(void **state)
+{
+    (void)state;
+    struct plc_commands_config on = {.motion = true};
+    start(&on);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"joint_move\",\"jointPosition\":"
+                                  "[1e999,90,90,0,90,0],\"speed\":20}"),
+                     EX_INVALID);
+    assert_int_equal(gw_number("json.state"), CMD_INVALID);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"moveL\",\"cartPosition\":"
+                                  "[0,0,1,0,0,0],\"speed\":-1e999}"),
+                     EX_INVALID);
+    assert_int_equal(robot.sent_count, 0);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"joint_move\",\"jointPosition\":"
+                                  "[1e300,90,90,0,90,0],\"speed\":20}"),
+                     EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+}
+
 static void link_down(void **state)
 {
     (void)state;
@@ -1755,6 +1775,7 @@ int main(void)
         T(invalid_values),
         T(busy),
         T(halts_own_the_queue),
+        T(json_mailbox_refuses_non_finite_numbers),
         T(link_down),
         T(link_check_reply_shows_the_robot_state),
         T(information_after_replies),

@@ -513,6 +513,19 @@ static bool has_repeated_member(const cJSON *obj)
 }
 
 /* The JSON mailbox's command: the PLC's text, if it is a command. */
+/* Does 'item' hold a number that is not finite (1e999 reads as infinity),
+ * at any depth? The robot's reading of it, and every bound computed from
+ * it, would be undefined. */
+static bool has_non_finite(const cJSON *item)
+{
+    if (cJSON_IsNumber(item))
+        return !isfinite(item->valuedouble);
+    for (const cJSON *c = item ? item->child : NULL; c; c = c->next)
+        if (has_non_finite(c))
+            return true;
+    return false;
+}
+
 static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd_def **def,
                                  enum build_result *result)
 {
@@ -836,6 +849,10 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
                             act == ACT_MAILBOX && !def ? "unknown command code"
                             : act == ACT_JSON          ? "not a JSON command with a cmdName"
                                                        : "invalid parameters");
+    if (has_non_finite(cmd)) {
+        cJSON_Delete(cmd);
+        return refuse(pc, slot, EX_INVALID, CMD_INVALID, "a number is not finite");
+    }
     if (act == ACT_JSON && !def && !pc->cfg.motion)
         ex = refuse_unknown_json_command(pc, cmd);
     else
