@@ -399,7 +399,11 @@ static void advance_move(struct sim_robot *r, double dt)
         r->halting = SIM_HALT_NONE;
         r->path_speed = 0;
     } else if (r->halting == SIM_HALT_STOP && r->path_speed <= 0) {
+        /* At rest: the move ends here. Moves accepted while it braked
+         * (after the stop) stay queued and run next. */
+        unsigned queued = r->queued_count;
         halt_arm(r);
+        r->queued_count = queued;
     }
 }
 

@@ -321,6 +321,18 @@ def test_brakes_and_answers_in_order():
         check(10 <= pos - at_stop <= 14, "braked %.2f deg, 60 deg/s over 0.4 s is 12" %
               (pos - at_stop))
         check(d["inpos"] and pos < last + 30, "the move went on after its stop")
+        # A move accepted while the arm brakes runs once it is at rest.
+        check(r.call("joint_move", relFlag=1, jointPosition=[40, 0, 0, 0, 0, 0], speed=60,
+                     accel=100)["errorCode"] == "0", "joint_move")
+        for _ in range(15):
+            docs.next()
+        check(r.call("stop_program")["errorCode"] == "0", "stop_program")
+        braking_at = docs.next()["joint_actual_position"][0]
+        check(r.call("joint_move", relFlag=0, jointPosition=[-10, 90, 90, 0, 90, 0], speed=60,
+                     accel=100)["errorCode"] == "0", "joint_move while braking")
+        check(docs.next()["joint_actual_position"][0] > braking_at, "not braking")
+        wait_until(lambda: abs(docs.next()["joint_actual_position"][0] + 10) < 1e-6, 10,
+                   "the move accepted while braking to run")
         # A program paused slows down to rest, and stays resumable.
         check(r.call("load_program", programName="demo.jks")["errorCode"] == "0", "load")
         check(r.call("play_program")["errorCode"] == "0", "play")
