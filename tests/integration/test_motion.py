@@ -510,20 +510,29 @@ def braking(stop_ms, program):
         plc.close()
 
 
-def test_braking_300_ms_is_stopping():
-    braking(300, True)
-    braking(300, False)
-
-
-def test_braking_500_ms_is_stopping():
-    braking(500, True)
-    braking(500, False)
+def test_braking_is_stopping():
+    """300 and 500 ms of braking, a program and a move: the four cells run
+    side by side (each its own jakasim and jakagw)."""
+    import threading
+    errors = []
+    def one(stop_ms, program):
+        try:
+            braking(stop_ms, program)
+        except Exception as e:  # reported below, with which case
+            errors.append("%d ms, %s: %s" % (stop_ms, "program" if program else "move", e))
+    threads = [threading.Thread(target=one, args=(ms, prog))
+               for ms in (300, 500) for prog in (True, False)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    check(not errors, "; ".join(errors))
 
 if __name__ == "__main__":
     run([test_motion_enable_drop_stops_a_joint_move, test_heartbeat_loss_stops_a_joint_move,
          test_motion_state_first_reading_and_arrival, test_stops_read_stopped_before_arriving,
          test_move_never_shown_times_out, test_robot_that_does_not_stop_is_escalated,
          test_robot_that_never_stops_reads_still_moving,
-         test_fault_with_a_move_waiting_in_the_queue, test_braking_300_ms_is_stopping,
-         test_braking_500_ms_is_stopping, test_queued_move_reads_2_only_at_the_last_target,
+         test_fault_with_a_move_waiting_in_the_queue, test_braking_is_stopping,
+         test_queued_move_reads_2_only_at_the_last_target,
          test_cut_command_link_mid_move_reads_at_once])
