@@ -270,6 +270,36 @@ def test_owner_is_a_plc_not_a_socket():
         stop(sim, gw, reader, writer)
 
 
+def test_refused_write_leaves_the_owners_parameters():
+    """A write refused for who sent it changes nothing: a client outside
+    write_allow, and another connection of the owner's host, each write one
+    register of the joint_move block (01); the owner's trigger still sends
+    the target it wrote."""
+    sim, gw = started(CONTRACT + "[modbus]\nwrite_allow = 127.0.0.1\n")
+    owner = intruder = second = None
+    try:
+        owner = Plc(gw)
+        owner.ready()
+        owner.heartbeat()
+        owner.power_and_enable()
+        target = [0, 90, 90, 0, 90, 0]  # where the arm is: nothing moves
+        check(owner.regs(H_JOINT_MOVE, f32_regs(target + [20, 100]) + [0]) == 0, "the block")
+        intruder = ModbusPlc(gw.modbus_port, source="127.0.0.2")
+        second = Plc(gw)
+        for who, plc in (("outside write_allow", intruder), ("not the owner", second)):
+            ex = plc.reg(H_JOINT_MOVE + 4, 0)
+            print("  a client %s writes HR %d: exception %02x" % (who, H_JOINT_MOVE + 4, ex))
+            check(ex == EX_NOT_PERMITTED, "%s: exception %02x" % (who, ex))
+        ex = owner.pulse(C_JOINT_MOVE)
+        r = owner.result("joint_move")
+        print("  the owner's trigger after them: exception %02x, %r" % (ex, r))
+        check(ex == 0, "the owner's trigger refused %02x: %r" % (ex, r))
+        owner.wait_done("joint_move")
+        check(sent(sim, "joint_move")[-1]["jointPosition"] == target, "the target sent")
+    finally:
+        stop(sim, gw, *[p for p in (owner, intruder, second) if p])
+
+
 def status_json(port):
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
     try:
@@ -391,6 +421,7 @@ if __name__ == "__main__":
          test_movel_block_in_one_fc16_and_no_move_to_a_target_never_written,
          test_mailbox_sequence_alone_is_refused,
          test_owner_is_a_plc_not_a_socket,
+         test_refused_write_leaves_the_owners_parameters,
          test_no_motion_before_the_heartbeat,
          test_json_refusal_clears_the_reply_and_reasons_fit,
          test_output_coils_read_back_where_the_map_says])
