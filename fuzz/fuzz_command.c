@@ -24,8 +24,9 @@
  *   queued behind it, and restarts the link;
  * - submitting returns -ENOTCONN while down, -EBUSY when 64 are queued; a
  *   done callback never runs inside cmd_queue_submit, and inside
- *   cmd_queue_submit_urgent only for the queued command it displaces
- *   (not sent); a command written finishes answered or with its outcome
+ *   cmd_queue_submit_urgent only for the queued command it displaces and
+ *   the unwritten moves it takes out (not sent); after a safety action no
+ *   move never written is left in the queue; a command written finishes answered or with its outcome
  *   unknown (timeout, link down), one never written as not sent; every accepted command's done callback runs exactly once,
  *   at the latest when the queue is freed, and the queue never holds more
  *   than its capacity.
@@ -51,6 +52,7 @@ struct job {
     unsigned id;
     bool accepted;
     bool urgent;
+    bool moves; /* a command that can start motion (joint_move) */
     unsigned done_calls;
     unsigned sends;
     enum cmd_outcome outcome;
@@ -68,6 +70,7 @@ static uint64_t now_ms;
 static int fail_next_send;
 static int in_submit;     /* 1: cmd_queue_submit, 2: cmd_queue_submit_urgent */
 static unsigned displaced; /* done callbacks inside the current urgent submit */
+static unsigned taken_out; /* of them, motion the safety action took out */
 static bool dropped_inside; /* a done callback dropped the link inside it */
 static int submitting = -1; /* the job inside its submit call, not queued yet */
 /* While the robot's reply is being handed over: the job it must finish. */
@@ -80,7 +83,7 @@ static int submit(int child, bool urgent);
 static int fake_send(void *io, const char *data, size_t size)
 {
     unsigned id;
-    char text[32];
+    char text[96];
     (void)io;
     FUZZ_REQUIRE(connected, "sent while the link is down");
     if (fail_next_send) {
@@ -91,7 +94,8 @@ static int fake_send(void *io, const char *data, size_t size)
     FUZZ_REQUIRE(size < sizeof(text), "sent %zu bytes, never submitted", size);
     memcpy(text, data, size);
     text[size] = '\0';
-    FUZZ_REQUIRE(sscanf(text, "{\"job\":%u}", &id) == 1 && id < job_count,
+    const char *job = strstr(text, ",\"job\":");
+    FUZZ_REQUIRE(job && sscanf(job, ",\"job\":%u}", &id) == 1 && id < job_count,
             "sent bytes that were never submitted: %s", text);
     struct job *j = &jobs[id];
     FUZZ_REQUIRE(j->accepted && j->done_calls == 0, "job %u sent after it finished", id);
@@ -125,7 +129,10 @@ static void link_down(void)
     cmd_queue_set_connected(&queue, false);
     FUZZ_REQUIRE(wire_count == 0, "job %u still unanswered after the link went down", wire[0]);
     for (unsigned k = 0; k < job_count; k++)
-        FUZZ_REQUIRE(!jobs[k].accepted || jobs[k].done_calls || (int)k == submitting,
+        FUZZ_REQUIRE(!jobs[k].accepted || jobs[k].done_calls || (int)k == submitting ||
+                         /* taken out by the safety action being submitted:
+                          * told right after this callback */
+                         (in_submit == 2 && jobs[k].moves && !jobs[k].sends),
                 "job %u still waits after the link went down", k);
 }
 
@@ -151,7 +158,13 @@ static void on_done(void *user, const struct cmd_result *r)
                           : r->outcome == CMD_NOT_SENT,
             "job %u, written %u times, finished with outcome %d", j->id, j->sends, r->outcome);
     FUZZ_REQUIRE(memchr(r->error_msg, '\0', sizeof(r->error_msg)), "errorMsg not terminated");
-    if (in_submit == 2 && r->outcome == CMD_NOT_SENT && j->sends == 0 && !dropped_inside)
+    bool took_place = strcmp(r->error_msg, "not sent: a safety action took its place") == 0;
+    if (in_submit == 2 && r->outcome == CMD_NOT_SENT && j->sends == 0 && !dropped_inside &&
+        took_place) {
+        /* Motion never follows a safety action. */
+        FUZZ_REQUIRE(j->moves, "job %u, no motion, taken out by a safety action", j->id);
+        taken_out++;
+    } else if (in_submit == 2 && r->outcome == CMD_NOT_SENT && j->sends == 0 && !dropped_inside)
         displaced++; /* made room for the safety action */
     else if (in_submit == 2)
         FUZZ_REQUIRE(dropped_inside && (r->outcome == CMD_LINK_DOWN || r->outcome == CMD_NOT_SENT),
@@ -180,22 +193,26 @@ static void on_done(void *user, const struct cmd_result *r)
 
 static int submit(int child, bool urgent)
 {
-    char json[32];
+    char json[64];
     if (job_count == MAX_JOBS)
         return -ENOSPC;
     struct job *j = &jobs[job_count];
-    *j = (struct job){.id = job_count, .child = child, .urgent = urgent};
-    int n = snprintf(json, sizeof(json), "{\"job\":%u}", job_count);
+    /* Every other one a move: what a safety action must take out. */
+    bool moves = !urgent && job_count % 2 == 1;
+    *j = (struct job){.id = job_count, .child = child, .urgent = urgent, .moves = moves};
+    int n = snprintf(json, sizeof(json), "{\"cmdName\":\"%s\",\"job\":%u}",
+                     urgent ? "stop_program" : moves ? "joint_move" : "set_digital_output",
+                     job_count);
     unsigned before = cmd_queue_pending(&queue);
     bool was_connected = connected;
     int outer = in_submit;
-    unsigned outer_displaced = displaced;
+    unsigned outer_displaced = displaced, outer_taken = taken_out;
     bool outer_dropped = dropped_inside;
     int outer_submitting = submitting;
     job_count++;
     j->accepted = true; /* provisionally: it is written inside */
     in_submit = urgent ? 2 : 1;
-    displaced = 0;
+    displaced = taken_out = 0;
     dropped_inside = false;
     submitting = (int)j->id;
     int rc = urgent ? cmd_queue_submit_urgent(&queue, json, (size_t)n, on_done, j)
@@ -221,11 +238,20 @@ static int submit(int child, bool urgent)
     if (urgent && rc == 0)
         FUZZ_REQUIRE(j->sends == 1, "safety action %u not written at once", j->id);
     if (urgent && was_connected)
-        FUZZ_REQUIRE(displaced <= 1 && (displaced == 0 || before >= CMD_QUEUE_CAPACITY),
-                "a safety action displaced %u commands with %u queued", displaced, before);
+        FUZZ_REQUIRE(displaced <= 1 && (displaced == 0 || before - taken_out >= CMD_QUEUE_CAPACITY),
+                "a safety action displaced %u commands with %u queued, %u taken out", displaced,
+                before, taken_out);
+    /* Not when nested in another's callbacks: the moves that one took out
+     * are told one after another, some still untold now. */
+    if (urgent && rc == 0 && !dropped_inside && outer == 0)
+        for (unsigned i = 0; i < j->id; i++) /* later ones came after it */
+            FUZZ_REQUIRE(!(jobs[i].accepted && jobs[i].moves && !jobs[i].sends &&
+                           !jobs[i].done_calls),
+                    "job %u, a move never written, still queued after a safety action", i);
     /* Unless a done callback inside the call dropped the link (fails all). */
     FUZZ_REQUIRE(j->done_calls == 0 || dropped_inside, "job %u finished inside its submit", j->id);
     displaced = outer_displaced;
+    taken_out = outer_taken;
     dropped_inside = outer_dropped || dropped_inside;
     return rc;
 }

@@ -49,7 +49,7 @@ def roff_word(text):
     return text.replace("\\", "\\e").replace("-", "\\-")
 
 
-OPTION = re.compile(r"^  (?:(-\w), |    )?(--[a-z][\w-]*)(?: ([A-Z]+))?\s{2,}(\S.*)$")
+OPTION = re.compile(r"^  (?:(-\w), |    )?(--[a-z][\w-]*)(?: ([A-Z]+(?::[A-Z]+)?))?\s{2,}(\S.*)$")
 CONTINUATION = re.compile(r"^\s{20,}(\S.*)$")
 
 

@@ -40,6 +40,8 @@
 #include <uv.h>
 
 #define MAX_QUEUED_STATUS (1024 * 1024)
+/* Commands --reply-delay may name. */
+#define SIM_REPLY_DELAYS 8
 
 struct sim_options {
     const char *bind;
@@ -64,6 +66,13 @@ struct sim_options {
     const char *ignore_command;
     unsigned reply_delay_ms;
     const char *delay_command; /* delay only this command's reply */
+    /* --reply-delay CMD:MS: this command's reply, MS ms late. */
+    struct reply_delay {
+        char name[64];
+        unsigned ms;
+    } delays[SIM_REPLY_DELAYS];
+    unsigned delay_count;
+    unsigned stop_time_ms; /* --stop-time-ms: a stop from full speed */
     bool log_commands;
     const char *tls_cert, *tls_key; /* both ports over TLS */
     /* A live command client sends something at least this often (0: a
@@ -93,6 +102,9 @@ struct peer {
      * nothing: the later of its last bytes and our last reply. */
     uint64_t quiet_since_ms;
     unsigned replies_owed; /* held by --reply-delay-ms */
+    /* The last held reply's time: a controller answers in order, so a
+     * reply due sooner waits behind it. */
+    uint64_t held_until_ms;
     uv_timer_t silence;    /* command clients: --link-check-ms + timeLimit */
     int open_handles;      /* the peer is freed when the last one closes */
     struct peer *next;
@@ -558,6 +570,46 @@ static void arm_handler(struct peer *p)
                  held_back(suppressed));
 }
 
+/* How late command 'name''s reply goes: --reply-delay's entry for it, else
+ * --reply-delay-ms (for every command, or --delay-command's only). */
+static unsigned reply_delay_of(const struct sim_options *o, const char *name)
+{
+    for (unsigned i = 0; i < o->delay_count; i++)
+        if (strcmp(o->delays[i].name, name) == 0)
+            return o->delays[i].ms;
+    if (o->reply_delay_ms && (!o->delay_command || strcmp(o->delay_command, name) == 0))
+        return o->reply_delay_ms;
+    return 0;
+}
+
+/* Holds a reply until 'due_ms' (loop time). */
+static void hold_reply(struct peer *p, const char *name, const char *data, size_t size,
+                       uint64_t due_ms)
+{
+    struct sim *sim = p->sim;
+    struct delayed_reply *d = malloc(sizeof(*d) + size);
+
+    if (!d) {
+        log_warn("jakasim: out of memory holding a reply; closing the client");
+        lose_peer(p, "out of memory");
+        return;
+    }
+    d->sim = sim;
+    d->peer_id = p->id;
+    snprintf(d->name, sizeof(d->name), "%s", name);
+    d->next = sim->delayed;
+    sim->delayed = d;
+    d->size = size;
+    memcpy(d->data, data, size);
+    uv_timer_init(sim->loop, &d->timer);
+    d->timer.data = d;
+    /* Timers due at the same time run in the order started: in order. */
+    uv_timer_start(&d->timer, on_delayed_reply, due_ms - uv_now(sim->loop), 0);
+    p->held_until_ms = due_ms;
+    p->replies_owed++;
+    peer_alive(p);
+}
+
 static void on_command_object(void *user, enum framer_event ev, const char *data,
                               size_t size)
 {
@@ -587,7 +639,6 @@ static void on_command_object(void *user, enum framer_event ev, const char *data
             log_info("jakasim: command %.*s -> %s", (int)size, data,
                      answer ? reply.buf : "(no reply)");
     }
-    const char *delayed = sim->opt.delay_command;
     if (!answer) {
         /* The client waits for a reply that never comes, sending nothing:
          * only its reply timeout, a close, can end that. */
@@ -595,23 +646,13 @@ static void on_command_object(void *user, enum framer_event ev, const char *data
         peer_alive(p);
     }
     if (answer && !reply.failed) {
-        if (sim->opt.reply_delay_ms && (!delayed || strcmp(delayed, name) == 0)) {
-            struct delayed_reply *d = malloc(sizeof(*d) + reply.len);
-            if (d) {
-                d->sim = sim;
-                d->peer_id = p->id;
-                snprintf(d->name, sizeof(d->name), "%s", name);
-                d->next = sim->delayed;
-                sim->delayed = d;
-                d->size = reply.len;
-                memcpy(d->data, reply.buf, reply.len);
-                uv_timer_init(sim->loop, &d->timer);
-                d->timer.data = d;
-                uv_timer_start(&d->timer, on_delayed_reply, sim->opt.reply_delay_ms, 0);
-                p->replies_owed++;
-                peer_alive(p);
-            }
-        } else {
+        uint64_t now = uv_now(sim->loop);
+        uint64_t due = now + reply_delay_of(&sim->opt, name);
+        if (due < p->held_until_ms)
+            due = p->held_until_ms; /* in order, behind a held reply */
+        if (due > now)
+            hold_reply(p, name, reply.buf, reply.len, due);
+        else {
             send_to(p, reply.buf, reply.len);
             peer_alive(p);
         }
@@ -894,6 +935,11 @@ static void usage(FILE *out)
         "  --ignore-command NAME  never answer NAME (\"all\": any command)\n"
         "  --reply-delay-ms N     answer commands after N ms\n"
         "  --delay-command NAME   delay only NAME's replies (with --reply-delay-ms)\n"
+        "  --reply-delay CMD:MS   answer command CMD after MS ms (repeatable, up to 8);\n"
+        "                         replies still leave in the order the commands came\n"
+        "Motion:\n"
+        "  --stop-time-ms N       a stop from a move's full speed takes N ms; moves ramp\n"
+        "                         up and down at that rate (default 0: at once)\n"
         "\nSignals: SIGUSR1 toggles a silent status stream (connections kept),\n"
         "SIGUSR2 toggles a protective stop, SIGRTMIN an emergency stop.\n");
 }
@@ -908,6 +954,27 @@ static int parse_uint(const char *flag, const char *text, unsigned max, unsigned
         return -1;
     }
     *out = (unsigned)v;
+    return 0;
+}
+
+/* --reply-delay CMD:MS */
+static int parse_reply_delay(const char *text, struct sim_options *o)
+{
+    const char *colon = strrchr(text, ':');
+
+    if (!colon || colon == text || (size_t)(colon - text) >= sizeof(o->delays[0].name)) {
+        log_plain("jakasim: --reply-delay: '%s' must be CMD:MS", text);
+        return -1;
+    }
+    if (o->delay_count == SIM_REPLY_DELAYS) {
+        log_plain("jakasim: --reply-delay: at most %d commands", SIM_REPLY_DELAYS);
+        return -1;
+    }
+    struct reply_delay *d = &o->delays[o->delay_count];
+    if (parse_uint("reply-delay", colon + 1, 600000, &d->ms))
+        return -1;
+    snprintf(d->name, sizeof(d->name), "%.*s", (int)(colon - text), text);
+    o->delay_count++;
     return 0;
 }
 
@@ -942,6 +1009,8 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         {"link-check-ms", required_argument, NULL, 'L'},
         {"move-lag", required_argument, NULL, 'M'},
         {"fail-times", required_argument, NULL, 'n'},
+        {"reply-delay", required_argument, NULL, 'R'},
+        {"stop-time-ms", required_argument, NULL, 'B'},
         {"help", no_argument, NULL, 'h'},
         {NULL, 0, NULL, 0},
     };
@@ -987,6 +1056,8 @@ static int parse_options(int argc, char **argv, struct sim_options *o)
         case 'L': if (parse_uint("link-check-ms", optarg, 600000, &o->link_check_ms)) return -1; break;
         case 'M': if (parse_uint("move-lag", optarg, 1000, &o->move_lag)) return -1; break;
         case 'n': if (parse_uint("fail-times", optarg, 1000000, &o->fail_times)) return -1; break;
+        case 'R': if (parse_reply_delay(optarg, o)) return -1; break;
+        case 'B': if (parse_uint("stop-time-ms", optarg, 60000, &o->stop_time_ms)) return -1; break;
         case 'h': usage(stdout); exit(0);
         case ':':
             log_plain("jakasim: %s needs a value; see jakasim --help", argv[optind - 1]);
@@ -1055,6 +1126,7 @@ int main(int argc, char **argv)
     sim.robot.fail_message = sim.opt.fail_message;
     sim.robot.fail_times = sim.opt.fail_times;
     sim.robot.move_lag_ticks = sim.opt.move_lag;
+    sim.robot.stop_time_s = sim.opt.stop_time_ms / 1000.0;
     if (sim.opt.auto_run) {
         sim.robot.powered_on = sim.robot.enabled = true;
         snprintf(sim.robot.program, sizeof(sim.robot.program), "demo.jks");

@@ -205,13 +205,43 @@ static double pose_distance(const double a[6], const double b[6])
     return fmax(sqrt(mm), deg);
 }
 
-/* The arm holds where it is: no move, none waiting to start. */
+/* The arm holds where it is at once (power gone, an emergency stop): no
+ * move, none waiting to start. */
 static void halt_arm(struct sim_robot *r)
 {
     r->moving = false;
     r->linear = false;
     r->queued_count = 0;
+    r->halting = SIM_HALT_NONE;
+    r->path_speed = 0;
+    r->braking = false;
     memcpy(r->joint_target, r->joints, sizeof(r->joints));
+    memcpy(r->joint_cmd, r->joints, sizeof(r->joints));
+}
+
+/* A stop of a move: nothing queued starts, and the move under way slows
+ * down to a standstill where it is (at once with no stopping time). */
+static void stop_arm(struct sim_robot *r)
+{
+    r->queued_count = 0;
+    if (r->stop_time_s <= 0 || !r->moving || r->path_speed <= 0) {
+        halt_arm(r);
+        return;
+    }
+    r->halting = SIM_HALT_STOP;
+}
+
+/* A program stopped or paused: every joint slows down from its speed of
+ * the last tick to 0 within the stopping time (at once with none). */
+static void brake_program(struct sim_robot *r)
+{
+    memcpy(r->joint_target, r->joints, sizeof(r->joints));
+    memcpy(r->joint_cmd, r->joints, sizeof(r->joints));
+    if (r->stop_time_s <= 0)
+        return;
+    memcpy(r->brake_vel, r->joint_vel, sizeof(r->brake_vel));
+    r->brake_total_s = r->brake_left_s = r->stop_time_s;
+    r->braking = true;
 }
 
 /* The first move queued starts now. */
@@ -230,6 +260,8 @@ static void start_next_move(struct sim_robot *r)
         r->lin_done = 0;
     }
     r->moving = true;
+    r->path_speed = 0;
+    r->halting = SIM_HALT_NONE;
     r->queued_count--;
     memmove(&r->queued[0], &r->queued[1], r->queued_count * sizeof(r->queued[0]));
 }
@@ -267,6 +299,46 @@ static bool move_joints(struct sim_robot *r, double dt)
 }
 
 /*
+ * The running move's speed for the next tick: up towards its speed times
+ * the rapid rate (down to 0 while halting), never faster than it can still
+ * come to rest within 'remaining', changing by at most the ramp's rate.
+ */
+static double ramp_speed(struct sim_robot *r, double remaining, double dt)
+{
+    double want = r->halting != SIM_HALT_NONE ? 0 : r->joint_speed * r->rapid_rate;
+
+    if (r->stop_time_s <= 0)
+        return want;
+    double accel = r->joint_speed / r->stop_time_s;
+    double v = r->path_speed;
+    v = v < want ? fmin(v + accel * dt, want) : fmax(v - accel * dt, want);
+    return fmin(v, sqrt(2 * accel * remaining));
+}
+
+/* A joint move: every joint on its way at once, all arriving together
+ * (a straight line in joint space), the largest turn at the ramped speed. */
+static bool move_joints_ramped(struct sim_robot *r, double dt)
+{
+    double before[SIM_JOINTS], remaining = 0;
+
+    memcpy(before, r->joints, sizeof(before));
+    for (int i = 0; i < SIM_JOINTS; i++)
+        remaining = fmax(remaining, fabs(r->joint_target[i] - r->joints[i]));
+    if (remaining <= 1e-9) {
+        track_motion(r, before, dt);
+        return true;
+    }
+    r->path_speed = ramp_speed(r, remaining, dt);
+    double step = fmin(r->path_speed * dt, remaining);
+    for (int i = 0; i < SIM_JOINTS; i++)
+        r->joints[i] = step >= remaining
+                           ? r->joint_target[i]
+                           : r->joints[i] + (r->joint_target[i] - r->joints[i]) * step / remaining;
+    track_motion(r, before, dt);
+    return step >= remaining;
+}
+
+/*
  * moveL: the TCP goes along the straight line at the move's speed (mm/s,
  * or deg/s for a turn longer in degrees than the travel in mm), every
  * angle turning in proportion; the joints are the inverse solution of each
@@ -278,7 +350,8 @@ static bool move_linear(struct sim_robot *r, double dt)
     double frac;
 
     memcpy(before, r->joints, sizeof(before));
-    r->lin_done += r->joint_speed * r->rapid_rate * dt;
+    r->path_speed = ramp_speed(r, fmax(r->lin_length - r->lin_done, 0), dt);
+    r->lin_done += r->path_speed * dt;
     frac = r->lin_length <= 0 || r->lin_done >= r->lin_length ? 1 : r->lin_done / r->lin_length;
     for (int i = 0; i < 3; i++)
         pose[i] = r->lin_start[i] + (r->lin_target[i] - r->lin_start[i]) * frac;
@@ -297,6 +370,43 @@ static bool move_linear(struct sim_robot *r, double dt)
     return true;
 }
 
+/* One tick of a program's braking: v(t) = v0 (1 - t / T), integrated. */
+static void brake_tick(struct sim_robot *r, double dt)
+{
+    double before[SIM_JOINTS];
+    double total = r->brake_total_s, t1 = total - r->brake_left_s;
+    double t2 = fmin(total, t1 + dt);
+    double share = (t2 - t1) - (t2 * t2 - t1 * t1) / (2 * total);
+
+    memcpy(before, r->joints, sizeof(before));
+    for (int i = 0; i < SIM_JOINTS; i++)
+        r->joints[i] += r->brake_vel[i] * share;
+    track_motion(r, before, dt);
+    r->brake_left_s -= dt;
+    if (r->brake_left_s <= 0) {
+        r->braking = false;
+        memcpy(r->joint_target, r->joints, sizeof(r->joint_target));
+        memcpy(r->joint_cmd, r->joints, sizeof(r->joint_cmd));
+    }
+}
+
+/* A move under way for one tick; a stop ends it once it stands still. */
+static void advance_move(struct sim_robot *r, double dt)
+{
+    if (r->linear ? move_linear(r, dt) : move_joints_ramped(r, dt)) {
+        r->moving = false;
+        r->linear = false;
+        r->halting = SIM_HALT_NONE;
+        r->path_speed = 0;
+    } else if (r->halting == SIM_HALT_STOP && r->path_speed <= 0) {
+        /* At rest: the move ends here. Moves accepted while it braked
+         * (after the stop) stay queued and run next. */
+        unsigned queued = r->queued_count;
+        halt_arm(r);
+        r->queued_count = queued;
+    }
+}
+
 void sim_robot_tick(struct sim_robot *r, double dt)
 {
     if (r->interp_state != 2)
@@ -304,14 +414,23 @@ void sim_robot_tick(struct sim_robot *r, double dt)
     r->uptime_s += dt;
     memset(r->joint_vel, 0, sizeof(r->joint_vel));
     r->tcp_speed = 0;
-    /* A stop of any kind ends a move outside a program where the arm is. */
-    if ((!r->enabled || r->emergency_stop || r->protective_stop) &&
-        (r->moving || r->queued_count > 0) && r->interp_state != 3)
+    /* Power gone or an emergency stop ends a move outside a program where
+     * the arm is; a protective stop brings it to a standstill. */
+    if ((!r->enabled || r->emergency_stop) && (r->moving || r->queued_count > 0) &&
+        r->interp_state != 3)
         halt_arm(r);
+    if (r->protective_stop && (r->moving || r->queued_count > 0) && r->interp_state != 3 &&
+        r->halting != SIM_HALT_STOP)
+        stop_arm(r);
     if (!r->enabled) {
         r->moving = false;
+        r->braking = false;
         if (r->interp_state == 3 || r->interp_state == 2)
             r->interp_state = 0;
+        return;
+    }
+    if (r->braking) {
+        brake_tick(r, dt);
         return;
     }
     if (r->interp_state == 3) {
@@ -325,8 +444,12 @@ void sim_robot_tick(struct sim_robot *r, double dt)
         memcpy(r->joint_cmd, r->joint_target, sizeof(r->joint_cmd));
         return;
     }
-    if (r->interp_state == 2)
-        return; /* paused: nothing moves, nothing starts */
+    if (r->interp_state == 2) {
+        /* Paused: nothing starts; a paused move slows down to rest. */
+        if (r->paused_move && r->moving && r->path_speed > 0)
+            advance_move(r, dt);
+        return;
+    }
     /* The next move starts once the arm is free and its lag has passed;
      * every queued move's lag runs meanwhile. */
     if (!r->moving && r->queued_count > 0 && r->queued[0].lag_left == 0)
@@ -334,10 +457,8 @@ void sim_robot_tick(struct sim_robot *r, double dt)
     for (unsigned i = 0; i < r->queued_count; i++)
         if (r->queued[i].lag_left > 0)
             r->queued[i].lag_left--;
-    if (r->moving && (r->linear ? move_linear(r, dt) : move_joints(r, dt))) {
-        r->moving = false;
-        r->linear = false;
-    }
+    if (r->moving)
+        advance_move(r, dt);
 }
 
 /* ---- commands ---- */
@@ -595,7 +716,7 @@ static bool cmd_jog(struct command_ctx *c)
     if (mode < 0 || mode > 3 || jnum < 0 || jnum > 5)
         return call_failed(c);
     if (mode == 0) {
-        halt_arm(c->r);
+        stop_arm(c->r);
         return reply_ok(c);
     }
     if (coord != 1)
@@ -723,6 +844,7 @@ static bool cmd_pause_program(struct command_ctx *c)
     if (c->r->interp_state != 3)
         return reply_refused(c, "no program is running");
     c->r->interp_state = 2;
+    brake_program(c->r);
     return reply_ok(c);
 }
 
@@ -730,18 +852,31 @@ static bool cmd_resume_program(struct command_ctx *c)
 {
     if (c->r->interp_state != 2)
         return reply_refused(c, "no program is paused");
-    /* A move paused on a lost link goes on to its target. */
+    /* A move paused on a lost link goes on to its target, from rest. */
     c->r->interp_state = c->r->paused_move ? 0 : 3;
     c->r->paused_move = false;
+    c->r->braking = false;
+    if (c->r->halting == SIM_HALT_PAUSE)
+        c->r->halting = SIM_HALT_NONE;
     return reply_ok(c);
 }
 
-/* The arm holds where it is: no program, no move. */
+/* The arm comes to rest where it is: no program, no move. */
 static void stop_motion(struct sim_robot *r)
 {
+    bool program = r->interp_state == 3 || (r->interp_state == 2 && !r->paused_move);
+
     r->interp_state = 0;
     r->paused_move = false;
-    halt_arm(r);
+    if (program) {
+        bool braking = r->braking;
+        halt_arm(r);
+        r->braking = braking;
+        if (!braking)
+            brake_program(r);
+    } else {
+        stop_arm(r);
+    }
 }
 
 static bool cmd_stop_program(struct command_ctx *c)
@@ -1062,6 +1197,12 @@ void sim_robot_network_lost(struct sim_robot *r, enum sim_net_motion motion, cha
     if (motion == SIM_NET_PAUSE) {
         if (!r->moving && r->queued_count > 0)
             start_next_move(r); /* paused as it starts */
+        if (program)
+            brake_program(r);
+        else if (r->stop_time_s > 0)
+            r->halting = SIM_HALT_PAUSE;
+        else
+            r->path_speed = 0;
         r->interp_state = 2;
         r->paused_move = move;
     } else if (motion == SIM_NET_STOP) {

@@ -753,6 +753,57 @@ static void urgent_action_goes_out_at_once(void **state)
     assert_int_equal(link.restarts, 1);
 }
 
+/*
+ * A safety action owns the queue: every unwritten command that can start
+ * or continue motion (a move, a program start or resume, a name the table
+ * does not know) is taken out and fails "not sent: a safety action took
+ * its place"; the rest waits behind the action. When the action cannot be
+ * written, the queue stays exactly as it was.
+ */
+static void urgent_action_takes_out_what_moves(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"get_version\"}"};
+    struct job b = {.json = "{\"cmdName\":\"joint_move\"}"};
+    struct job c = {.json = "{\"cmdName\":\"set_digital_output\"}"};
+    struct job d = {.json = "{\"cmdName\":\"resume_program\"}"};
+    struct job e = {.json = "{\"cmdName\":\"Joint_Move\"}"};
+    struct job f = {.json = "{\"cmdName\":\"power_off\"}"};
+    struct job u = {.json = "{\"cmdName\":\"stop_program\"}"};
+    struct job *queued[] = {&a, &b, &c, &d, &e, &f};
+
+    for (unsigned i = 0; i < 6; i++)
+        assert_int_equal(test_submit(queued[i]), 0);
+    assert_int_equal(link.sent_count, 1);
+    /* Refused by the link: nothing changes, nobody is told. */
+    link.fail_sends = 1;
+    link.send_error = -EPIPE;
+    assert_int_equal(cmd_queue_submit_urgent(&queue, u.json, strlen(u.json), on_done, &u),
+                     -EPIPE);
+    assert_int_equal(cmd_queue_pending(&queue), 6);
+    assert_int_equal(b.calls + d.calls + e.calls, 0);
+    /* Written: the three that move are out, in order, before any reply. */
+    assert_int_equal(cmd_queue_submit_urgent(&queue, u.json, strlen(u.json), on_done, &u), 0);
+    assert_string_equal(last_sent(), u.json);
+    for (unsigned i = 0; i < 3; i++) {
+        struct job *j = (struct job *[]){&b, &d, &e}[i];
+        assert_int_equal(j->calls, 1);
+        assert_int_equal(j->result.outcome, CMD_NOT_SENT);
+        assert_string_equal(j->result.error_msg, "not sent: a safety action took its place");
+    }
+    assert_true(b.order < d.order && d.order < e.order);
+    assert_int_equal(cmd_queue_pending(&queue), 4);
+    reply("{\"errorCode\": \"0\"}");
+    reply("{\"errorCode\": \"0\", \"cmdName\": \"pause_program\"}");
+    assert_int_equal(u.result.outcome, CMD_DONE);
+    assert_string_equal(last_sent(), c.json);
+    reply("{\"errorCode\": \"0\"}");
+    assert_string_equal(last_sent(), f.json);
+    reply("{\"errorCode\": \"0\"}");
+    assert_int_equal(link.sent_count, 4);
+    assert_int_equal(queue.stats.not_sent, 3);
+}
+
 /* ---- the link check (cmd_queue_submit_check) ---- */
 
 #define CHECK_JSON "{\"cmdName\":\"get_robot_state\"}"
@@ -1024,6 +1075,7 @@ int main(void)
         cmocka_unit_test(table_lookups),
         cmocka_unit_test_setup_teardown(one_at_a_time_in_order, setup, teardown),
         cmocka_unit_test_setup_teardown(urgent_action_goes_out_at_once, setup, teardown),
+        cmocka_unit_test_setup_teardown(urgent_action_takes_out_what_moves, setup, teardown),
         cmocka_unit_test_setup_teardown(replies_matched_by_order_not_name, setup, teardown),
         cmocka_unit_test_setup_teardown(error_codes, setup, teardown),
         cmocka_unit_test_setup_teardown(recorded_replies, setup, teardown),

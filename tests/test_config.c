@@ -75,8 +75,10 @@ static void defaults(void **state)
     assert_int_equal(c.unit_id, -1);
     assert_int_equal(c.word_order, REGMAP_HIGH_WORD_FIRST);
     assert_int_equal(c.max_document_bytes, 65536);
-    /* The PLC contract: the owner is a PLC, no motion without a heartbeat. */
-    assert_int_equal(c.ne_owner, 0);
+    /* The PLC contract: the owner is the heartbeat's connection, no motion
+     * without a heartbeat, braking counts as stopping for 1.5 s. */
+    assert_int_equal(c.ne_owner, 1);
+    assert_int_equal(c.ne_stop_time_ms, 1500);
     assert_true(c.ne_require_heartbeat);
 }
 

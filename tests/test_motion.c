@@ -42,6 +42,10 @@ static struct motion_view doc_at(const double joints[6], const double tcp[6])
 }
 
 static const double HOME[6] = {0, 90, 90, 0, 90, 0};
+/* Whose a move is (the PLC slot that sent it), and another's. */
+static const int slot_a, slot_b;
+#define SLOT ((const void *)&slot_a)
+#define OTHER ((const void *)&slot_b)
 static const double HOME_TCP[6] = {400, 0, 300, 180, 0, 90};
 
 static void start_at_home(void)
@@ -64,30 +68,30 @@ static void only_the_three_moves_count(void **state)
     (void)state;
     start_at_home();
     assert_int_equal(m.state, MOTION_IDLE);
-    assert_false(motion_sent(&m, T0, "{\"cmdName\":\"power_on\"}"));
-    assert_false(motion_sent(&m, T0, "{\"cmdName\":\"jog\",\"jog_mode\":3}"));
-    assert_false(motion_sent(&m, T0, "not json"));
+    assert_false(motion_sent(&m, T0, "{\"cmdName\":\"power_on\"}", SLOT));
+    assert_false(motion_sent(&m, T0, "{\"cmdName\":\"jog\",\"jog_mode\":3}", SLOT));
+    assert_false(motion_sent(&m, T0, "not json", SLOT));
     assert_int_equal(m.count, 0);
     assert_true(motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":"
-                                    "[10,90,90,0,90,0],\"speed\":20,\"relFlag\":0}"));
+                                    "[10,90,90,0,90,0],\"speed\":20,\"relFlag\":0}", SLOT));
     assert_true(motion_sent(&m, T0, "{\"cmdName\":\"end_move\",\"endPosition\":"
-                                    "[400,0,300,180,0,90],\"speed\":20}"));
+                                    "[400,0,300,180,0,90],\"speed\":20}", SLOT));
     assert_true(motion_sent(&m, T0, "{\"cmdName\":\"moveL\",\"cartPosition\":"
-                                    "[0,0,10,0,0,0],\"speed\":20,\"relFlag\":1}"));
+                                    "[0,0,10,0,0,0],\"speed\":20,\"relFlag\":1}", SLOT));
     assert_int_equal(m.count, 3);
     assert_int_equal(m.state, MOTION_MOVING);
     /* A member given twice counts with its last value, as the robot reads
      * it: the target is the far one, never the arm's own position. */
     motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[0,90,90,0,90,0],"
-                        "\"jointPosition\":[45,90,90,0,90,0],\"speed\":20}");
+                        "\"jointPosition\":[45,90,90,0,90,0],\"speed\":20}", SLOT);
     assert_true(m.target_known && m.target[0] == 45);
-    motion_answered(&m, T0 + 1, "joint_move", true, false);
+    motion_answered(&m, T0 + 1, SLOT, true, false);
     feed(T0 + 20, HOME, HOME_TCP, 1);
     feed(T0 + 40, HOME, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_MOVING);
     /* It wraps as a u16 register does. */
     m.count = 65535;
-    motion_sent(&m, T0, "{\"cmdName\":\"moveL\",\"cartPosition\":[0,0,1,0,0,0],\"speed\":1}");
+    motion_sent(&m, T0, "{\"cmdName\":\"moveL\",\"cartPosition\":[0,0,1,0,0,0],\"speed\":1}", SLOT);
     assert_int_equal(m.count, 0);
 }
 
@@ -97,13 +101,13 @@ static void arrived_only_after_the_status_shows_it(void **state)
     const double target[6] = {30, 90, 90, 0, 90, 0};
     start_at_home();
     motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[30,90,90,0,90,0],"
-                        "\"speed\":20,\"relFlag\":0}");
+                        "\"speed\":20,\"relFlag\":0}", SLOT);
     assert_int_equal(m.state, MOTION_MOVING);
     /* Before its reply, even a document at the target proves nothing. */
     feed(T0 + 1, target, HOME_TCP, 1);
     feed(T0 + 2, target, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_MOVING);
-    motion_answered(&m, T0 + 3, "joint_move", true, false);
+    motion_answered(&m, T0 + 3, SLOT, true, false);
     /* The controller's lag: in position where it was. */
     feed(T0 + 20, HOME, HOME_TCP, 1);
     feed(T0 + 40, HOME, HOME_TCP, 1);
@@ -128,8 +132,8 @@ static void arrives_within_the_joint_tolerance_only(void **state)
     double off[6] = {10 + 0.11, 90, 90, 0, 90, 0};
     start_at_home();
     motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[10,90,90,0,90,0],"
-                        "\"speed\":20}");
-    motion_answered(&m, T0 + 1, "joint_move", true, false);
+                        "\"speed\":20}", SLOT);
+    motion_answered(&m, T0 + 1, SLOT, true, false);
     feed(T0 + 20, off, HOME_TCP, 1);
     feed(T0 + 40, off, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_MOVING);
@@ -147,14 +151,16 @@ static void relative_moves_aim_from_the_position_at_the_trigger(void **state)
     start_at_home();
     feed(T0 + 1, q, HOME_TCP, 1);
     motion_sent(&m, T0 + 2, "{\"cmdName\":\"joint_move\",\"jointPosition\":[1,2,0,0,0,0],"
-                            "\"speed\":20,\"relFlag\":1}");
+                            "\"speed\":20,\"relFlag\":1}", SLOT);
     assert_true(m.target_known);
     assert_true(fabs(m.target[0] - 6) < 1e-9 && fabs(m.target[1] - 87) < 1e-9);
+    motion_answered(&m, T0 + 2, SLOT, false, false); /* refused: none held */
+    assert_int_equal(m.state, MOTION_STOPPED);
     /* moveL relative: the TCP at the trigger plus the offset. */
     feed(T0 + 3, q, tcp, 1);
     motion_sent(&m, T0 + 4, "{\"cmdName\":\"moveL\",\"cartPosition\":[0,0,50,0,0,0],"
-                            "\"speed\":100,\"relFlag\":1}");
-    motion_answered(&m, T0 + 5, "moveL", true, false);
+                            "\"speed\":100,\"relFlag\":1}", OTHER);
+    motion_answered(&m, T0 + 5, OTHER, true, false);
     feed(T0 + 20, q, tcp, 1);
     feed(T0 + 40, q, tcp, 1);
     assert_int_equal(m.state, MOTION_MOVING); /* still where it was: not there */
@@ -180,8 +186,8 @@ static void tcp_tolerances_and_equivalent_angles(void **state)
     double flipped[6] = {400, 0, 300, 0, 180, -90};
     start_at_home();
     motion_sent(&m, T0, "{\"cmdName\":\"end_move\",\"endPosition\":[400,0,300,180,0,90],"
-                        "\"speed\":20}");
-    motion_answered(&m, T0 + 1, "end_move", true, false);
+                        "\"speed\":20}", SLOT);
+    motion_answered(&m, T0 + 1, SLOT, true, false);
     feed(T0 + 20, q, far, 1);
     feed(T0 + 40, q, far, 1);
     feed(T0 + 60, q, turned, 1);
@@ -200,9 +206,14 @@ static void ends_before_arriving(void **state)
     double q[6] = {3, 90, 90, 0, 90, 0};
     /* A stop. */
     start_at_home();
-    motion_sent(&m, T0, move);
-    motion_answered(&m, T0 + 1, "joint_move", true, false);
-    motion_stopped(&m, T0 + 50, "stop_program from a PLC");
+    motion_sent(&m, T0, move, SLOT);
+    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_stop_sent(&m, T0 + 50, "stop_program from a PLC");
+    assert_int_equal(m.state, MOTION_MOVING); /* not before the robot took it */
+    motion_stop_answered(&m, T0 + 51, true);
+    feed(T0 + 52, q, HOME_TCP, 0);
+    assert_int_equal(m.state, MOTION_MOVING); /* braking: not still yet */
+    feed(T0 + 54, q, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_STOPPED);
     assert_string_equal(m.why, "stop_program from a PLC");
     /* Nothing after it changes it: not even the arm at the target. */
@@ -212,20 +223,20 @@ static void ends_before_arriving(void **state)
     assert_int_equal(m.state, MOTION_STOPPED);
     /* The robot's refusal; an unknown outcome is not one. */
     start_at_home();
-    motion_sent(&m, T0, move);
-    motion_answered(&m, T0 + 1, "joint_move", false, true);
+    motion_sent(&m, T0, move, SLOT);
+    motion_answered(&m, T0 + 1, SLOT, false, true);
     assert_int_equal(m.state, MOTION_MOVING);
     start_at_home();
-    motion_sent(&m, T0, move);
-    motion_answered(&m, T0 + 1, "power_on", false, false); /* another command's */
+    motion_sent(&m, T0, move, SLOT);
+    motion_answered(&m, T0 + 1, OTHER, false, false); /* another command's */
     assert_int_equal(m.state, MOTION_MOVING);
-    motion_answered(&m, T0 + 1, "joint_move", false, false);
+    motion_answered(&m, T0 + 1, SLOT, false, false);
     assert_int_equal(m.state, MOTION_STOPPED);
     /* The robot's own stops, as the status shows them. */
     for (int kind = 0; kind < 4; kind++) {
         start_at_home();
-        motion_sent(&m, T0, move);
-        motion_answered(&m, T0 + 1, "joint_move", true, false);
+        motion_sent(&m, T0, move, SLOT);
+        motion_answered(&m, T0 + 1, SLOT, true, false);
         struct motion_view v = doc_at(q, HOME_TCP);
         v.inpos = 0;
         if (kind == 0)
@@ -237,6 +248,9 @@ static void ends_before_arriving(void **state)
         else
             v.powered_on = 0;
         motion_document(&m, T0 + 20, &v);
+        /* Unpowered it cannot move; stopped, it is 3 once it stands still. */
+        assert_int_equal(m.state, kind < 2 ? MOTION_MOVING : MOTION_STOPPED);
+        motion_document(&m, T0 + 40, &v);
         assert_int_equal(m.state, MOTION_STOPPED);
     }
 }
@@ -251,9 +265,9 @@ static void not_arrived_within_the_bound(void **state)
     v.rapid_rate = 0.5;
     motion_document(&m, T0, &v);
     motion_sent(&m, T0 + 1, "{\"cmdName\":\"joint_move\",\"jointPosition\":"
-                            "[30,90,90,0,90,0],\"speed\":20}");
+                            "[30,90,90,0,90,0],\"speed\":20}", SLOT);
     assert_int_equal(m.bound_ms, 5500);
-    motion_answered(&m, T0 + 10, "joint_move", true, false);
+    motion_answered(&m, T0 + 10, SLOT, true, false);
     assert_false(motion_check(&m, T0 + 10 + 5499));
     assert_int_equal(m.state, MOTION_MOVING);
     assert_true(motion_check(&m, T0 + 10 + 5500));
@@ -263,7 +277,7 @@ static void not_arrived_within_the_bound(void **state)
     assert_int_equal(motion_bound_ms(50, 100), 1750);
     start_at_home();
     motion_sent(&m, T0, "{\"cmdName\":\"end_move\",\"endPosition\":[400,0,300,180,0,90],"
-                        "\"speed\":30}");
+                        "\"speed\":30}", SLOT);
     assert_int_equal(m.bound_ms, 10000);
     assert_int_equal(motion_bound_ms(180, 0), MOTION_BOUND_MAX_MS); /* no speed: capped */
 }
@@ -274,11 +288,11 @@ static void a_new_move_replaces_the_last(void **state)
     const double first[6] = {10, 90, 90, 0, 90, 0};
     start_at_home();
     motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[10,90,90,0,90,0],"
-                        "\"speed\":20}");
-    motion_answered(&m, T0 + 1, "joint_move", true, false);
+                        "\"speed\":20}", SLOT);
+    motion_answered(&m, T0 + 1, SLOT, true, false);
     motion_sent(&m, T0 + 5, "{\"cmdName\":\"joint_move\",\"jointPosition\":[20,90,90,0,90,0],"
-                            "\"speed\":20}");
-    motion_answered(&m, T0 + 6, "joint_move", true, false);
+                            "\"speed\":20}", SLOT);
+    motion_answered(&m, T0 + 6, SLOT, true, false);
     feed(T0 + 600, first, HOME_TCP, 1);
     feed(T0 + 620, first, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_MOVING); /* the first's target is not the second's */
@@ -358,7 +372,7 @@ static void generated_moves_arrive_only_when_shown(void **state)
                  given[0], given[1], given[2], given[3], given[4], given[5],
                  1 + property_next(100), relative);
         uint16_t before = m.count;
-        assert_true(motion_sent(&m, T0 + 1, json));
+        assert_true(motion_sent(&m, T0 + 1, json, SLOT));
         assert_int_equal((uint16_t)(before + 1), m.count);
         uint64_t t = T0 + 1, reply_at = 0;
         bool accepted = false;
@@ -368,7 +382,7 @@ static void generated_moves_arrive_only_when_shown(void **state)
             if (!reply_at && property_next(4) == 0) {
                 accepted = property_next(8) != 0;
                 reply_at = t;
-                motion_answered(&m, t, m.name, accepted, false);
+                motion_answered(&m, t, SLOT, accepted, false);
                 continue;
             }
             /* A document: at the target (exactly, within or outside the
@@ -420,6 +434,124 @@ static void generated_moves_arrive_only_when_shown(void **state)
     assert_true(arrived > runs / 20);
 }
 
+/* A joint target with joint 1 at 'j1', the rest at home. */
+static void at_j1(double j1, double q[6])
+{
+    memcpy(q, HOME, sizeof(double) * 6);
+    q[0] = j1;
+}
+
+/* Out 60 deg and back, the second queued behind the first (the robot
+ * holds both, manual 4.7): never 2 before the arm went out and came back. */
+static void queued_moves_arrive_in_order(void **state)
+{
+    (void)state;
+    double q[6];
+    start_at_home();
+    motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[60,90,90,0,90,0],"
+                        "\"speed\":60}", SLOT);
+    motion_sent(&m, T0 + 1, "{\"cmdName\":\"joint_move\",\"jointPosition\":[0,90,90,0,90,0],"
+                            "\"speed\":60}", OTHER);
+    motion_answered(&m, T0 + 2, SLOT, true, false);
+    motion_answered(&m, T0 + 3, OTHER, true, false);
+    /* The arm has not left: it is at the second's target, still. */
+    feed(T0 + 20, HOME, HOME_TCP, 1);
+    feed(T0 + 40, HOME, HOME_TCP, 1);
+    assert_int_equal(m.state, MOTION_MOVING);
+    uint64_t t = T0 + 40;
+    for (int k = 1; k <= 60; k++) {
+        at_j1(k, q);
+        feed(t += 20, q, HOME_TCP, 0);
+        assert_int_equal(m.state, MOTION_MOVING);
+    }
+    for (int k = 59; k >= 1; k--) {
+        at_j1(k, q);
+        feed(t += 20, q, HOME_TCP, 0);
+        assert_int_equal(m.state, MOTION_MOVING);
+    }
+    feed(t += 20, HOME, HOME_TCP, 1);
+    assert_int_equal(m.state, MOTION_MOVING); /* changed since the last */
+    feed(t += 20, HOME, HOME_TCP, 1);
+    assert_int_equal(m.state, MOTION_ARRIVED);
+    /* One slot's refusal is never taken for another's move. */
+    start_at_home();
+    motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[5,90,90,0,90,0],"
+                        "\"speed\":60}", SLOT);
+    motion_sent(&m, T0 + 1, "{\"cmdName\":\"joint_move\",\"jointPosition\":[9,90,90,0,90,0],"
+                            "\"speed\":60}", OTHER);
+    motion_answered(&m, T0 + 2, OTHER, false, false);
+    assert_int_equal(m.state, MOTION_MOVING);
+    motion_answered(&m, T0 + 3, SLOT, true, false);
+    at_j1(5, q);
+    feed(T0 + 20, q, HOME_TCP, 1);
+    feed(T0 + 40, q, HOME_TCP, 1);
+    assert_int_equal(m.state, MOTION_ARRIVED);
+}
+
+/* A refused or unanswered stop ends nothing; a lost reply can arrive; the
+ * bound follows the override and never ends a move the arm still makes;
+ * a late arrival turns 4 into 2; a lost command link says so at once. */
+static void ends_in_the_state_the_arm_is_in(void **state)
+{
+    (void)state;
+    static const char *const move =
+        "{\"cmdName\":\"joint_move\",\"jointPosition\":[30,90,90,0,90,0],\"speed\":20}";
+    double q[6];
+    start_at_home();
+    motion_sent(&m, T0, move, SLOT);
+    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_stop_sent(&m, T0 + 10, "stop_program from a PLC");
+    motion_stop_answered(&m, T0 + 11, false);
+    at_j1(10, q);
+    feed(T0 + 20, q, HOME_TCP, 1);
+    feed(T0 + 40, q, HOME_TCP, 1); /* still, but the stop was refused */
+    assert_int_equal(m.state, MOTION_MOVING);
+    at_j1(30, q);
+    feed(T0 + 60, q, HOME_TCP, 1);
+    feed(T0 + 80, q, HOME_TCP, 1);
+    assert_int_equal(m.state, MOTION_ARRIVED);
+    /* The reply lost: it may still arrive. */
+    start_at_home();
+    motion_sent(&m, T0, move, SLOT);
+    motion_answered(&m, T0 + 1, SLOT, false, true);
+    feed(T0 + 20, q, HOME_TCP, 1);
+    feed(T0 + 40, q, HOME_TCP, 1);
+    assert_int_equal(m.state, MOTION_ARRIVED);
+    /* The override lowered to 10 % after the send: 30 deg at 2 deg/s. */
+    start_at_home();
+    motion_sent(&m, T0, move, SLOT);
+    motion_answered(&m, T0 + 1, SLOT, true, false);
+    assert_int_equal(m.bound_ms, 3250);
+    struct motion_view v = doc_at(HOME, HOME_TCP);
+    v.rapid_rate = 0.1;
+    v.inpos = 0;
+    uint64_t t = T0 + 1;
+    for (int k = 1; k <= 200; k++) { /* 2 deg/s, 20 ms a document: 8 s */
+        v.joints[0] = k * 0.04;
+        motion_document(&m, t += 20, &v);
+        motion_check(&m, t);
+        assert_int_equal(m.state, MOTION_MOVING); /* moving: never terminal */
+    }
+    /* Standing off the target past the bound at 10 %: 4. */
+    v.inpos = 1;
+    motion_document(&m, t += 20, &v);
+    assert_false(motion_check(&m, T0 + 1 + 23500 - 1));
+    assert_true(motion_check(&m, T0 + 1 + 23500));
+    assert_int_equal(m.state, MOTION_TIMED_OUT);
+    /* Then on to the target after all: 2. */
+    v.joints[0] = 30;
+    motion_document(&m, T0 + 30000, &v);
+    motion_document(&m, T0 + 30020, &v);
+    assert_int_equal(m.state, MOTION_ARRIVED);
+    /* The command link lost: 4 at once, with why. */
+    start_at_home();
+    motion_sent(&m, T0, move, SLOT);
+    motion_answered(&m, T0 + 1, SLOT, false, true);
+    motion_link_lost(&m, T0 + 2, "the command link was lost");
+    assert_int_equal(m.state, MOTION_TIMED_OUT);
+    assert_string_equal(m.why, "the command link was lost");
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -433,6 +565,8 @@ int main(void)
         cmocka_unit_test(a_new_move_replaces_the_last),
         cmocka_unit_test(what_the_arm_does),
         cmocka_unit_test(generated_moves_arrive_only_when_shown),
+        cmocka_unit_test(queued_moves_arrive_in_order),
+        cmocka_unit_test(ends_in_the_state_the_arm_is_in),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

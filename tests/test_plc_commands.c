@@ -618,9 +618,13 @@ static void mailbox_refusals(void **state)
     assert_int_equal(mailbox(2, NULL, 0, 2), EX_BUSY);
     assert_int_equal(regmap_get_number(&img, seq, 0), 1);
     assert_int_equal(regmap_get_number(&img, gw_row("mailbox.code"), 0), 1);
-    assert_int_equal(gw_number("mailbox.state"), CMD_PENDING);
+    /* The count moved: the result is the refused request's, until the
+     * pending one ends (done_seq then says whose it is). */
+    assert_int_equal(gw_number("mailbox.state"), CMD_REFUSED);
     assert_int_equal(robot.sent_count, 1);
     reply_ok();
+    assert_int_equal(gw_number("mailbox.state"), CMD_DONE);
+    assert_int_equal(gw_number("mailbox.done_seq"), 1);
     assert_int_equal(mailbox(2, NULL, 0, 2), EX_NONE);
     expect_last_sent("{\"cmdName\":\"power_off\"}");
     reply_ok();
@@ -896,14 +900,18 @@ static void busy(void **state)
     (void)state;
     assert_int_equal(trigger("power_on"), EX_NONE);
     rearm("power_on");
-    /* The same command again while it is pending. */
+    /* The same command again while it is pending: refused, and the result
+     * the PLC reads with the count moved is this request's, even after
+     * the pending one's reply. */
     assert_int_equal(trigger("power_on"), EX_BUSY);
+    assert_int_equal(result_state("power_on"), CMD_REFUSED);
+    assert_string_equal(result_text("power_on"), "busy: the previous one is pending");
     assert_int_equal(regmap_get_number(&img, cmd_row("power_on"), 0), 0);
-    assert_int_equal(result_state("power_on"), CMD_PENDING);
     /* Another command queues behind it. */
     assert_int_equal(trigger("enable_robot"), EX_NONE);
     assert_int_equal(robot.sent_count, 1);
     reply_ok();
+    assert_int_equal(result_state("power_on"), CMD_REFUSED);
     expect_last_sent("{\"cmdName\":\"enable_robot\"}");
     reply_ok();
 
@@ -914,6 +922,13 @@ static void busy(void **state)
     assert_int_equal(cmd_queue_pending(&queue), CMD_QUEUE_CAPACITY);
     assert_int_equal(write_u16(rate, 0, 999), EX_BUSY);
     assert_int_equal(img.mb->tab_registers[rate->address], CMD_QUEUE_CAPACITY - 1);
+    /* A trigger refused for a full queue: its count and its result. */
+    double before = gw_number("result.power_off.count");
+    assert_int_equal(trigger("power_off"), EX_BUSY);
+    assert_int_equal(gw_number("result.power_off.count"), before + 1);
+    assert_int_equal(result_state("power_off"), CMD_REFUSED);
+    assert_string_equal(result_text("power_off"), "busy: the command queue is full");
+    rearm("power_off");
     reply_ok();
     /* One place, but a write of two outputs needs two. */
     const struct regmap_row *cab = cmd_row("set_digital_output.value");
@@ -925,6 +940,82 @@ static void busy(void **state)
     while (cmd_queue_pending(&queue))
         reply_ok();
     assert_int_equal(robot.sent_count, sent + CMD_QUEUE_CAPACITY - 1);
+}
+
+/* Writes joint_move's whole target block, so its trigger may send. */
+static void write_joint_target(double joint1)
+{
+    const struct regmap_row *pos = cmd_row("joint_move.jointPosition[*]");
+    for (unsigned i = 0; i < 6; i++)
+        assert_int_equal(write_f32(pos, i, i == 0 ? joint1 : 90), EX_NONE);
+    assert_int_equal(write_f32(cmd_row("joint_move.speed"), 0, 20), EX_NONE);
+    assert_int_equal(write_f32(cmd_row("joint_move.accel"), 0, 100), EX_NONE);
+    assert_int_equal(write_u16(cmd_row("joint_move.relFlag"), 0, 0), EX_NONE);
+}
+
+static void halts_own_the_queue(void **state)
+{
+    (void)state;
+    struct plc_commands_config on = {.motion = true};
+    start(&on);
+    /* power_on in flight; behind it a joint_move and an output wait. */
+    assert_int_equal(trigger("power_on"), EX_NONE);
+    write_joint_target(30);
+    assert_int_equal(trigger("joint_move"), EX_NONE);
+    assert_int_equal(trigger("play_program"), EX_NONE);
+    assert_int_equal(write_bit(cmd_row("set_digital_output.value"), 0, 1), EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
+    /* The PLC's stop goes out at once; what would move the arm is out of
+     * the queue with its own result, the output still waits. */
+    assert_int_equal(trigger("stop_program"), EX_NONE);
+    assert_int_equal(robot.sent_count, 2);
+    expect_last_sent("{\"cmdName\":\"stop_program\"}");
+    assert_int_equal(result_state("joint_move"), CMD_NOT_SENT);
+    assert_string_equal(result_text("joint_move"), "not sent: a safety action took its place");
+    assert_int_equal(result_state("play_program"), CMD_NOT_SENT);
+    assert_int_equal(cmd_queue_pending(&queue), 3);
+    while (cmd_queue_pending(&queue))
+        reply_ok();
+    for (unsigned i = 0; i < robot.sent_count; i++) {
+        assert_null(strstr(robot.sent[i], "joint_move"));
+        assert_null(strstr(robot.sent[i], "play_program"));
+    }
+    assert_non_null(strstr(robot.sent[2], "set_digital_output"));
+    /* A full queue never refuses a stop or a pause, nor one pending. */
+    const struct regmap_row *rate = cmd_row("rapid_rate.rate_value");
+    for (unsigned i = 0; i < CMD_QUEUE_CAPACITY; i++)
+        assert_int_equal(write_u16(rate, 0, (uint16_t)i), EX_NONE);
+    assert_int_equal(cmd_queue_pending(&queue), CMD_QUEUE_CAPACITY);
+    rearm("stop_program");
+    assert_int_equal(trigger("pause_program"), EX_NONE);
+    assert_int_equal(trigger("stop_program"), EX_NONE);
+    rearm("stop_program");
+    assert_int_equal(trigger("stop_program"), EX_NONE);
+    expect_last_sent("{\"cmdName\":\"stop_program\"}");
+    assert_int_equal(result_state("stop_program"), CMD_PENDING);
+    while (cmd_queue_pending(&queue))
+        reply_ok();
+    assert_int_equal(result_state("stop_program"), CMD_DONE);
+}
+
+/* A number that is not finite never goes out: 1e999 reads as infinity. */
+static void json_mailbox_refuses_non_finite_numbers(void **state)
+{
+    (void)state;
+    struct plc_commands_config on = {.motion = true};
+    start(&on);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"joint_move\",\"jointPosition\":"
+                                  "[1e999,90,90,0,90,0],\"speed\":20}"),
+                     EX_INVALID);
+    assert_int_equal(gw_number("json.state"), CMD_INVALID);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"moveL\",\"cartPosition\":"
+                                  "[0,0,1,0,0,0],\"speed\":-1e999}"),
+                     EX_INVALID);
+    assert_int_equal(robot.sent_count, 0);
+    assert_int_equal(json_mailbox("{\"cmdName\":\"joint_move\",\"jointPosition\":"
+                                  "[1e300,90,90,0,90,0],\"speed\":20}"),
+                     EX_NONE);
+    assert_int_equal(robot.sent_count, 1);
 }
 
 static void link_down(void **state)
@@ -1747,6 +1838,8 @@ int main(void)
         T(not_permitted),
         T(invalid_values),
         T(busy),
+        T(halts_own_the_queue),
+        T(json_mailbox_refuses_non_finite_numbers),
         T(link_down),
         T(link_check_reply_shows_the_robot_state),
         T(information_after_replies),

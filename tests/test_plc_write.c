@@ -80,6 +80,27 @@ static void policy_answered(void *user)
     policy_start_answered(user, now);
 }
 
+/* What the status shows the arm doing, for the policy's reaction check. */
+static enum policy_robot robot_view;
+
+static enum policy_robot fake_robot(void *user)
+{
+    (void)user;
+    return robot_view;
+}
+
+/* The action's reply came and a status document shows the arm still: the
+ * reaction is judged, and a reset may clear the fault. */
+static void action_done_arm_still(void)
+{
+    policy_action_answered(&policy, now, true);
+    robot_view = POLICY_ROBOT_STILL;
+    now += 10;
+    policy_status_document(&policy, now);
+    policy_check(&policy, now, false);
+    moving = false;
+}
+
 static void start(const struct plc_write_config *wc, bool single_owner, bool motion_enable)
 {
     struct cmd_ops ops = {.send = no_send, .now_ms = fake_now};
@@ -88,7 +109,7 @@ static void start(const struct plc_write_config *wc, bool single_owner, bool mot
                                  .watch = POLICY_WATCH_HEARTBEAT,
                                  .single_owner = single_owner,
                                  .motion_enable = motion_enable};
-    struct policy_sink sink = {.send_action = count_action};
+    struct policy_sink sink = {.send_action = count_action, .robot = fake_robot};
     struct plc_write_hooks hooks = {.now_ms = fake_now, .robot_may_move = fake_moving,
                                     .clear_counters = count_clear};
 
@@ -101,6 +122,7 @@ static void start(const struct plc_write_config *wc, bool single_owner, bool mot
     cleared = actions = 0;
     sent_commands = 0;
     moving = false;
+    robot_view = POLICY_ROBOT_UNKNOWN;
 }
 
 /* start() with the policy bound to the command rows and the link up. */
@@ -168,6 +190,17 @@ static void heartbeat_owner_and_command_coils(void **state)
     assert_int_equal(actions, 1);
     /* The heartbeat back first: a reset while it is still lost would latch again. */
     assert_int_equal(write_one("192.0.2.1", 1, pw.rows.heartbeat, 9), 0);
+    /* Not while the reaction is judged: the reset would cancel a second
+     * stop. Nor while the status shows the arm moving. */
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.fault_reset, 1), 6);
+    assert_string_equal(pw.why, "reaction still judged: wait");
+    assert_int_equal(policy.fault, POLICY_FAULT_HEARTBEAT);
+    action_done_arm_still();
+    assert_int_equal(policy.reaction, POLICY_REACTION_STOPPED);
+    robot_view = POLICY_ROBOT_MOVING;
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.fault_reset, 1), 6);
+    assert_string_equal(pw.why, "arm still moving: wait");
+    robot_view = POLICY_ROBOT_STILL;
     assert_int_equal(write_one("192.0.2.1", 1, pw.rows.fault_reset, 1), 0);
     assert_int_equal(policy.fault, POLICY_FAULT_NONE);
     assert_int_equal(img.mb->tab_bits[pw.rows.fault_reset->address], 0);
@@ -258,6 +291,7 @@ static void start_after_a_drop_is_refused_and_latches(void **state)
     /* A command that starts nothing still passes the lost signal (it is
      * refused only by the latched fault now, until the reset). */
     assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 1), 0);
+    action_done_arm_still();
     assert_int_equal(write_one("192.0.2.1", 1, pw.rows.fault_reset, 1), 0);
     assert_int_equal(write_one("192.0.2.1", 1, coil_row("power_on"), 1), 0);
     assert_int_equal(sent_commands, 1);
@@ -293,6 +327,8 @@ static void reset_and_drop_in_one_write(void **state)
     assert_int_equal(policy.fault, POLICY_FAULT_HEARTBEAT);
     assert_int_equal(actions, 1);
     assert_int_equal(write_one("192.0.2.1", 1, pw.rows.heartbeat, 2), 0);
+    action_done_arm_still();
+    moving = true; /* a program runs again: the drop's pause goes out */
     const uint16_t reset_and_drop[] = {1, 0};
     assert_int_equal(write_coils(pw.rows.fault_reset, reset_and_drop, 2), 0);
     assert_int_equal(policy.fault, POLICY_FAULT_MOTION_ENABLE);
@@ -300,6 +336,7 @@ static void reset_and_drop_in_one_write(void **state)
     assert_int_equal(img.mb->tab_bits[pw.rows.fault_reset->address], 0);
     assert_int_equal(img.mb->tab_bits[pw.rows.motion_enable->address], 0);
     /* Reset and raise in one write: the fault clears, the robot may run. */
+    action_done_arm_still();
     const uint16_t reset_and_raise[] = {1, 1};
     assert_int_equal(write_coils(pw.rows.fault_reset, reset_and_raise, 2), 0);
     assert_int_equal(policy.fault, POLICY_FAULT_NONE);
@@ -324,6 +361,7 @@ static void reset_then_start_and_start_then_reset(void **state)
     assert_int_equal(write_one("192.0.2.1", 1, pw.rows.heartbeat, 2), 0);
     assert_int_equal(write_one("192.0.2.1", 1, play, 1), 1); /* latched */
     assert_int_equal(sent_commands, 0);
+    action_done_arm_still();
     assert_int_equal(write_one("192.0.2.1", 1, pw.rows.fault_reset, 1), 0);
     assert_int_equal(write_one("192.0.2.1", 1, play, 1), 0);
     assert_int_equal(sent_commands, 1);
@@ -382,6 +420,49 @@ static void write_allow_none_refuses_plain_tcp_only(void **state)
     assert_int_equal(write_over("rtu", 2, pw.rows.heartbeat, 2), 0);
 }
 
+/*
+ * A write refused for who sent it (write_allow, the owner) changes nothing:
+ * the owner's parameters stay written, judged or refused by the server.
+ */
+static void refused_writer_changes_nothing(void **state)
+{
+    (void)state;
+    char why[96];
+    struct plc_write_config wc = {0};
+    assert_int_equal(ip_allow_parse("127.0.0.1 127.0.0.2", &wc.write_allow, why, sizeof(why)),
+                     0);
+    start(&wc, true, false);
+    const struct regmap_row *rel = regmap_find_path(&map, REGMAP_SRC_CMD, "joint_move.relFlag");
+    unsigned bit = (unsigned)(rel - map.rows);
+    assert_int_equal(write_one("127.0.0.1", 1, pw.rows.heartbeat, 1), 0);
+    assert_int_equal(write_one("127.0.0.1", 1, rel, 0), 0);
+    assert_true(pc.params_written[bit] & 1);
+    /* Not in write_allow: judged and refused, or refused by the server. */
+    assert_int_equal(write_one("192.0.2.7", 2, rel, 1), 1);
+    assert_true(pc.params_written[bit] & 1);
+    uint16_t one = 1;
+    struct mb_write w = {.table = rel->table, .address = rel->address, .count = 1,
+                         .values = &one, .client = "192.0.2.7", .client_id = 2,
+                         .rights = REGMAP_RIGHTS_ALL};
+    assert_int_equal(ip_addr_parse("192.0.2.7", &w.client_addr), 0);
+    plc_write_refused_unjudged(&pw, &w);
+    assert_true(pc.params_written[bit] & 1);
+    /* Allowed, but not the owner: the same. */
+    assert_int_equal(write_one("127.0.0.2", 3, rel, 1), 1);
+    assert_true(pc.params_written[bit] & 1);
+    w.client = "127.0.0.2";
+    w.client_id = 3;
+    assert_int_equal(ip_addr_parse("127.0.0.2", &w.client_addr), 0);
+    plc_write_refused_unjudged(&pw, &w);
+    assert_true(pc.params_written[bit] & 1);
+    /* The owner's own refused write withdraws what it meant to replace. */
+    w.client = "127.0.0.1";
+    w.client_id = 1;
+    assert_int_equal(ip_addr_parse("127.0.0.1", &w.client_addr), 0);
+    plc_write_refused_unjudged(&pw, &w);
+    assert_false(pc.params_written[bit] & 1);
+}
+
 
 /* One write from connection 'client_id' at 'peer' ("address:port"). */
 static int write_from_peer(const char *peer, uint64_t client_id, const struct regmap_row *row,
@@ -425,6 +506,7 @@ int main(void)
         cmocka_unit_test_teardown(motion_enable_drop_pauses_through_the_transaction, teardown),
         cmocka_unit_test_teardown(read_only_and_write_allow, teardown),
         cmocka_unit_test_teardown(write_allow_none_refuses_plain_tcp_only, teardown),
+        cmocka_unit_test_teardown(refused_writer_changes_nothing, teardown),
         cmocka_unit_test_teardown(drop_right_after_a_start_pauses, teardown),
         cmocka_unit_test_teardown(start_after_a_drop_is_refused_and_latches, teardown),
         cmocka_unit_test_teardown(start_before_motion_enable_is_armed_is_only_refused, teardown),

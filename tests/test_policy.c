@@ -17,6 +17,7 @@
 #include <cmocka.h>
 
 #include <modbus.h>
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -1113,6 +1114,16 @@ static void owner_host_lets_every_connection_of_the_plc_write(void **state)
     /* An address that only starts like the owner's is another host. */
     assert_int_equal(policy_may_write_from(&p, PLC_B, "192.0.2.100:50001"),
                      MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    /* Only the owner's connection feeds the heartbeat: another program
+     * on the PLC's host cannot keep it alive while the PLC is halted. */
+    assert_int_equal(policy_may_feed_heartbeat(&p, PLC_A), 0);
+    assert_int_equal(policy_may_feed_heartbeat(&p, PLC_A2), MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    /* A TLS owner: a plain connection from its address never shares its
+     * rights; a TLS one does. */
+    policy_owner_transport(&p, PLC_A, "mbaps");
+    assert_int_equal(policy_may_write_via(&p, PLC_A2, ADDR_A2, "modbus"),
+                     MODBUS_EXCEPTION_ILLEGAL_FUNCTION);
+    assert_int_equal(policy_may_write_via(&p, PLC_A2, ADDR_A2, "mbaps"), 0);
     /* IPv6, colons and all. */
     start_owner(false, false);
     policy_heartbeat(&p, T0, PLC_A, "2001:db8::7:40122", 1);
@@ -1320,7 +1331,7 @@ static void reaction_follows_the_status_after_the_reply(void **state)
     robot_now = POLICY_ROBOT_STILL;
     policy_check(&p, T0 + LIMIT + 5, MOVING);
     assert_int_equal(p.reaction, POLICY_REACTION_SENT);
-    policy_action_answered(&p, T0 + LIMIT + 6);
+    policy_action_answered(&p, T0 + LIMIT + 6, true);
     policy_check(&p, T0 + LIMIT + 7, MOVING);
     assert_int_equal(p.reaction, POLICY_REACTION_SENT);
     run_span(T0 + LIMIT + 10, T0 + LIMIT + 20, MOVING); /* a document at +20 */
@@ -1333,7 +1344,7 @@ static void reaction_follows_the_status_after_the_reply(void **state)
     start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_PROGRAM);
     heartbeat_lost_at(T0 + LIMIT, MOVING);
     expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
-    policy_action_answered(&p, T0 + LIMIT + 2);
+    policy_action_answered(&p, T0 + LIMIT + 2, true);
     robot_now = POLICY_ROBOT_PAUSED;
     run_span(T0 + LIMIT + 10, T0 + LIMIT + 20, IDLE);
     assert_int_equal(p.reaction, POLICY_REACTION_PAUSED);
@@ -1348,7 +1359,7 @@ static void still_moving_is_escalated_once(void **state)
     heartbeat_lost_at(T0 + LIMIT, MOVING);
     expect_one(POLICY_STOP, POLICY_FAULT_HEARTBEAT);
     uint64_t answered = T0 + LIMIT + 4;
-    policy_action_answered(&p, answered);
+    policy_action_answered(&p, answered, true);
     run_span(T0 + LIMIT + 10, answered + PERIOD - 1, MOVING);
     assert_int_equal(sent.calls, 1); /* within one period after the reply */
     run_span(answered + PERIOD - 1 + CHECK, answered + PERIOD + CHECK, MOVING);
@@ -1356,7 +1367,7 @@ static void still_moving_is_escalated_once(void **state)
     assert_int_equal(sent.action[1], POLICY_STOP);
     assert_int_equal(p.reaction, POLICY_REACTION_ESCALATED);
     /* The second stop answered, still moving: final, never a third. */
-    policy_action_answered(&p, answered + 40);
+    policy_action_answered(&p, answered + 40, true);
     run_span(answered + 50, answered + 2000, MOVING);
     assert_int_equal(sent.calls, 2);
     assert_int_equal(p.reaction, POLICY_REACTION_STILL_MOVING);
@@ -1370,11 +1381,11 @@ static void escalated_stop_that_works_reads_stopped(void **state)
     (void)state;
     start_with_robot(POLICY_STOP, false, POLICY_ROBOT_MOVING);
     heartbeat_lost_at(T0 + LIMIT, MOVING);
-    policy_action_answered(&p, T0 + LIMIT + 2);
+    policy_action_answered(&p, T0 + LIMIT + 2, true);
     run_span(T0 + LIMIT + 10, T0 + LIMIT + 60, MOVING);
     assert_int_equal(sent.calls, 2);
     assert_int_equal(p.reaction, POLICY_REACTION_ESCALATED);
-    policy_action_answered(&p, T0 + LIMIT + 62);
+    policy_action_answered(&p, T0 + LIMIT + 62, true);
     robot_now = POLICY_ROBOT_STILL;
     run_span(T0 + LIMIT + 70, T0 + LIMIT + 200, IDLE);
     assert_int_equal(p.reaction, POLICY_REACTION_STOPPED);
@@ -1449,7 +1460,7 @@ static void generated_faults_stop_what_moves(void **state)
                     : robot == POLICY_ROBOT_PROGRAM && sent.action[0] == POLICY_PAUSE
                         ? POLICY_ROBOT_PAUSED
                         : POLICY_ROBOT_STILL;
-        policy_action_answered(&p, now + 1);
+        policy_action_answered(&p, now + 1, true);
         for (uint64_t u = now + 2; u <= now + 2 + 3 * PERIOD + 2 * CHECK; u += 1) {
             if (u % PERIOD == 0)
                 policy_status_document(&p, u);
@@ -1457,7 +1468,7 @@ static void generated_faults_stop_what_moves(void **state)
             if (sent.calls == 2 && p.reaction_answered == false) {
                 if (after == 2)
                     robot_now = POLICY_ROBOT_STILL;
-                policy_action_answered(&p, u);
+                policy_action_answered(&p, u, true);
             }
         }
         if (after == 0) { /* (3) */
@@ -1478,6 +1489,108 @@ static void generated_faults_stop_what_moves(void **state)
     assert_true(acted > runs / 4 && stopped_moves > runs / 20 && escalated > runs / 10);
 }
 
+/*
+ * Braking is stopping, as a property over generated stops: a stopping
+ * time S (100..1000 ms), an arm that after the action's reply either
+ * brakes to rest over B ms (its step falling linearly to 0), or goes on at
+ * its speed, or speeds up. Invariants: (1) an arm at rest within S gets
+ * one command and ends paused or stopped, never escalated; (2) an arm
+ * that speeds up (a fifth a document) gets the second stop by the second
+ * document after the reply and a check, long before S; (3) an arm still moving at S gets it then, not
+ * before; (4) a reset is refused while the reaction is judged; (5) a stop
+ * the robot refused gets no stopping time: the second one goes out a
+ * period after the reply.
+ */
+static double step_now;
+
+static double fake_step(void *user)
+{
+    (void)user;
+    return step_now;
+}
+
+static void braking_is_stopping(void **state)
+{
+    (void)state;
+    unsigned runs = 3000;
+    property_seed("braking property", "POLICY_PROPERTY_SEED", runs);
+    unsigned rested = 0, sped = 0, long_brakes = 0, refused = 0;
+    for (unsigned run = 0; run < runs; run++) {
+        uint32_t stop_ms = 100 + property_next(901);
+        /* 0 brakes to rest, 1 keeps on, 2 speeds up, 3 refuses the stop */
+        unsigned kind = property_next(4);
+        uint32_t brake_ms = kind == 0 ? 40 + property_next(stop_ms - 40 + 1)
+                                      : stop_ms + 100 + property_next(1000);
+        bool program = property_next(2);
+        struct policy_config cfg = {.time_limit_ms = LIMIT, .action = POLICY_PAUSE,
+                                    .watch = POLICY_WATCH_HEARTBEAT,
+                                    .check_period_ms = CHECK, .stop_time_ms = stop_ms};
+        struct policy_sink sink = {.send_action = record_action, .robot = fake_robot,
+                                   .step = fake_step, .on_reaction = record_reaction,
+                                   .user = &sent};
+        memset(&sent, 0, sizeof(sent));
+        reaction_calls = 0;
+        robot_now = program ? POLICY_ROBOT_PROGRAM : POLICY_ROBOT_MOVING;
+        step_now = 1.2;
+        policy_init(&p, &cfg, &sink);
+        for (uint64_t t = T0 - 10 * PERIOD; t <= T0; t += PERIOD)
+            policy_status_document(&p, t);
+        policy_heartbeat(&p, T0, PLC_A, ADDR_A, 1);
+        run_span(T0, T0 + LIMIT, true);
+        assert_int_equal(sent.calls, 1);
+        assert_int_equal(sent.action[0], program ? POLICY_PAUSE : POLICY_STOP);
+        uint64_t answered = T0 + LIMIT + 3;
+        policy_action_answered(&p, answered, kind != 3);
+        char why[48];
+        uint64_t second_at = 0;
+        for (uint64_t t = answered + 1; t <= answered + stop_ms + 400; t++) {
+            uint64_t since = t - answered;
+            if (t % PERIOD == 0) {
+                if (kind == 0)
+                    step_now = since >= brake_ms ? 0 : 1.2 * (1.0 - (double)since / brake_ms);
+                else if (kind == 2)
+                    step_now *= 1.2; /* a fifth faster every document */
+                robot_now = step_now > 0 ? (program ? POLICY_ROBOT_MOVING : POLICY_ROBOT_MOVING)
+                            : program ? POLICY_ROBOT_PAUSED : POLICY_ROBOT_STILL;
+                policy_status_document(&p, t);
+            }
+            if (t % CHECK == 0)
+                policy_check(&p, t, true);
+            if (sent.calls == 2 && !second_at) {
+                second_at = t;
+                break;
+            }
+            if (since == 5 && p.reaction == POLICY_REACTION_SENT)
+                assert_int_equal(policy_may_reset(&p, why, sizeof(why)), -EBUSY); /* (4) */
+        }
+        if (kind == 0) { /* (1) */
+            rested++;
+            assert_int_equal(sent.calls, 1);
+            assert_int_equal(p.reaction, program ? POLICY_REACTION_PAUSED
+                                                 : POLICY_REACTION_STOPPED);
+            assert_int_equal(policy_may_reset(&p, why, sizeof(why)), 0);
+        } else if (kind == 2) { /* (2) */
+            sped++;
+            assert_int_equal(sent.calls, 2);
+            assert_true(second_at - answered <= 2 * PERIOD + 2 * CHECK);
+        } else if (kind == 3) { /* (5) */
+            refused++;
+            assert_int_equal(sent.calls, 2);
+            assert_true(second_at - answered <= PERIOD + 2 * CHECK);
+        } else { /* (3) */
+            long_brakes++;
+            assert_int_equal(sent.calls, 2);
+            assert_int_equal(sent.action[1], POLICY_STOP);
+            assert_true(second_at - answered >= stop_ms + PERIOD);
+            assert_true(second_at - answered <= stop_ms + PERIOD + CHECK);
+        }
+    }
+    printf("braking property: %u came to rest within the stopping time, %u sped up, "
+           "%u still moved after it, %u refused the stop\n", rested, sped, long_brakes, refused);
+    assert_true(rested > runs / 6 && sped > runs / 6 && long_brakes > runs / 6 &&
+                refused > runs / 6);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -1491,6 +1604,7 @@ int main(void)
         cmocka_unit_test(still_moving_is_escalated_once),
         cmocka_unit_test(escalated_stop_that_works_reads_stopped),
         cmocka_unit_test(generated_faults_stop_what_moves),
+        cmocka_unit_test(braking_is_stopping),
         cmocka_unit_test(robot_may_move_assumes_the_worst_when_blind),
         cmocka_unit_test(gate_refuses_under_a_fault_and_without_motion_enable),
         cmocka_unit_test(heartbeat_armed_on_first_write),

@@ -72,6 +72,7 @@ struct gw_config {
     bool ne_motion_enable;
     bool ne_single_owner;
     uint32_t ne_owner;       /* 0 host, 1 connection */
+    uint32_t ne_stop_time_ms; /* the robot's stopping time */
     bool ne_require_heartbeat;
     uint32_t ne_robot_time_limit_ms;
     uint32_t ne_robot_action; /* motType: 0 keep, 1 pause, 2 stop */

@@ -201,6 +201,9 @@ static void on_command_state(struct command_port *cp, enum robot_link_state stat
             check_policy(gw);
     } else {
         plc_commands_link_down(&gw->commands);
+        /* What the robot does with the moves it holds is unknown now (its
+         * handler pauses or stops them): the PLC learns it at once. */
+        motion_link_lost(&gw->motion, uv_now(gw->loop), "the command link was lost");
     }
     notify_change(gw);
 }
@@ -450,7 +453,7 @@ static bool send_policy_action(void *user, enum policy_action action,
     const char *name = action == POLICY_STOP ? "stop_program" : "pause_program";
     int rc = plc_commands_send_now(&gw->commands, name);
     if (rc == 0 && action == POLICY_STOP)
-        motion_stopped(&gw->motion, uv_now(gw->loop), "stopped by the network-exception policy");
+        motion_stop_sent(&gw->motion, uv_now(gw->loop), "stopped by the network-exception policy");
     if (rc == 0)
         log_warn("network exception: %s while the robot may move: sent %s%s; "
                  "commands are refused until the PLC resets the fault",
@@ -467,6 +470,12 @@ static enum policy_robot robot_seen(void *user)
 {
     struct gateway *gw = user;
     return motion_robot(&gw->motion, gateway_status_fresh(gw));
+}
+
+static double arm_step(void *user)
+{
+    struct gateway *gw = user;
+    return gateway_status_fresh(gw) ? motion_step_deg(&gw->motion) : -1;
 }
 
 /* What the robot did about the action: one log line per change. */
@@ -502,35 +511,39 @@ static void on_reaction(void *user, enum policy_reaction reaction, enum policy_a
 static void on_own_answered(void *user, const struct cmd_def *def, const struct cmd_result *r)
 {
     struct gateway *gw = user;
-    (void)def, (void)r;
+    (void)def;
     if (gw->parts & GATEWAY_PART_POLICY)
-        policy_action_answered(&gw->policy, uv_now(gw->loop));
+        policy_action_answered(&gw->policy, uv_now(gw->loop), r->outcome == CMD_DONE);
 }
 
 /* Every command sent for a PLC: a move followed, a stop, a start's kind. */
-static void on_command_sent(void *user, const struct cmd_def *def, const char *json)
+static void on_command_sent(void *user, const struct cmd_def *def, const char *json,
+                            const void *tag)
 {
     struct gateway *gw = user;
     uint64_t now = uv_now(gw->loop);
 
     if (def && strcmp(def->name, "stop_program") == 0)
-        motion_stopped(&gw->motion, now, "stop_program from a PLC");
+        motion_stop_sent(&gw->motion, now, "stop_program from a PLC");
     if (policy_command_starts_motion(def))
         policy_start_kind(&gw->policy, !def || (def->flags & CMD_MOTION));
     /* Only a move has a target to follow: the table says which commands
-     * are moves, so the others are not parsed again (a name the table
-     * does not know is no move the tracker knows either). */
+     * are moves, so the others are not parsed again (the tracker ignores
+     * them anyway). */
     if (def && (def->flags & CMD_MOTION))
-        motion_sent(&gw->motion, now, json);
+        motion_sent(&gw->motion, now, json, tag);
 }
 
-static void on_command_answered(void *user, const struct cmd_def *def,
+static void on_command_answered(void *user, const struct cmd_def *def, const void *tag,
                                 const struct cmd_result *r)
 {
     struct gateway *gw = user;
-    if (def)
-        motion_answered(&gw->motion, uv_now(gw->loop), def->name, r->outcome == CMD_DONE,
-                        r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN);
+    uint64_t now = uv_now(gw->loop);
+    /* A stop ends the moves only once the robot accepted it. */
+    if (def && strcmp(def->name, "stop_program") == 0)
+        motion_stop_answered(&gw->motion, now, r->outcome == CMD_DONE);
+    motion_answered(&gw->motion, now, tag, r->outcome == CMD_DONE,
+                    r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN);
 }
 
 /* The policy saw the loop stand still: logged once per stall, as the
@@ -809,10 +822,12 @@ static int start_policy(struct gateway *gw)
         .owner_by_connection = cfg->ne_owner == 1,
         .require_heartbeat = cfg->ne_require_heartbeat,
         .start_unshown_max_ms = cfg->status_timeout_ms,
+        .stop_time_ms = cfg->ne_stop_time_ms,
     };
     struct policy_sink sink = {.send_action = send_policy_action,
                                .on_stall = on_loop_stall,
                                .robot = robot_seen,
+                               .step = arm_step,
                                .on_reaction = on_reaction,
                                .user = gw};
 

@@ -97,10 +97,11 @@ double motion_orientation_error_deg(const double a[3], const double b[3])
 
 uint64_t motion_bound_ms(double travel, double speed)
 {
-    if (speed < 1e-3)
+    if (!(speed >= 1e-3))
         speed = 1e-3;
     double ms = travel / speed * 1000.0 * MOTION_BOUND_FACTOR + MOTION_BOUND_MARGIN_MS;
-    return ms > MOTION_BOUND_MAX_MS ? MOTION_BOUND_MAX_MS : (uint64_t)ms;
+    /* NaN and infinities fail the comparison: capped, never converted. */
+    return ms >= 0 && ms < MOTION_BOUND_MAX_MS ? (uint64_t)ms : MOTION_BOUND_MAX_MS;
 }
 
 static bool number_of(const cJSON *obj, const char *key, double *out)
@@ -162,28 +163,65 @@ static double travel_between(enum motion_target kind, const double from[6], cons
     return fmax(sqrt(mm), most);
 }
 
-/* Where the move goes and how far, from the last document: its target
- * (relative: from where the arm was), its travel for the bound. */
-static void plan_move(struct motion *m, const struct move_kind *k, const double given[6],
-                      bool relative)
+/* The position a new move starts from, for its travel: the target of the
+ * move held before it, else what the last document shows. */
+static const double *start_of(const struct motion *m, enum motion_target kind)
 {
-    bool have_from = m->have_last && (k->kind == MOTION_TARGET_JOINTS ? m->last.have_joints
-                                                                      : m->last.have_tcp);
-    const double *from = k->kind == MOTION_TARGET_JOINTS ? m->last.joints : m->last.tcp;
-
-    m->kind = k->kind;
-    m->target_known = !relative || have_from;
-    for (int i = 0; i < 6; i++)
-        m->target[i] = relative && have_from ? from[i] + given[i] : given[i];
-    if (strcmp(k->name, "end_move") == 0)
-        m->travel = MOTION_END_MOVE_TRAVEL_DEG;
-    else if (have_from && m->target_known)
-        m->travel = travel_between(k->kind, from, m->target);
-    else
-        m->travel = k->kind == MOTION_TARGET_JOINTS ? MOTION_END_MOVE_TRAVEL_DEG : 1000.0;
+    if (m->held_count > 0) {
+        const struct motion_move *before = &m->held[m->held_count - 1];
+        if (before->kind == kind && before->target_known)
+            return before->target;
+    }
+    if (!m->have_last || !(kind == MOTION_TARGET_JOINTS ? m->last.have_joints
+                                                        : m->last.have_tcp))
+        return NULL;
+    return kind == MOTION_TARGET_JOINTS ? m->last.joints : m->last.tcp;
 }
 
-bool motion_sent(struct motion *m, uint64_t now_ms, const char *json)
+/* Where the move goes and how far: its target (relative: from where the
+ * last document showed the arm), its travel for the bound. */
+static void plan_move(const struct motion *m, const struct move_kind *k, const double given[6],
+                      bool relative, struct motion_move *mv)
+{
+    bool have_arm = m->have_last && (k->kind == MOTION_TARGET_JOINTS ? m->last.have_joints
+                                                                     : m->last.have_tcp);
+    const double *arm = k->kind == MOTION_TARGET_JOINTS ? m->last.joints : m->last.tcp;
+    const double *from = start_of(m, k->kind);
+
+    mv->kind = k->kind;
+    mv->target_known = !relative || have_arm;
+    for (int i = 0; i < 6; i++)
+        mv->target[i] = relative && have_arm ? arm[i] + given[i] : given[i];
+    if (strcmp(k->name, "end_move") == 0)
+        mv->travel = MOTION_END_MOVE_TRAVEL_DEG;
+    else if (from && mv->target_known)
+        mv->travel = travel_between(k->kind, from, mv->target);
+    else
+        mv->travel = k->kind == MOTION_TARGET_JOINTS ? MOTION_END_MOVE_TRAVEL_DEG : 1000.0;
+}
+
+/* The rapid rate the status shows now (1 when it does not). */
+static double rate_now(const struct motion *m)
+{
+    return m->have_last && m->last.rapid_rate > 0 ? m->last.rapid_rate : 1.0;
+}
+
+static void end_moves(struct motion *m, enum motion_state state, const char *why)
+{
+    m->state = state;
+    snprintf(m->why, sizeof(m->why), "%s", why);
+    if (state != MOTION_TIMED_OUT)
+        m->held_count = 0; /* a late arrival turns only 4 into 2 */
+    m->stop_sent = m->stop_accepted = false;
+}
+
+/* A move of the list ended for good: the list starts again. */
+static bool list_open(const struct motion *m)
+{
+    return m->state == MOTION_MOVING || m->state == MOTION_TIMED_OUT;
+}
+
+bool motion_sent(struct motion *m, uint64_t now_ms, const char *json, const void *tag)
 {
     cJSON *doc = cJSON_Parse(json);
     const cJSON *name = json_member_last(doc, "cmdName");
@@ -198,45 +236,82 @@ bool motion_sent(struct motion *m, uint64_t now_ms, const char *json)
     number_of(doc, "speed", &speed);
     number_of(doc, "relFlag", &rel);
     cJSON_Delete(doc);
-    snprintf(m->name, sizeof(m->name), "%s", k->name);
-    plan_move(m, k, given, rel != 0);
+    if (!list_open(m) || m->state == MOTION_TIMED_OUT)
+        m->held_count = 0;
+    if (m->held_count == MOTION_HELD_MAX) {
+        /* More than any controller holds: the oldest is long done. */
+        memmove(&m->held[0], &m->held[1], (MOTION_HELD_MAX - 1) * sizeof(m->held[0]));
+        m->held_count--;
+    }
+    struct motion_move *mv = &m->held[m->held_count];
+    memset(mv, 0, sizeof(*mv));
+    plan_move(m, k, given, rel != 0, mv);
     if (!have_target)
-        m->target_known = false;
-    double rate = m->have_last && m->last.rapid_rate > 0 ? m->last.rapid_rate : 1.0;
-    m->speed = speed * rate;
+        mv->target_known = false;
+    mv->tag = tag;
+    mv->speed = speed;
+    mv->sent_ms = now_ms;
+    m->held_count++;
+    snprintf(m->name, sizeof(m->name), "%s", k->name);
+    m->kind = mv->kind;
+    m->target_known = mv->target_known;
+    memcpy(m->target, mv->target, sizeof(m->target));
+    m->bound_ms = motion_bound_ms(mv->travel, mv->speed * rate_now(m));
     m->count++;
     m->state = MOTION_MOVING;
-    m->answered = false;
-    m->sent_ms = now_ms;
-    m->bound_ms = motion_bound_ms(m->travel, m->speed);
+    m->stop_sent = m->stop_accepted = false;
     m->why[0] = '\0';
     return true;
 }
 
-static void end_move(struct motion *m, enum motion_state state, const char *why)
-{
-    m->state = state;
-    snprintf(m->why, sizeof(m->why), "%s", why);
-}
-
-void motion_answered(struct motion *m, uint64_t now_ms, const char *name, bool accepted,
+void motion_answered(struct motion *m, uint64_t now_ms, const void *tag, bool accepted,
                      bool unknown)
 {
-    if (m->state != MOTION_MOVING || m->answered || strcmp(name, m->name) != 0)
+    unsigned i = 0;
+    while (i < m->held_count &&
+           (m->held[i].tag != tag || m->held[i].reply != MOTION_REPLY_AWAITED))
+        i++;
+    if (i == m->held_count || !list_open(m))
         return;
-    if (accepted) {
-        m->answered = true;
-        m->answered_ms = now_ms;
-    } else if (!unknown) {
-        end_move(m, MOTION_STOPPED, "refused by the robot");
+    if (accepted || unknown) {
+        m->held[i].reply = accepted ? MOTION_REPLY_ACCEPTED : MOTION_REPLY_LOST;
+        m->held[i].answered_ms = now_ms;
+        return;
     }
+    /* Refused, or never sent: the robot does not hold it. */
+    memmove(&m->held[i], &m->held[i + 1], (m->held_count - i - 1) * sizeof(m->held[0]));
+    m->held_count--;
+    if (m->held_count == 0)
+        end_moves(m, MOTION_STOPPED, "refused by the robot, or not sent");
 }
 
-void motion_stopped(struct motion *m, uint64_t now_ms, const char *why)
+void motion_stop_sent(struct motion *m, uint64_t now_ms, const char *why)
 {
     (void)now_ms;
-    if (m->state == MOTION_MOVING)
-        end_move(m, MOTION_STOPPED, why);
+    if (m->state != MOTION_MOVING)
+        return;
+    m->stop_sent = true;
+    m->stop_accepted = false;
+    snprintf(m->stop_why, sizeof(m->stop_why), "%s", why);
+}
+
+void motion_stop_answered(struct motion *m, uint64_t now_ms, bool accepted)
+{
+    if (m->state != MOTION_MOVING || !m->stop_sent)
+        return;
+    if (!accepted) {
+        m->stop_sent = false; /* nothing stopped: the moves go on */
+        return;
+    }
+    m->stop_accepted = true;
+    m->stop_answered_ms = now_ms;
+}
+
+void motion_link_lost(struct motion *m, uint64_t now_ms, const char *why)
+{
+    (void)now_ms;
+    if (m->state == MOTION_MOVING && m->held_count > 0)
+        end_moves(m, MOTION_TIMED_OUT, why);
 }
 
 static bool joints_still(const struct motion_view *a, const struct motion_view *b)
@@ -249,16 +324,16 @@ static bool joints_still(const struct motion_view *a, const struct motion_view *
     return true;
 }
 
-/* Does document 'v' show the move's target reached? */
-static bool at_target(const struct motion *m, const struct motion_view *v)
+/* Does document 'v' show move 'mv''s target reached? */
+static bool at_target(const struct motion_move *mv, const struct motion_view *v)
 {
-    if (!m->target_known)
+    if (!mv->target_known)
         return false;
-    if (m->kind == MOTION_TARGET_JOINTS) {
+    if (mv->kind == MOTION_TARGET_JOINTS) {
         if (!v->have_joints)
             return false;
         for (int i = 0; i < 6; i++)
-            if (fabs(v->joints[i] - m->target[i]) > MOTION_JOINT_TOL_DEG)
+            if (fabs(v->joints[i] - mv->target[i]) > MOTION_JOINT_TOL_DEG)
                 return false;
         return true;
     }
@@ -266,9 +341,9 @@ static bool at_target(const struct motion *m, const struct motion_view *v)
         return false;
     double mm = 0;
     for (int i = 0; i < 3; i++)
-        mm += (v->tcp[i] - m->target[i]) * (v->tcp[i] - m->target[i]);
+        mm += (v->tcp[i] - mv->target[i]) * (v->tcp[i] - mv->target[i]);
     return sqrt(mm) <= MOTION_TCP_TOL_MM &&
-           motion_orientation_error_deg(v->tcp + 3, m->target + 3) <= MOTION_TCP_TOL_DEG;
+           motion_orientation_error_deg(v->tcp + 3, mv->target + 3) <= MOTION_TCP_TOL_DEG;
 }
 
 /* A stop of the robot's own that the document shows, or NULL. */
@@ -285,6 +360,28 @@ static const char *robot_stop(const struct motion_view *v)
     return NULL;
 }
 
+/* The arm stands still: the document shows it unchanged since the one
+ * before, and no program running. */
+static bool arm_still(const struct motion *m, const struct motion_view *v)
+{
+    bool program = v->interp_state == 1 || v->interp_state == 3;
+    return !program && m->have_previous && joints_still(&m->previous, v);
+}
+
+/* Does document 'v' (received at 'now_ms') show move 'i' reached, after
+ * its reply, or after its reply was lost? The last move must also stand
+ * still in position; one before it only pass its target. */
+static bool shows_reached(const struct motion *m, unsigned i, uint64_t now_ms,
+                          const struct motion_view *v)
+{
+    const struct motion_move *mv = &m->held[i];
+    if (mv->reply == MOTION_REPLY_AWAITED || now_ms <= mv->answered_ms || !at_target(mv, v))
+        return false;
+    if (i + 1 < m->held_count)
+        return true;
+    return v->inpos == 1 && arm_still(m, v);
+}
+
 void motion_document(struct motion *m, uint64_t now_ms, const struct motion_view *v)
 {
     m->previous = m->last;
@@ -292,33 +389,80 @@ void motion_document(struct motion *m, uint64_t now_ms, const struct motion_view
     m->last = *v;
     m->have_last = true;
     m->last_document_ms = now_ms;
-    if (m->state != MOTION_MOVING)
+    if (!list_open(m) || m->held_count == 0)
         return;
     const char *stop = robot_stop(v);
-    if (stop) {
-        end_move(m, MOTION_STOPPED, stop);
+    if (stop && m->state == MOTION_MOVING && (arm_still(m, v) || v->enabled == 0 ||
+                                              v->powered_on == 0)) {
+        end_moves(m, MOTION_STOPPED, stop);
         return;
     }
-    /* Only a document received after the reply can show the move done. */
-    if (!m->answered || now_ms <= m->answered_ms)
+    if (m->stop_accepted && now_ms > m->stop_answered_ms && arm_still(m, v)) {
+        char why[64];
+        snprintf(why, sizeof(why), "%s", m->stop_why);
+        end_moves(m, MOTION_STOPPED, why);
         return;
-    bool program = v->interp_state == 1 || v->interp_state == 3;
-    if (v->inpos == 1 && !program && m->have_previous && joints_still(&m->previous, v) &&
-        at_target(m, v))
-        end_move(m, MOTION_ARRIVED, "arrived");
+    }
+    /* In order: each move reaches its target after the one before it. */
+    for (unsigned i = 0; i < m->held_count; i++) {
+        struct motion_move *mv = &m->held[i];
+        if (mv->reached)
+            continue;
+        if (!shows_reached(m, i, now_ms, v))
+            return;
+        mv->reached = true;
+        mv->reached_ms = now_ms;
+    }
+    end_moves(m, MOTION_ARRIVED, "arrived");
+}
+
+/* Does the status show the arm moving? */
+static bool arm_moving(const struct motion *m)
+{
+    return m->have_last && (m->last.inpos == 0 || !arm_still(m, &m->last));
 }
 
 bool motion_check(struct motion *m, uint64_t now_ms)
 {
     if (m->state != MOTION_MOVING)
         return false;
-    uint64_t from = m->answered ? m->answered_ms : m->sent_ms;
-    if (now_ms < from + m->bound_ms)
+    /* The first move not reached: from its reply, or the arrival of the
+     * one before it if later; at the rapid rate the status shows now. */
+    uint64_t from = 0;
+    const struct motion_move *head = NULL;
+    for (unsigned i = 0; i < m->held_count && !head; i++) {
+        if (m->held[i].reached) {
+            from = m->held[i].reached_ms;
+            continue;
+        }
+        head = &m->held[i];
+    }
+    if (!head)
+        return false;
+    uint64_t began = head->reply == MOTION_REPLY_AWAITED ? head->sent_ms : head->answered_ms;
+    if (began > from)
+        from = began;
+    if (head->reply == MOTION_REPLY_AWAITED)
+        return false; /* its reply's own timeout decides */
+    uint64_t bound = motion_bound_ms(head->travel, head->speed * rate_now(m));
+    if (now_ms < from + bound || arm_moving(m))
         return false;
     char why[64];
-    snprintf(why, sizeof(why), "not arrived within %llu ms", (unsigned long long)m->bound_ms);
-    end_move(m, MOTION_TIMED_OUT, why);
+    snprintf(why, sizeof(why), "not arrived within %llu ms", (unsigned long long)bound);
+    end_moves(m, MOTION_TIMED_OUT, why);
     return true;
+}
+
+double motion_step_deg(const struct motion *m)
+{
+    double step = 0;
+
+    if (!m->have_last || !m->have_previous || !m->last.have_joints ||
+        !m->previous.have_joints)
+        return -1;
+    for (int i = 0; i < 6; i++)
+        step = fmax(step, fabs(m->last.joints[i] - m->previous.joints[i]));
+    return step;
 }
 
 enum policy_robot motion_robot(const struct motion *m, bool fresh)

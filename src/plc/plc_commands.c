@@ -431,6 +431,19 @@ static bool has_repeated_member(const cJSON *obj)
 }
 
 /* The JSON mailbox's command: the PLC's text, if it is a command. */
+/* Does 'item' hold a number that is not finite (1e999 reads as infinity),
+ * at any depth? The robot's reading of it, and every bound computed from
+ * it, would be undefined. */
+static bool has_non_finite(const cJSON *item)
+{
+    if (cJSON_IsNumber(item))
+        return !isfinite(item->valuedouble);
+    for (const cJSON *c = item ? item->child : NULL; c; c = c->next)
+        if (has_non_finite(c))
+            return true;
+    return false;
+}
+
 static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd_def **def,
                                  enum build_result *result)
 {
@@ -660,7 +673,12 @@ static int refuse(struct plc_commands *pc, struct plc_slot *slot, int ex,
 {
     /* The same words for the audit trail (plc_commands_refusal). */
     snprintf(pc->refusal, sizeof(pc->refusal), "%s", why);
-    if (slot && slot->state && !slot->pending) {
+    if (slot && slot->state) {
+        /* The count moved for this request: the result is its own. The
+         * commands still pending no longer write theirs when they end,
+         * except the mailbox's: done_seq says whose result it shows. */
+        if (slot->kind != PLC_SLOT_MAILBOX)
+            slot->superseded = slot->pending;
         set_result(slot, outcome, 0, why);
         /* The previous command's reply is no answer to this one. */
         if (slot == &pc->json) {
@@ -720,15 +738,15 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
         if (ex)
             return refuse(pc, slot, ex, CMD_REFUSED, why);
     }
+    /* A PLC's pause or stop is never refused busy: it goes ahead of the
+     * queue and takes out what would move the arm (cmd_queue_submit_urgent). */
+    if (halts)
+        return 0;
     /* A setpoint may queue behind itself; a command or mailbox may not. */
-    if (act != ACT_SETPOINT && slot->pending) {
-        snprintf(pc->refusal, sizeof(pc->refusal), "busy: the previous one is pending");
-        return EX_BUSY;
-    }
-    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY) {
-        snprintf(pc->refusal, sizeof(pc->refusal), "busy: the command queue is full");
-        return EX_BUSY;
-    }
+    if (act != ACT_SETPOINT && slot->pending)
+        return refuse(pc, slot, EX_BUSY, CMD_REFUSED, "busy: the previous one is pending");
+    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY)
+        return refuse(pc, slot, EX_BUSY, CMD_REFUSED, "busy: the command queue is full");
     return 0;
 }
 
@@ -764,6 +782,10 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
                             act == ACT_MAILBOX && !def ? "unknown command code"
                             : act == ACT_JSON          ? "not a JSON command with a cmdName"
                                                        : "invalid parameters");
+    if (has_non_finite(cmd)) {
+        cJSON_Delete(cmd);
+        return refuse(pc, slot, EX_INVALID, CMD_INVALID, "a number is not finite");
+    }
     if (act == ACT_JSON && !def && !pc->cfg.motion)
         ex = refuse_unknown_json_command(pc, request);
     else
@@ -878,7 +900,7 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
     if (slot->state)
         set_result(slot, CMD_PENDING, 0, "");
     if (pc->cfg.sent)
-        pc->cfg.sent(pc->cfg.gate_user, def, json);
+        pc->cfg.sent(pc->cfg.gate_user, def, json, slot);
     /* The policy counts the robot as running from now on, until the
      * status can show it. */
     if (policy_command_starts_motion(def)) {
@@ -1040,8 +1062,12 @@ static void on_done(void *user, const struct cmd_result *r)
     if (slot->kind != PLC_SLOT_INFO)
         audit_command_done(pc->cfg.audit, slot, r);
     if (pc->cfg.answered && slot->kind != PLC_SLOT_INFO && slot->kind != PLC_SLOT_HANDLE)
-        pc->cfg.answered(pc->cfg.gate_user, slot->def, r);
+        pc->cfg.answered(pc->cfg.gate_user, slot->def, slot, r);
     slot->pending--;
+    /* A later request's refusal wrote the result registers: they are its. */
+    bool superseded = slot->superseded > 0;
+    if (superseded)
+        slot->superseded--;
     if (slot->starts_pending > 0) {
         /* One pending at a time for these slots: this is the start. */
         slot->starts_pending--;
@@ -1075,11 +1101,12 @@ static void on_done(void *user, const struct cmd_result *r)
                     cmd_outcome_name(r->outcome), r->error_code, r->error_msg);
         return;
     }
-    set_result(slot, r->outcome, r->error_code, r->error_msg);
+    if (!superseded)
+        set_result(slot, r->outcome, r->error_code, r->error_msg);
     if (slot->kind == PLC_SLOT_MAILBOX)
         regmap_set_number(pc->img, pc->mailbox_done, 0,
                           regmap_get_number(pc->img, pc->mailbox_ack, 0), true);
-    if (slot->kind == PLC_SLOT_JSON)
+    if (slot->kind == PLC_SLOT_JSON && !superseded)
         record_json_reply(pc, r);
     if (r->outcome != CMD_DONE)
         log_notice("command %s: %s (%ld) %s",

@@ -87,10 +87,13 @@ struct plc_commands_config {
      * the table does not know); every result of a command or mailbox
      * (any outcome); every result of a command plc_commands_send_now sent.
      * For the motion tracker and the policy's check of its own action.
-     * Called with 'gate_user'; each may be NULL.
+     * 'tag' says whose: the same for a command's send and its result, and
+     * never shared by two commands pending at once. Called with
+     * 'gate_user'; each may be NULL.
      */
-    void (*sent)(void *user, const struct cmd_def *def, const char *json);
-    void (*answered)(void *user, const struct cmd_def *def, const struct cmd_result *r);
+    void (*sent)(void *user, const struct cmd_def *def, const char *json, const void *tag);
+    void (*answered)(void *user, const struct cmd_def *def, const void *tag,
+                     const struct cmd_result *r);
     void (*own_answered)(void *user, const struct cmd_def *def, const struct cmd_result *r);
     /* The audit trail: every command sent and its result (NULL: none). */
     struct audit *audit;
@@ -122,6 +125,9 @@ struct plc_slot {
     uint64_t trigger_by;       /* the connection that set its trigger to 1 */
     unsigned pending;
     unsigned starts_pending;   /* of them, commands that start motion */
+    /* Of them, those whose result a later request's refusal replaced: a
+     * PLC reads the result of the request that moved the count. */
+    unsigned superseded;
     bool failed;               /* a failure among the pending ones */
     struct cmd_result failure; /* the first of them */
 };

@@ -62,7 +62,8 @@ int plc_write_authorize(const struct plc_write *pw, const struct mb_write *w)
     if (pw->cfg.write_allow.count > 0 &&
         !ip_allow_contains(&pw->cfg.write_allow, &w->client_addr))
         return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
-    return policy_may_write_from(pw->policy, w->client_id, w->peer ? w->peer : w->client);
+    return policy_may_write_via(pw->policy, w->client_id, w->peer ? w->peer : w->client,
+                                w->transport);
 }
 
 static bool is_command_row(const struct regmap_row *row)
@@ -168,6 +169,7 @@ static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_
     if (e->row == rows->heartbeat) {
         policy_heartbeat(pw->policy, now, pw->w->client_id,
                          pw->w->peer ? pw->w->peer : pw->w->client, e->value);
+        policy_owner_transport(pw->policy, pw->w->client_id, pw->w->transport);
     } else if (e->row == rows->fault_reset) {
         if (e->value != 0 && !drops_enable)
             reset_fault(pw);
@@ -180,7 +182,8 @@ static void act_on(struct plc_write *pw, const struct regmap_written *e, uint64_
     }
 }
 
-/* A refused write: its parameters count as not written (plc_commands.h). */
+/* A refused write of a writer allowed to write there: its parameters count
+ * as not written (plc_commands.h). */
 static int refused(struct plc_write *pw, const struct mb_write *w, int ex)
 {
     /* Named only when refused (no printf on a write that goes through):
@@ -191,9 +194,22 @@ static int refused(struct plc_write *pw, const struct mb_write *w, int ex)
     return ex;
 }
 
+/*
+ * Only a connection that may write there can withdraw what was written:
+ * a write refused for its rights, write_allow or the owner changes
+ * nothing, or any client could make the owner's next move trigger read
+ * "target not written".
+ */
+static bool may_write(struct plc_write *pw, const struct mb_write *w)
+{
+    return regmap_write_allowed(pw->img->map, w->table, w->address, w->count, w->rights) == 0 &&
+           plc_write_authorize(pw, w) == 0;
+}
+
 void plc_write_refused_unjudged(struct plc_write *pw, const struct mb_write *w)
 {
-    plc_commands_write_refused(pw->commands, w->table, w->address, w->count);
+    if (w->count > 0 && may_write(pw, w))
+        plc_commands_write_refused(pw->commands, w->table, w->address, w->count);
 }
 
 int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
@@ -209,12 +225,12 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     pw->where[0] = '\0';
     if (ex) {
         snprintf(pw->why, sizeof(pw->why), "outside role \"%s\"", w->role ? w->role : "");
-        return refused(pw, w, ex);
+        return ex; /* changes nothing (may_write) */
     }
     ex = plc_write_authorize(pw, w);
     if (ex) {
         why_unauthorized(pw, w);
-        return refused(pw, w, ex);
+        return ex;
     }
     if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS) {
         snprintf(pw->why, sizeof(pw->why), "invalid count");
@@ -242,8 +258,28 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     const struct regmap_written *enable = element_of(pw, pw->rows.motion_enable);
     const struct regmap_written *reset = element_of(pw, pw->rows.fault_reset);
     bool drops_enable = enable && enable->value == 0;
+    const struct regmap_written *beat = element_of(pw, pw->rows.heartbeat);
+    if (beat && policy_may_feed_heartbeat(pw->policy, w->client_id) != 0) {
+        snprintf(pw->why, sizeof(pw->why), "only the owner's connection feeds the heartbeat");
+        name_element(pw, beat);
+        regmap_load(img, w->table, w->address, w->count, pw->saved);
+        pw->element_count = 0;
+        pw->w = NULL;
+        return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+    }
+    /* A reset while the reaction is judged or the arm moves would cancel
+     * a second stop: refused, busy, with why; a drop with it still goes. */
+    bool reset_refused = reset && reset->value != 0 &&
+                         policy_may_reset(pw->policy, pw->why, sizeof(pw->why)) != 0;
+    if (reset_refused && !drops_enable) {
+        name_element(pw, reset);
+        regmap_load(img, w->table, w->address, w->count, pw->saved);
+        pw->element_count = 0;
+        pw->w = NULL;
+        return MODBUS_EXCEPTION_SLAVE_OR_SERVER_BUSY;
+    }
     if (drops_enable) {
-        if (reset && reset->value != 0)
+        if (reset && reset->value != 0 && !reset_refused)
             reset_fault(pw);
         policy_motion_enable(pw->policy, now, false, pw->hooks.robot_may_move(pw->hooks.user));
     }

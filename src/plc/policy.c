@@ -2,6 +2,8 @@
 /* policy.c - the network-exception policy's state machine (policy.h). */
 #include "policy.h"
 
+#include <errno.h>
+
 #include <modbus.h>
 #include <stdio.h>
 #include <string.h>
@@ -108,6 +110,7 @@ static void clear_owner(struct policy *p)
     p->owner = 0;
     p->owner_address[0] = '\0';
     p->owner_host[0] = '\0';
+    p->owner_transport[0] = '\0';
 }
 
 /* The address alone of "address:port" (the port after the last colon;
@@ -118,17 +121,40 @@ static void host_of(const char *peer, char *out, size_t size)
     snprintf(out, size, "%.*s", colon ? (int)(colon - peer) : (int)strlen(peer), peer);
 }
 
-int policy_may_write_from(const struct policy *p, uint64_t client, const char *peer)
+int policy_may_write_via(const struct policy *p, uint64_t client, const char *peer,
+                         const char *transport)
 {
     if (!p->cfg.single_owner || p->owner == 0 || p->owner == client)
         return 0;
-    if (!p->cfg.owner_by_connection && peer && p->owner_host[0]) {
+    /* A plain connection never shares a TLS owner's rights (nor the
+     * reverse): the same address is not the same PLC across transports. */
+    bool same_transport = !transport || !p->owner_transport[0] ||
+                          strcmp(transport, p->owner_transport) == 0;
+    if (!p->cfg.owner_by_connection && peer && p->owner_host[0] && same_transport) {
         char host[64];
         host_of(peer, host, sizeof(host));
         if (strcmp(host, p->owner_host) == 0)
             return 0; /* the owner PLC's other connection */
     }
     return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+}
+
+int policy_may_write_from(const struct policy *p, uint64_t client, const char *peer)
+{
+    return policy_may_write_via(p, client, peer, NULL);
+}
+
+int policy_may_feed_heartbeat(const struct policy *p, uint64_t client)
+{
+    if (!p->cfg.single_owner || p->owner == 0 || p->owner == client)
+        return 0;
+    return MODBUS_EXCEPTION_ILLEGAL_FUNCTION;
+}
+
+void policy_owner_transport(struct policy *p, uint64_t client, const char *transport)
+{
+    if (p->owner != 0 && p->owner == client && transport)
+        snprintf(p->owner_transport, sizeof(p->owner_transport), "%s", transport);
 }
 
 int policy_may_write(const struct policy *p, uint64_t client)
@@ -208,6 +234,7 @@ static void act(struct policy *p, uint64_t now_ms, enum policy_action action,
         return;
     p->reaction_action = action;
     p->reaction_answered = false;
+    p->reaction_min_step = -1;
     if (p->reaction != POLICY_REACTION_ESCALATED)
         set_reaction(p, now_ms, POLICY_REACTION_SENT);
     if (p->sink.send_action(p->sink.user, action, reason))
@@ -254,12 +281,14 @@ static void latch(struct policy *p, uint64_t now_ms, enum policy_fault reason,
     act(p, now_ms, choose_action(p, now_ms, action), reason);
 }
 
-void policy_action_answered(struct policy *p, uint64_t now_ms)
+void policy_action_answered(struct policy *p, uint64_t now_ms, bool accepted)
 {
     if (p->reaction != POLICY_REACTION_SENT && p->reaction != POLICY_REACTION_ESCALATED)
         return;
     p->reaction_answered = true;
     p->reaction_answered_ms = now_ms;
+    p->reaction_min_step = -1;
+    p->reaction_refused = !accepted;
 }
 
 uint64_t policy_status_period_ms(const struct policy *p)
@@ -268,9 +297,28 @@ uint64_t policy_status_period_ms(const struct policy *p)
 }
 
 /*
+ * Is the arm stopping? Within the stopping time, an arm that moves no
+ * faster than it has since the action's reply is braking; unknown steps
+ * (no joints in the status) leave it to the stopping time. The smallest
+ * step seen is kept: speeding up is measured from it, with a tenth and
+ * 0.005 deg of room for the documents' rounding.
+ */
+static bool arm_slowing(struct policy *p)
+{
+    double step = p->sink.step ? p->sink.step(p->sink.user) : -1;
+
+    if (!(step >= 0) || p->last_document_ms <= p->reaction_answered_ms)
+        return true;
+    if (p->reaction_min_step < 0 || step < p->reaction_min_step)
+        p->reaction_min_step = step;
+    return step <= p->reaction_min_step * 1.1 + 0.005;
+}
+
+/*
  * The action's check, at every check period: once its reply came, a
  * status document received after the reply showing the arm still ends it
- * (paused, or stopped); none by one status period after the reply sends
+ * (paused, or stopped); an arm braking within the stopping time is left
+ * to stop; otherwise none by one status period after the reply sends
  * stop_program once more, and a second miss is final.
  */
 static void judge_reaction(struct policy *p, uint64_t now_ms)
@@ -289,7 +337,14 @@ static void judge_reaction(struct policy *p, uint64_t now_ms)
     /* Before two documents, the check period stands for the period. */
     uint64_t period = p->status_period_ms > p->cfg.check_period_ms ? p->status_period_ms
                                                                    : p->cfg.check_period_ms;
+    bool slowing = arm_slowing(p);
     if (now_ms < p->reaction_answered_ms + period)
+        return;
+    /* Braking is stopping (after a stop the robot accepted: a refused one
+     * stops nothing); the document showing the arm at rest comes up to one
+     * period after it stopped. */
+    if (slowing && !p->reaction_refused && p->cfg.stop_time_ms > 0 &&
+        now_ms < p->reaction_answered_ms + p->cfg.stop_time_ms + period)
         return;
     if (p->reaction == POLICY_REACTION_ESCALATED) {
         set_reaction(p, now_ms, POLICY_REACTION_STILL_MOVING);
@@ -297,6 +352,22 @@ static void judge_reaction(struct policy *p, uint64_t now_ms)
     }
     set_reaction(p, now_ms, POLICY_REACTION_ESCALATED);
     act(p, now_ms, POLICY_STOP, p->fault);
+}
+
+int policy_may_reset(const struct policy *p, char *why, size_t why_size)
+{
+    if (p->fault == POLICY_FAULT_NONE)
+        return 0;
+    if (p->reaction == POLICY_REACTION_SENT || p->reaction == POLICY_REACTION_ESCALATED) {
+        snprintf(why, why_size, "reaction still judged: wait");
+        return -EBUSY;
+    }
+    enum policy_robot robot = robot_seen(p);
+    if (robot == POLICY_ROBOT_MOVING) {
+        snprintf(why, why_size, "arm still moving: wait");
+        return -EBUSY;
+    }
+    return 0;
 }
 
 void policy_action_unknown(struct policy *p, enum policy_action action)

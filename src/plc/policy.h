@@ -43,9 +43,17 @@
  * its reply came, a status document received after it must show the arm
  * still (in position, no program running, positions unchanged: the
  * sink's robot()) within one status period (the interval of the last
- * documents) after the reply; else stop_program goes out once more
- * (POLICY_REACTION_ESCALATED) and is checked the same way: still moving
- * then is POLICY_REACTION_STILL_MOVING, latched until the reset.
+ * documents) after the reply. A real arm brakes: within stop_time_ms of
+ * the reply (the robot's stopping time) and the one status period its
+ * document of rest takes to come, an arm that moves no faster than
+ * it did since the reply (the sink's step(): its largest joint change
+ * from one document to the next) is stopping, and gets no second command;
+ * one that speeds up, or still moves after stop_time_ms, gets stop_program
+ * once more (POLICY_REACTION_ESCALATED), checked the same way: still
+ * moving then is POLICY_REACTION_STILL_MOVING, latched until the reset.
+ * A pause is never turned into a stop while its arm brakes. The reset is
+ * refused while the reaction is still judged or the arm still moves
+ * (policy_may_reset), so it can never cancel an escalation.
  * While a fault is latched, commands are refused, except stop and the
  * reset; the action is never repeated, except motion enable's pause, sent
  * once for each drop, and an action whose outcome is unknown (its
@@ -74,10 +82,11 @@
  *
  * Write ownership, when configured: the client that feeds the heartbeat
  * owns the write side; other clients' writes are refused (exception 01).
- * The owner is a PLC, not a socket (owner = host, the default): every
- * connection from the owner's address may write, as a PLC that reads on
- * one connection and writes on another does; owner = connection keeps it
- * to the one connection. Ownership passes only when the owner's
+ * owner = connection (the default) keeps it to that one connection;
+ * owner = host lets every connection from the owner's address and of its
+ * transport write too, as a PLC that reads on one connection and writes
+ * on another does, but only the owner's connection feeds the heartbeat
+ * (policy_may_feed_heartbeat). Ownership passes only when the owner's
  * connection closes or its heartbeat expires.
  *
  * No motion without a heartbeat (require_heartbeat): until the heartbeat
@@ -167,6 +176,9 @@ struct policy_config {
      * a later time, after the turn's input has been read (see see_time).
      */
     uint32_t check_period_ms;
+    /* The robot's stopping time: how long an arm slowing down after the
+     * action's reply counts as stopping (0: one status period). */
+    uint32_t stop_time_ms;
 };
 
 struct policy_sink {
@@ -184,6 +196,9 @@ struct policy_sink {
     /* What the status shows the arm doing now, from the last documents
      * (optional: NULL reads as POLICY_ROBOT_UNKNOWN). */
     enum policy_robot (*robot)(void *user);
+    /* The arm's largest joint change between the last two documents, in
+     * degrees; negative when unknown (optional: NULL, always unknown). */
+    double (*step)(void *user);
     /* The reaction changed (optional): 'after_ms' since the action's reply. */
     void (*on_reaction)(void *user, enum policy_reaction reaction, enum policy_action sent,
                         uint64_t after_ms);
@@ -226,6 +241,8 @@ struct policy {
     enum policy_action reaction_action; /* the last action sent */
     bool reaction_answered;             /* its reply came */
     uint64_t reaction_answered_ms;
+    double reaction_min_step; /* the smallest step() since the reply; < 0 none */
+    bool reaction_refused;    /* the robot refused the action */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;
@@ -236,6 +253,7 @@ struct policy {
     uint64_t owner;
     char owner_address[64];
     char owner_host[64];
+    char owner_transport[16]; /* "modbus", "tls", "rtu": its transport */
 };
 
 /* The PLC heartbeat as the PLC reads it (IR 5603). */
@@ -257,6 +275,26 @@ void policy_init(struct policy *p, const struct policy_config *cfg,
  */
 int policy_may_write_from(const struct policy *p, uint64_t client, const char *peer);
 int policy_may_write(const struct policy *p, uint64_t client);
+
+/*
+ * policy_may_write_from() for a connection of 'transport' (the server's
+ * name for it: "modbus", "tls"; NULL unknown): with owner = host, only a
+ * connection of the owner's own transport shares its rights, so a plain
+ * client on the address of a TLS owner never does.
+ */
+int policy_may_write_via(const struct policy *p, uint64_t client, const char *peer,
+                         const char *transport);
+
+/*
+ * May connection 'client' write the heartbeat? Only the owner's connection
+ * feeds it (0, or exception 01): with owner = host another program on the
+ * PLC's host could otherwise keep it alive while the PLC is halted.
+ */
+int policy_may_feed_heartbeat(const struct policy *p, uint64_t client);
+
+/* The owner's transport, recorded when connection 'client' fed the
+ * heartbeat and owns the write side. */
+void policy_owner_transport(struct policy *p, uint64_t client, const char *transport);
 
 /* A write to plc_heartbeat by connection 'client', at 'address'
  * ("address:port", as the write owner is shown). */
@@ -313,13 +351,23 @@ void policy_action_unknown(struct policy *p, enum policy_action action);
 /*
  * The action the policy sent got its reply (any outcome but unknown, which
  * is policy_action_unknown): the status is judged from now on (see the
- * top).
+ * top). 'accepted': errorCode 0; a refused action brakes nothing, so it
+ * gets no stopping time.
  */
-void policy_action_answered(struct policy *p, uint64_t now_ms);
+void policy_action_answered(struct policy *p, uint64_t now_ms, bool accepted);
 
 /* The status period the reaction's check allows (ms; 0 before two
  * documents). */
 uint64_t policy_status_period_ms(const struct policy *p);
+
+/*
+ * May the PLC reset the latched fault now? 0, or -EBUSY with the reason in
+ * 'why' (a result's 40 bytes) while the action's reaction is still judged
+ * (sent, or escalated, no status yet showing the arm still) or the status
+ * shows the arm moving: a reset then would cancel the check, and with it a
+ * second stop the arm may still need.
+ */
+int policy_may_reset(const struct policy *p, char *why, size_t why_size);
 
 /* The PLC's reset: clears the latched fault. */
 void policy_reset(struct policy *p);

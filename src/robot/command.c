@@ -236,6 +236,23 @@ static void fail_head_lost(struct cmd_queue *q, const char *why_sent,
     }
 }
 
+/*
+ * Can the command 'json' start or continue motion? Its cmdName in the
+ * table with CMD_MOTION or CMD_STARTS_MOTION; a name the table does not
+ * know, or no name, could be anything (the JSON mailbox passes such text
+ * only with motion allowed): counted as motion.
+ */
+static bool command_moves(const char *json, size_t size)
+{
+    cJSON *doc = cJSON_ParseWithLength(json, size);
+    const cJSON *name = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
+    const struct cmd_def *def = cJSON_IsString(name) ? cmd_find(name->valuestring) : NULL;
+    bool moves = !def || (def->flags & (CMD_MOTION | CMD_STARTS_MOTION));
+
+    cJSON_Delete(doc);
+    return moves;
+}
+
 /* Writes an entry; 0 or the send's error. */
 static int write_entry(struct cmd_queue *q, struct cmd_entry *e)
 {
@@ -324,7 +341,8 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
         return -ENOMEM;
     memcpy(copy, json, size);
     struct cmd_entry *e = entry_at(q, q->count);
-    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
+    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user,
+                            .moves = command_moves(json, size)};
     q->count++;
     /* Only an empty queue sends at once: a command submitted from a done
      * callback, while others wait, must not jump ahead of them. Behind a
@@ -375,63 +393,98 @@ int cmd_queue_submit_check(struct cmd_queue *q, const char *json, size_t size,
     return 0;
 }
 
+/*
+ * Takes every unwritten command that can start or continue motion out of
+ * the queue, in order, into 'out' (their owners are told later, once the
+ * queue is whole again: a callback may submit or drop the link). Returns
+ * how many.
+ */
+static unsigned take_out_motion(struct cmd_queue *q, struct cmd_entry *out)
+{
+    unsigned kept = 0, taken = 0;
+
+    for (unsigned i = 0; i < q->count; i++) {
+        struct cmd_entry *e = entry_at(q, i);
+        if (!e->sent && e->moves)
+            out[taken++] = *e;
+        else
+            *entry_at(q, kept++) = *e;
+    }
+    q->count = kept;
+    return taken;
+}
+
+/* The owners of commands a safety action took out learn it: not sent. */
+static void fail_taken_out(struct cmd_queue *q, struct cmd_entry *taken, unsigned n,
+                           const char *why)
+{
+    for (unsigned i = 0; i < n; i++) {
+        struct cmd_result r = {.outcome = CMD_NOT_SENT};
+        snprintf(r.error_msg, sizeof(r.error_msg), "%s", why);
+        q->stats.not_sent++;
+        free(taken[i].json);
+        taken[i].done(taken[i].user, &r);
+    }
+}
+
 int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
                             cmd_done_cb done, void *user)
 {
+    /* Static: CMD_QUEUE_CAPACITY entries twice are large for a stack, and
+     * the loop runs on one thread; nothing here calls out before they are
+     * used up. */
+    static struct cmd_entry saved[CMD_QUEUE_CAPACITY], taken[CMD_QUEUE_CAPACITY];
     struct cmd_entry displaced = {0};
+    unsigned saved_count = q->count, taken_count;
 
     if (!q->connected)
         return -ENOTCONN;
     if (!q->in_flight && q->count == 0)
         return cmd_queue_submit(q, json, size, done, user);
+    char *copy = malloc(size);
+    if (!copy)
+        return -ENOMEM;
+    memcpy(copy, json, size);
+    /* The queue as it was, in case the action cannot be written. */
+    for (unsigned i = 0; i < saved_count; i++)
+        saved[i] = *entry_at(q, i);
+    /* Nothing that could move the arm may follow the action. */
+    taken_count = take_out_motion(q, taken);
     if (q->count == CMD_QUEUE_CAPACITY) {
-        /* Room for safety first: the newest unwritten command gives way.
-         * It is told only at the end, once the queue is whole again, since
-         * its callback may submit or drop the link. */
-        if (entry_at(q, q->count - 1)->sent)
+        /* Room for safety first: the newest unwritten command gives way. */
+        if (entry_at(q, q->count - 1)->sent) {
+            free(copy);
             return -EBUSY; /* every entry written already */
+        }
         displaced = *entry_at(q, q->count - 1);
         q->count--;
     }
-    char *copy = malloc(size);
-    int rc = copy ? 0 : -ENOMEM;
+    /* Behind what is written already, ahead of what is not. */
     unsigned at = 0;
-    if (copy) {
-        memcpy(copy, json, size);
-        /* Behind what is written already, ahead of what is not. */
-        while (at < q->count && entry_at(q, at)->sent)
-            at++;
-        for (unsigned i = q->count; i > at; i--)
-            *entry_at(q, i) = *entry_at(q, i - 1);
-        struct cmd_entry *e = entry_at(q, at);
-        *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
-        q->count++;
-        rc = write_entry(q, e);
-        if (rc < 0) {
-            for (unsigned i = at; i + 1 < q->count; i++)
-                *entry_at(q, i) = *entry_at(q, i + 1);
-            q->count--;
-            free(copy);
-        } else if (at > 0) {
-            extend_check_for(q, e);
-        }
+    while (at < q->count && entry_at(q, at)->sent)
+        at++;
+    for (unsigned i = q->count; i > at; i--)
+        *entry_at(q, i) = *entry_at(q, i - 1);
+    struct cmd_entry *e = entry_at(q, at);
+    *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user};
+    q->count++;
+    int rc = write_entry(q, e);
+    if (rc < 0) {
+        /* Not sent after all: the queue is as it was. */
+        for (unsigned i = 0; i < saved_count; i++)
+            *entry_at(q, i) = saved[i];
+        q->count = saved_count;
+        free(copy);
+        return rc;
     }
-    if (displaced.json) {
-        if (rc < 0) {
-            /* Not sent after all: the displaced command keeps its place. */
-            *entry_at(q, q->count) = displaced;
-            q->count++;
-        } else {
-            struct cmd_result r = {.outcome = CMD_NOT_SENT};
-            snprintf(r.error_msg, sizeof(r.error_msg), "not sent: displaced by a safety action");
-            q->stats.not_sent++;
-            free(displaced.json);
-            displaced.done(displaced.user, &r);
-        }
-    }
-    if (rc == 0 && !q->in_flight)
+    if (at > 0)
+        extend_check_for(q, e);
+    if (displaced.json)
+        fail_taken_out(q, &displaced, 1, "not sent: displaced by a safety action");
+    fail_taken_out(q, taken, taken_count, "not sent: a safety action took its place");
+    if (!q->in_flight)
         send_next(q); /* at == 0: it is the head now */
-    return rc;
+    return 0;
 }
 
 static void fail_all(struct cmd_queue *q, const char *why_sent, const char *why_not_sent)

@@ -126,6 +126,7 @@ struct cmd_entry {
     void *user;
     bool sent;           /* written already (the head, or an urgent one) */
     bool check;          /* the gateway's link check (cmd_queue_submit_check) */
+    bool moves;          /* can start or continue motion (cmd_queue_submit_urgent) */
     uint32_t timeout_ms; /* its reply's deadline; 0: the queue's */
     uint64_t sent_at_ms;
 };
@@ -172,10 +173,15 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
 /*
  * Accepts a safety action (pause_program, stop_program) and writes it at
  * once, even while another command waits for its reply: it goes right
- * behind the commands already written, ahead of every queued one, and its
- * reply is matched in that order (the controller answers in order). At
- * capacity, the last queued command that is not written yet is failed
- * (CMD_REFUSED) to make room, once the action is written. Returns 0,
+ * behind the commands already written, and its reply is matched in that
+ * order (the controller answers in order). It owns the queue: every
+ * command not written yet that can start or continue motion (CMD_MOTION,
+ * CMD_STARTS_MOTION, or a name the table does not know) is taken out and
+ * fails CMD_NOT_SENT, "not sent: a safety action took its place", so
+ * nothing that moves the arm reaches the robot after the action; the
+ * rest stays queued behind it. At capacity, the last queued command that
+ * is not written yet fails (CMD_NOT_SENT) to make room. Those callbacks
+ * run once the action is written, never when it fails. Returns 0,
  * -ENOTCONN, -EBUSY when every queued command is written already, -ENOMEM,
  * or the send's error (then nothing changed).
  */

@@ -928,8 +928,12 @@ def test_busy_mailbox_and_trigger_refuse_with_06():
         check(plc.coil(TRIGGER["power_on"], 0) == 0, "re-arm while pending")
         check(plc.coil(TRIGGER["power_on"], 1) == EX_BUSY, "trigger while pending: not 06")
         check(plc.read_coils(TRIGGER["power_on"])[0] == 0, "the refused 1 stayed in the coil")
-        plc.expect_done("power_on")
+        # The count moved for the refused trigger: the result is its own,
+        # also once the pending one has been answered.
+        check(plc.result("power_on") == (REFUSED, 0, "busy: the previous one is pending"),
+              "refused trigger's result: %r" % (plc.result("power_on"),))
         fence(plc, sim)
+        check(plc.result("power_on")[0] == REFUSED, "the pending one's result replaced it")
         check(len(sent(sim, "power_on")) == 2, "power_on sent %d times, expected 2"
               % len(sent(sim, "power_on")))
         plc.close()

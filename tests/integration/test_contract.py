@@ -29,12 +29,14 @@ from harness import (Gateway, ModbusPlc, Sim, check, free_port, map_rows, port_o
 
 # Addresses, as the register map gives them (checked against it below).
 C_JOINT_MOVE, C_MOVEL, C_PLAY, C_POWER_ON, C_JSON_TRIGGER = 112, 114, 107, 100, 120
+C_STOP, H_RAPID_RATE = 110, 100
 C_CABINET_DO_1, C_TOOL_DO_0 = 200, 216
 H_HEARTBEAT, H_JOINT_MOVE, H_MOVEL, H_MAILBOX, H_MAILBOX_SEQ = 0, 300, 340, 400, 425
 H_PROGRAM_NAME, H_JSON_REQUEST = 200, 500
 D_COMMAND_LINK_UP, D_STATUS_FRESH, D_INPOS = 1, 2, 19
 I_WRITE_OWNER, I_ROBOT_HANDLE, I_RAPIDRATE_PERMILLE = 66, 64, 114
-RESULT = {"power_on": 4000, "play_program": 4168, "joint_move": 4432, "moveL": 4480}
+RESULT = {"power_on": 4000, "play_program": 4168, "joint_move": 4432, "moveL": 4480,
+          "stop_program": 4240}
 I_MAILBOX_ACK, I_MAILBOX_STATE, I_MAILBOX_COUNT = 4600, 4602, 4625
 I_JSON_STATE, I_JSON_LENGTH, I_JSON_COUNT, I_JSON_REPLY = 4650, 4674, 4676, 4700
 I_PLC_HEARTBEAT_STATE = 5603
@@ -231,7 +233,7 @@ def test_mailbox_sequence_alone_is_refused():
 # ---- items 5 and 6: the owner is a PLC; no motion without a heartbeat ----
 
 def test_owner_is_a_plc_not_a_socket():
-    sim, gw = started()
+    sim, gw = started(CONTRACT + "owner = host\n")
     reader = writer = None
     try:
         reader = Plc(gw)
@@ -245,13 +247,17 @@ def test_owner_is_a_plc_not_a_socket():
         print("  second connection of the owner's host: %s; IR 66 %r" %
               ("accepted" if ex == 0 else "exception %02x" % ex, owner))
         check(ex == 0, "the owner PLC's second connection refused: %02x" % ex)
+        # Yet only the owner's connection feeds the heartbeat: another
+        # program on the PLC's host cannot keep it alive.
+        check(writer.reg(H_HEARTBEAT, 4242) == EX_NOT_PERMITTED,
+              "a second connection fed the heartbeat")
         port = reader.client.socket.getsockname()[1]
         check(owner == "127.0.0.1:%d" % port, "IR 66 reads %r" % owner)
     finally:
         stop(sim, gw, *[p for p in (reader, writer) if p])
-    # owner = connection: only the heartbeat's connection writes, and the
-    # refusal names its address and port.
-    sim, gw = started(CONTRACT + "owner = connection\n")
+    # owner = connection (the default): only the heartbeat's connection
+    # writes, and the refusal names its address and port.
+    sim, gw = started()
     try:
         reader = Plc(gw)
         reader.ready()
@@ -264,6 +270,63 @@ def test_owner_is_a_plc_not_a_socket():
                    in gw.output(), 5, "the refusal naming the owner's address and port")
     finally:
         stop(sim, gw, reader, writer)
+
+
+def test_refused_write_leaves_the_owners_parameters():
+    """A write refused for who sent it changes nothing: a client outside
+    write_allow, and another connection of the owner's host, each write one
+    register of the joint_move block (01); the owner's trigger still sends
+    the target it wrote."""
+    sim, gw = started(CONTRACT + "[modbus]\nwrite_allow = 127.0.0.1\n")
+    owner = intruder = second = None
+    try:
+        owner = Plc(gw)
+        owner.ready()
+        owner.heartbeat()
+        owner.power_and_enable()
+        target = [0, 90, 90, 0, 90, 0]  # where the arm is: nothing moves
+        check(owner.regs(H_JOINT_MOVE, f32_regs(target + [20, 100]) + [0]) == 0, "the block")
+        intruder = ModbusPlc(gw.modbus_port, source="127.0.0.2")
+        second = Plc(gw)
+        for who, plc in (("outside write_allow", intruder), ("not the owner", second)):
+            ex = plc.reg(H_JOINT_MOVE + 4, 0)
+            print("  a client %s writes HR %d: exception %02x" % (who, H_JOINT_MOVE + 4, ex))
+            check(ex == EX_NOT_PERMITTED, "%s: exception %02x" % (who, ex))
+        ex = owner.pulse(C_JOINT_MOVE)
+        r = owner.result("joint_move")
+        print("  the owner's trigger after them: exception %02x, %r" % (ex, r))
+        check(ex == 0, "the owner's trigger refused %02x: %r" % (ex, r))
+        owner.wait_done("joint_move")
+        check(sent(sim, "joint_move")[-1]["jointPosition"] == target, "the target sent")
+    finally:
+        stop(sim, gw, *[p for p in (owner, intruder, second) if p])
+
+
+def test_stop_never_refused_for_a_full_queue():
+    """The gateway's queue full (rapid_rate setpoints behind a robot that
+    answers each 1.5 s late): a setpoint more is refused busy (06), the
+    PLC's stop_program is not, and reaches the robot ahead of the queue."""
+    sim, gw = started(sim_args=("--log-commands", "--reply-delay", "rapid_rate:1500"))
+    plc = None
+    try:
+        plc = Plc(gw)
+        plc.ready()
+        plc.heartbeat()
+        codes = [plc.reg(H_RAPID_RATE, 500 + i) for i in range(70)]
+        print("  70 rapid_rate setpoints: %d accepted, %d busy (06)"
+              % (codes.count(0), codes.count(6)))
+        check(6 in codes, "the queue never filled: %s" % codes)
+        ex = plc.pulse(C_STOP)
+        r = plc.result("stop_program")
+        print("  stop_program with the queue full: exception %02x, %r" % (ex, r))
+        check(ex == 0 and r["state"] in (PENDING, DONE), "stop_program refused %02x: %r" % (ex, r))
+        wait_until(lambda: sent(sim, "stop_program"), 5, "stop_program at the robot")
+        names = [c["cmdName"] for c in sim_commands(sim) if c["cmdName"] in
+                 ("rapid_rate", "stop_program")]
+        check(names.index("stop_program") <= 2, "stop_program behind %d rapid_rates"
+              % names.index("stop_program"))
+    finally:
+        stop(sim, gw, *[p for p in (plc,) if p])
 
 
 def status_json(port):
@@ -387,6 +450,8 @@ if __name__ == "__main__":
          test_movel_block_in_one_fc16_and_no_move_to_a_target_never_written,
          test_mailbox_sequence_alone_is_refused,
          test_owner_is_a_plc_not_a_socket,
+         test_refused_write_leaves_the_owners_parameters,
+         test_stop_never_refused_for_a_full_queue,
          test_no_motion_before_the_heartbeat,
          test_json_refusal_clears_the_reply_and_reasons_fit,
          test_output_coils_read_back_where_the_map_says])

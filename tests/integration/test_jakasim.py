@@ -284,6 +284,79 @@ def test_command_faults():
         sim.stop()
 
 
+def test_brakes_and_answers_in_order():
+    """--stop-time-ms: a move ramps up and down, a stop from full speed
+    takes the stopping time (the arm moves on, slowing, after the reply),
+    a paused program slows down to rest and can be resumed; --reply-delay
+    holds one command's reply, and the replies behind it keep their order
+    (a controller answers in order)."""
+    sim = Sim("--period-ms", "20", "--move-lag", "0", "--stop-time-ms", "400",
+              "--reply-delay", "rapid_rate:300")
+    r, docs = Robot(sim), Documents(sim)
+    try:
+        r.call("power_on")
+        r.call("enable_robot")
+        docs.drain()
+        check(r.call("joint_move", relFlag=1, jointPosition=[90, 0, 0, 0, 0, 0], speed=60,
+                     accel=100)["errorCode"] == "0", "joint_move")
+        steps, last = [], docs.next()["joint_actual_position"][0]
+        while len(steps) < 30:
+            now = docs.next()["joint_actual_position"][0]
+            steps.append(now - last)
+            last = now
+        # 60 deg/s reached in 0.4 s: 1.2 deg a document from the 20th on.
+        check(steps[1] < steps[5] < steps[12] < 1.2 - 1e-6, "no ramp up: %r" % steps[:14])
+        check(abs(steps[-1] - 1.2) < 1e-6, "not at full speed: %r" % steps[-5:])
+        check(r.call("stop_program")["errorCode"] == "0", "stop_program")
+        at_stop, moving, prev = last, 0, None
+        while True:
+            d = docs.next()
+            pos = d["joint_actual_position"][0]
+            if pos == prev:
+                break
+            moving += 1
+            prev = pos
+        print("  stopped %.2f deg and %d documents after stop_program" % (pos - at_stop, moving))
+        check(17 <= moving <= 23, "the stop took %d documents, 0.4 s is 20" % moving)
+        check(10 <= pos - at_stop <= 14, "braked %.2f deg, 60 deg/s over 0.4 s is 12" %
+              (pos - at_stop))
+        check(d["inpos"] and pos < last + 30, "the move went on after its stop")
+        # A move accepted while the arm brakes runs once it is at rest.
+        check(r.call("joint_move", relFlag=1, jointPosition=[40, 0, 0, 0, 0, 0], speed=60,
+                     accel=100)["errorCode"] == "0", "joint_move")
+        for _ in range(15):
+            docs.next()
+        check(r.call("stop_program")["errorCode"] == "0", "stop_program")
+        braking_at = docs.next()["joint_actual_position"][0]
+        check(r.call("joint_move", relFlag=0, jointPosition=[-10, 90, 90, 0, 90, 0], speed=60,
+                     accel=100)["errorCode"] == "0", "joint_move while braking")
+        check(docs.next()["joint_actual_position"][0] > braking_at, "not braking")
+        wait_until(lambda: abs(docs.next()["joint_actual_position"][0] + 10) < 1e-6, 10,
+                   "the move accepted while braking to run")
+        # A program paused slows down to rest, and stays resumable.
+        check(r.call("load_program", programName="demo.jks")["errorCode"] == "0", "load")
+        check(r.call("play_program")["errorCode"] == "0", "play")
+        for _ in range(10):
+            docs.next()
+        check(r.call("pause_program")["errorCode"] == "0", "pause")
+        a, b = docs.next()["joint_actual_position"], docs.next()["joint_actual_position"]
+        check(a != b, "a paused program stood still at once")
+        wait_until(lambda: docs.next()["joint_actual_position"] == docs.next()
+                   ["joint_actual_position"], 5, "the paused program to come to rest")
+        check(r.call("get_program_state")["programState"] == "paused", "not paused")
+        check(r.call("resume_program")["errorCode"] == "0", "resume")
+        # A held reply: what follows it waits behind it.
+        r.sock.sendall(b'{"cmdName": "rapid_rate", "rate_value": 0.5}'
+                       b'{"cmdName": "get_version"}')
+        a, b = r.replies(2)
+        check(a["cmdName"] == "rapid_rate" and b["cmdName"] == "get_version",
+              "replies out of order: %r %r" % (a, b))
+        r.close()
+        docs.close()
+    finally:
+        sim.stop()
+
+
 if __name__ == "__main__":
     run([test_wire_format_is_python_json_with_exact_len, test_commands_follow_the_state_machine,
-         test_command_faults, test_moves_as_the_manual_says])
+         test_command_faults, test_moves_as_the_manual_says, test_brakes_and_answers_in_order])

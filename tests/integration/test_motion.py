@@ -277,6 +277,8 @@ def test_stops_read_stopped_before_arriving():
         check(plc.joint_move([40, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
         wait_until(lambda: plc.joints()[0] > 2, 5, "the move to show")
         check(plc.pulse(C_STOP) == 0, "stop_program refused")
+        # 3 once the robot accepted the stop and the status shows the arm still.
+        wait_until(lambda: plc.state()[0] != MOVING, 2, "the stop to show")
         check(plc.state()[0] == STOPPED, "after stop_program: state %d" % plc.state()[0])
         # An emergency stop (SIGRTMIN) and a protective stop (SIGUSR2).
         for sig, what in ((signal.SIGUSR2, "protective stop"), (signal.SIGRTMIN, "emergency stop")):
@@ -350,8 +352,187 @@ def test_robot_that_never_stops_reads_still_moving():
     escalation(0)
 
 
+H_RAPID_RATE = addr("holding_register", "rapid_rate")
+I_JOINT_MOVE_STATE = addr("input_register", "result_joint_move_state")
+I_JOINT_MOVE_MSG = addr("input_register", "result_joint_move_error_msg")
+I_INTERP_STATE = addr("input_register", "interp_state")
+NOT_SENT = 8
+
+
+def reason(plc, address):
+    regs = plc.ir(address, 20)
+    return b"".join(struct.pack(">H", r) for r in regs).rstrip(b"\0").decode()
+
+
+def test_fault_with_a_move_waiting_in_the_queue():
+    """A joint_move waits in the gateway's queue behind a slow rapid_rate
+    reply (jakasim --reply-delay rapid_rate:600) when motion enable drops:
+    the stop takes the move out of the queue (its result 8, "not sent: a
+    safety action took its place"); the robot receives no motion command
+    after the stop and the arm never leaves home."""
+    sim_args = SIM + ["--reply-delay", "rapid_rate:600", "--stop-time-ms", "300"]
+    with running(sim_args, config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        check(plc.reg(H_RAPID_RATE, 1000) == 0, "rapid_rate refused")
+        check(plc.joint_move([30, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        check(plc.coil(C_MOTION_ENABLE, 0) == 0, "drop refused")
+        wait_until(lambda: "stop_program" in sim_names(sim), 3, "stop_program at the robot")
+        wait_until(lambda: plc.ir(I_JOINT_MOVE_STATE)[0] not in (0, 1), 3,
+                   "joint_move's result")
+        travel, _ = watch_travel(plc, 0, 0.0, time.monotonic(), after_s=1.2)
+        names = [n for n in sim_names(sim) if n in ("rapid_rate", "joint_move", "stop_program",
+                                                     "pause_program")]
+        state, why = plc.ir(I_JOINT_MOVE_STATE)[0], reason(plc, I_JOINT_MOVE_MSG)
+        print("  the robot received %s; joint 1 went %.2f deg; joint_move's result %d '%s'; "
+              "motion state %d, reaction %d" % (names, travel, state, why,
+                                                plc.ir(I_MOTION_STATE)[0], plc.ir(I_REACTION)[0]))
+        after = names[names.index("stop_program"):]
+        check("joint_move" not in after, "joint_move reached the robot after the stop: %s" % names)
+        check(travel < 0.01, "the arm moved %.2f deg" % travel)
+        check(state == NOT_SENT and why == "not sent: a safety action took its place",
+              "joint_move's result %d '%s'" % (state, why))
+        plc.close()
+
+
+def test_queued_move_reads_2_only_at_the_last_target():
+    """Out 60 deg and back, the second joint_move (through the exactly-once
+    mailbox) queued behind the first at the robot (manual 4.7): IR 5600
+    never reads 2 before the arm went out and came back; a stop the robot
+    refuses ends nothing."""
+    with running(SIM + ["--stop-time-ms", "200"], config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        check(plc.joint_move([60, 90, 90, 0, 90, 0], speed=120) == 0, "joint_move refused")
+        check(plc.regs(H_MAILBOX, [MAILBOX_JOINT_MOVE] + f32_regs(HOME + [120, 100, 0, 0, 0, 0])
+                       + [1]) == 0, "the move back refused")
+        t0, most, early = time.monotonic(), 0.0, None
+        while True:
+            state = plc.ir(I_MOTION_STATE)[0]
+            j1 = plc.joints()[0]
+            most = max(most, j1)
+            if state == ARRIVED and early is None and most < 59.9:
+                early = (time.monotonic() - t0, j1)
+            if state != MOVING:
+                break
+            check(time.monotonic() - t0 < 10, "the moves never ended")
+        print("  out 60 deg and back: state %d with joint 1 at %.2f deg, having reached %.2f deg"
+              "%s" % (state, j1, most, "" if early is None else
+                      "; 2 at %.0f ms with joint 1 at %.2f" % (1000 * early[0], early[1])))
+        check(early is None and state == ARRIVED and most >= 59.9 and abs(j1) <= JOINT_TOL,
+              "state %d at joint 1 %.2f deg, furthest %.2f deg" % (state, j1, most))
+        plc.close()
+
+
+def test_cut_command_link_mid_move_reads_at_once():
+    """The command link cut (an RST both ways, through a relay) while a
+    joint_move runs: IR 5600 leaves 1 within the link bound (1.5 s), not
+    after the move's bound (60 deg at 20 deg/s: 5.5 s)."""
+    from harness import Gateway, Sim
+    from test_plc_model import Ports, Relay
+    sim = Sim(*SIM)
+    relay = Relay(sim.command_port)
+    gw = None
+    try:
+        gw = Gateway(Ports(sim.status_port, relay.port), config())
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        check(plc.joint_move([60, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        wait_until(lambda: plc.joints()[0] > 5, 5, "the move to show")
+        cut = time.monotonic()
+        relay.cut()
+        wait_until(lambda: plc.state()[0] != MOVING, 8, "IR 5600 to leave 1")
+        took = time.monotonic() - cut
+        state = plc.state()[0]
+        print("  command link cut at joint 1 past 5 deg: IR 5600 %d after %.0f ms"
+              % (state, 1000 * took))
+        check(state == TIMED_OUT and took <= 1.5, "IR 5600 %d after %.2f s" % (state, took))
+        check(log_lines(gw, "the command link was lost"), "no log line saying why")
+        plc.close()
+    finally:
+        try:
+            if gw:
+                gw.stop()
+        finally:
+            relay.close()
+            sim.stop()
+
+
+def braking(stop_ms, program):
+    """A program runs (or a joint_move at 60 deg/s) on a robot that brakes
+    over 'stop_ms' when motion enable drops: one command (pause_program
+    for the program, which stays paused and resumable; stop_program for
+    the move), reaction 3 or 4, never 6."""
+    sim_args = SIM + ["--stop-time-ms", str(stop_ms)]
+    with running(sim_args, config()) as (sim, gw):
+        plc = Plc(gw.modbus_port)
+        plc.ready()
+        if program:
+            check(plc.regs(addr("holding_register", "load_program_name"),
+                           list(struct.unpack(">32H", b"demo.jks".ljust(64, b"\0")))) == 0,
+                  "program name")
+            check(plc.pulse(addr("coil", "cmd_load_program")) == 0, "load_program")
+            check(plc.pulse(addr("coil", "cmd_play_program")) == 0, "play_program")
+            wait_until(lambda: plc.ir(I_INTERP_STATE)[0] == 3, 5, "the program running")
+        else:
+            check(plc.joint_move([90, 90, 90, 0, 90, 0], speed=60) == 0, "joint_move refused")
+        first = plc.joints()
+        if program:
+            wait_until(lambda: plc.joints() != first, 5, "the arm moving")
+        else:  # past its ramp (15 deg at most): at full speed
+            wait_until(lambda: plc.joints()[0] > 20, 5, "joint 1 past 20 deg")
+        check(plc.coil(C_MOTION_ENABLE, 0) == 0, "drop refused")
+        seen = set()
+        def settled():
+            seen.add(plc.ir(I_REACTION)[0])
+            return plc.ir(I_REACTION)[0] in (R_PAUSED, R_STOPPED, R_STILL_MOVING)
+        wait_until(settled, 5, "the reaction")
+        last = [plc.joints()]
+        def at_rest():
+            now, last[0] = plc.joints(), last[0]
+            same = now == last[0]
+            last[0] = now
+            return same
+        wait_until(at_rest, 3, "the arm at rest", interval=0.05)
+        halts = [n for n in sim_names(sim) if n in ("pause_program", "stop_program")]
+        interp = plc.ir(I_INTERP_STATE)[0]
+        print("  %s, %d ms of braking: sent %s, reaction %d (seen %s), interp_state %d"
+              % ("program" if program else "joint_move", stop_ms, halts,
+                 plc.ir(I_REACTION)[0], sorted(seen), interp))
+        want = ["pause_program"] if program else ["stop_program"]
+        check(halts == want, "%d ms: sent %s" % (stop_ms, halts))
+        check(R_STILL_MOVING not in seen and R_ESCALATED not in seen,
+              "%d ms: reaction 5 or 6 seen: %s" % (stop_ms, sorted(seen)))
+        check(plc.ir(I_REACTION)[0] == (R_PAUSED if program else R_STOPPED),
+              "reaction %d" % plc.ir(I_REACTION)[0])
+        if program:
+            check(interp == 2, "%d ms: interp_state %d, not paused" % (stop_ms, interp))
+        plc.close()
+
+
+def test_braking_is_stopping():
+    """300 and 500 ms of braking, a program and a move: the four cells run
+    side by side (each its own jakasim and jakagw)."""
+    import threading
+    errors = []
+    def one(stop_ms, program):
+        try:
+            braking(stop_ms, program)
+        except Exception as e:  # reported below, with which case
+            errors.append("%d ms, %s: %s" % (stop_ms, "program" if program else "move", e))
+    threads = [threading.Thread(target=one, args=(ms, prog))
+               for ms in (300, 500) for prog in (True, False)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    check(not errors, "; ".join(errors))
+
 if __name__ == "__main__":
     run([test_motion_enable_drop_stops_a_joint_move, test_heartbeat_loss_stops_a_joint_move,
          test_motion_state_first_reading_and_arrival, test_stops_read_stopped_before_arriving,
          test_move_never_shown_times_out, test_robot_that_does_not_stop_is_escalated,
-         test_robot_that_never_stops_reads_still_moving])
+         test_robot_that_never_stops_reads_still_moving,
+         test_fault_with_a_move_waiting_in_the_queue, test_braking_is_stopping,
+         test_queued_move_reads_2_only_at_the_last_target,
+         test_cut_command_link_mid_move_reads_at_once])

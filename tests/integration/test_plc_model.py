@@ -11,15 +11,20 @@ through the exactly-once mailbox; an output; a program started and
 stopped) and injects at most one fault at a random PLC scan: the heartbeat
 stops, motion enable drops, the PLC's connection drops and comes back, the
 PLC restarts (its connection gone, silent, then its start-up recipe with
-the trigger it held at 1), an emergency stop, or the command link to the
+the trigger it held at 1), an emergency stop, the command link to the
 robot is cut (a TCP relay between the gateway and jakasim's command port,
-closed with an RST). Then it recovers as the guide says and checks, on
-every run:
+closed with an RST), motion enable dropped with the reset pressed at once
+(refused, 06, while the reaction is judged or the arm moves), or a second
+program on the PLC's host writes the heartbeat and a move trigger (both
+refused, 01). Each cell's jakasim brakes (--stop-time-ms 100, 300, 600 or
+1000). Then it recovers as the guide says (the reset once IR 5602 no
+longer reads 2 or 5) and checks, on every run:
 
 - after a fault that the gateway reacts to, the arm (seen on jakasim's own
   status port, not through the gateway) is stopped within time_limit_ms +
-  one status period + the reply time (plus scheduling slack on a shared
-  machine, printed with the figures measured);
+  one status period + the reply time + the cell's stopping time (plus
+  scheduling slack on a shared machine, printed with the figures
+  measured), an early reset or not;
 - a recipe step passes only on its own request's result: the result count
   moved by exactly one from the value read before the trigger, and a
   "done" is backed by the robot's log (the command received after the
@@ -113,9 +118,11 @@ CONFIG = ("[robot]\nreconnect_min_ms = 50\nreconnect_max_ms = 200\n"
           "robot_time_limit_ms = %d\n" % (LIMIT_MS, ROBOT_LIMIT_MS))
 
 FAULTS = ("none", "heartbeat", "motion_enable", "reconnect", "plc_restart", "estop",
-          "command_link")
+          "command_link", "early_reset", "second_program")
 # Faults the gateway itself must answer by stopping the arm.
-STOPPING = ("heartbeat", "motion_enable", "plc_restart", "estop")
+STOPPING = ("heartbeat", "motion_enable", "plc_restart", "estop", "early_reset")
+# jakasim --stop-time-ms of the cells: each brakes as a real arm does.
+STOP_TIMES_MS = (100, 300, 600, 1000)
 
 
 def f32(value):
@@ -440,7 +447,11 @@ class Cell:
         self.index = index
         self.rng = rng
         self.figures = figures
-        self.sim = Sim("--log-commands", "--period-ms", str(PERIOD_MS))
+        # A robot that brakes: a stop from full speed takes 0.1-1 s.
+        self.stop_ms = rng.choice(STOP_TIMES_MS)
+        self.stop_bound_s = STOP_BOUND_S + self.stop_ms / 1000
+        self.sim = Sim("--log-commands", "--period-ms", str(PERIOD_MS),
+                       "--stop-time-ms", str(self.stop_ms))
         self.relay = Relay(self.sim.command_port)
         self.gw = Gateway(Ports(self.sim.status_port, self.relay.port), CONFIG)
         self.log = RobotLog(self.sim)
@@ -510,6 +521,31 @@ class Cell:
             self.press_estop(True)
         elif kind == "command_link":
             self.relay.cut()
+        elif kind == "early_reset":
+            # Motion enable dropped, and the reset pressed as soon as the
+            # fault shows: refused while the reaction is judged or the arm
+            # moves (06), so it never cancels a stop (the bound holds).
+            code = plc.write_coil(MOTION_ENABLE, 0)
+            check(code == 0, "motion enable 0 refused with %02X" % code)
+            self.fault_time = time.monotonic()
+            code = plc.write_coil(FAULT_RESET, 1)
+            self.events["early reset answered %02X" % code] += 1
+            check(code in (0, 6), "the early reset answered %02X" % code)
+        elif kind == "second_program":
+            # Another program on the PLC's host (an HMI): it can neither
+            # feed the heartbeat nor start motion (owner = connection).
+            from pymodbus.client import ModbusTcpClient
+            other = ModbusTcpClient("127.0.0.1", port=self.gw.modbus_port, timeout=2,
+                                    retries=0)
+            try:
+                check(other.connect(), "the second program cannot connect")
+                beat = other.write_register(HEARTBEAT, 4242, slave=1)
+                move = other.write_coil(TRIGGERS["joint_move"], True, slave=1)
+                codes = [getattr(r, "exception_code", 0) for r in (beat, move)]
+                check(codes == [1, 1], "the second program's heartbeat and trigger: %s" % codes)
+                self.events["second program refused"] += 1
+            finally:
+                other.close()
 
     # -- the robot's side --
 
@@ -588,10 +624,14 @@ def retained_triggers(cell):
 
 
 def fault_reset(cell):
-    """Fault reset: with the signal restored and the arm stopped, coil 130
-    = 1, then read IR 60 = 0."""
+    """Fault reset: with the signal restored, the reaction judged (IR 5602
+    not 2 or 5) and the arm stopped, coil 130 = 1 (06 while the arm still
+    moves: again), then read IR 60 = 0."""
     plc = cell.plc
-    check(plc.write_coil(FAULT_RESET, 1) == 0, "fault reset refused")
+    plc.wait(lambda: plc.ir(REACTION)[0] not in (2, 5), 3, "the reaction judged")
+    code = plc.wait_for(lambda: plc.write_coil(FAULT_RESET, 1), lambda c: c != 6, 3,
+                        "the reset accepted")
+    check(code == 0, "fault reset refused with %02X" % code)
     plc.wait(lambda: plc.ir(FAULT)[0] == 0, 2, "the fault cleared")
 
 
@@ -795,11 +835,19 @@ def recover(cell):
     if was_moving:
         cell.events["%s while the arm moved" % kind] += 1
     if kind in STOPPING and was_moving:
+        # The bound of a robot that stops at once; past it, only as long
+        # as this one still brakes (up to its stopping time more).
         end = t0 + STOP_BOUND_S + 0.15
+        last = t0 + cell.stop_bound_s + 0.15
+        def waited():
+            now = time.monotonic()
+            return now > last or (now > end and
+                                  cell.watch.stopped_since(t0, now) is not None)
         if plc.client is not None:  # a PLC still running scans meanwhile
-            plc.wait(lambda: time.monotonic() > end, STOP_BOUND_S + 1, "the bound")
+            plc.wait(waited, cell.stop_bound_s + 1, "the bound")
         else:
-            time.sleep(max(0.0, end - time.monotonic()))
+            while not waited():
+                time.sleep(PERIOD_MS / 1000)
         if cell.watch.moving_at(t0 + LIMIT_MS / 1000):
             cell.events["%s: the arm still moving at time_limit_ms" % kind] += 1
         stopped = cell.watch.stopped_since(t0, time.monotonic())
@@ -810,9 +858,10 @@ def recover(cell):
         cell.figures[kind].append(took)
         if took > (LIMIT_MS + PERIOD_MS + REPLY_MS) / 1000:
             cell.events["%s: stopped later than time_limit_ms + period + reply" % kind] += 1
-        if took > STOP_BOUND_S:
-            raise Violation("%s: the arm stopped %.0f ms after the fault (bound %.0f ms)"
-                            % (kind, took * 1000, STOP_BOUND_S * 1000))
+        if took > cell.stop_bound_s:
+            raise Violation("%s: the arm stopped %.0f ms after the fault (bound %.0f ms, "
+                            "braking %d ms)" % (kind, took * 1000, cell.stop_bound_s * 1000,
+                                                cell.stop_ms))
     if kind in STOPPING and plc.client is not None and plc.ir(FAULT)[0] != 0:
         # The guide's reset, step 2: what the robot did about the fault.
         reaction = plc.wait_for(lambda: plc.ir(REACTION)[0], lambda v: v != 2, 1,

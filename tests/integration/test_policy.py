@@ -367,6 +367,9 @@ def test_connection_watch():
         back = ModbusPlc(gw.modbus_port)
         check(back.ir(FAULT)[0] == FAULT_NO_CLIENT, "fault 2 not latched")
         check(back.pulse(PLAY) == EX_NOT_PERMITTED, "play_program accepted while latched")
+        # The reset waits for the reaction's verdict (it would cancel a
+        # second stop): the program shown paused.
+        wait_until(lambda: back.ir(ir("fault_reaction"))[0] == 3, 5, "reaction 3 (paused)")
         check(back.pulse(FAULT_RESET) == 0, "reset refused")
         check(back.ir(FAULT)[0] == NO_FAULT, "reset did not clear fault 2")
         check(count(sim, "pause_program") == 1 and count(sim, "play_program") == 0,
