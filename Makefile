@@ -321,7 +321,7 @@ FUZZ_BUILD ?= build-fuzz
 FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox fuzz_rtu fuzz_motion
 FUZZ_MODULES := framer status json_arena regmap regmap_table mb_request log command plc_commands \
                 config can_map can_map_table plc_write policy ip_allow regmap_rights tls rtu_frame audit \
-                motion json_member
+                motion json_member cmd_json
 FUZZ_SRCS := $(foreach m,$(FUZZ_MODULES),$(wildcard src/*/$(m).c))
 FUZZ_FLAGS := -std=c11 -D_DEFAULT_SOURCE -DJAKAGW_VERSION='"$(VERSION)"' -g -O1 $(INC_FLAGS) \
               $(PKG_CFLAGS) -fno-sanitize-recover=all

@@ -782,8 +782,8 @@ int plc_commands_check(struct plc_commands *pc, const struct regmap_written *w)
                             act == ACT_MAILBOX && !def ? "unknown command code"
                             : act == ACT_JSON          ? "not a JSON command with a cmdName"
                                                        : "invalid parameters");
-    if (has_non_finite(cmd)) {
-        cJSON_Delete(cmd);
+    if (request ? has_non_finite(request) : cmd.non_finite) {
+        cJSON_Delete(request);
         return refuse(pc, slot, EX_INVALID, CMD_INVALID, "a number is not finite");
     }
     if (act == ACT_JSON && !def && !pc->cfg.motion)

@@ -279,6 +279,7 @@ void cmd_json_begin(struct cmd_json *j, const char *name)
     j->member_count = 0;
     j->text_used = 0;
     j->overflow = n >= sizeof(j->name);
+    j->non_finite = false;
     if (j->overflow)
         n = sizeof(j->name) - 1;
     memcpy(j->name, name, n);
@@ -369,6 +370,8 @@ static void set_value(struct cmd_json *j, const char *key, const char *value, si
 void cmd_json_set_number(struct cmd_json *j, const char *key, double value, bool from_float)
 {
     char text[40];
+    if (!isfinite(value))
+        j->non_finite = true;
     set_value(j, key, text, cmd_json_number(text, value, from_float));
 }
 

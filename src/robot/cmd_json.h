@@ -44,6 +44,7 @@ struct cmd_json {
     char text[CMD_JSON_TEXT];
     size_t text_used;
     bool overflow; /* more than fits: cmd_json_finish() fails */
+    bool non_finite; /* a number set was not finite (cJSON would print null) */
 };
 
 /* Starts the command 'name'. */
@@ -52,7 +53,9 @@ void cmd_json_begin(struct cmd_json *j, const char *name);
 /*
  * Sets member 'key' ("name" or "name[i]") to a number. 'from_float': the
  * value came from a 32-bit float register and is sent at its precision
- * (7 significant digits), as the gateway always has.
+ * (7 significant digits), as the gateway always has. A value that is not
+ * finite is written as cJSON writes it (null) and marks the command
+ * 'non_finite', for the caller to refuse.
  */
 void cmd_json_set_number(struct cmd_json *j, const char *key, double value, bool from_float);
 
