@@ -102,6 +102,7 @@ static void on_status_document(struct robot_link *link, const char *json,
     gw->status = gw->scratch;
     gw->scratch = previous;
     gw->counters.documents_parsed++;
+    gw->status_sequence++;
     /* A fresh clock: the parse may have taken a while, and the age that
      * PLCs read must count from when the data became available. */
     uv_update_time(gw->loop);
@@ -320,6 +321,7 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_link_checks_failed] = (double)gw->command.queue.stats.checks_failed;
     v[GW_status_age_ms] = age_ms(gw, gw->last_document_ms);
     v[GW_documents_parsed] = (double)c->documents_parsed;
+    v[GW_status_sequence] = gw->status_sequence;
     v[GW_parse_errors] = (double)c->parse_errors;
     v[GW_framing_errors] = (double)c->framing_errors;
     v[GW_oversize_documents] = (double)c->oversize_documents;

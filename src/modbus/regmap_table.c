@@ -288,6 +288,10 @@ const struct regmap_row regmap_table_rows[] = {
     G_IR(10, version_major, REGMAP_U16, "", "Gateway version, major"),
     G_IR(11, version_minor, REGMAP_U16, "", "Gateway version, minor"),
     G_IR(12, version_patch, REGMAP_U16, "", "Gateway version, patch"),
+    G_IR(13, status_sequence, REGMAP_U16, "",
+         "One more per status document parsed; wraps at 65535, never cleared: a "
+         "PLC that reads a new value knows its image was refreshed from a new "
+         "document (its stale check)"),
 
     /* ---- input registers: gateway diagnostics ---- */
     G_IR(16, status_link_state, REGMAP_U16, "",

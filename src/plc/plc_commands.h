@@ -153,6 +153,10 @@ struct plc_commands {
     /* The parameter rows' elements written since start and not refused
      * since: a bit per element, by row index in the map. */
     uint32_t *params_written;
+    /* Per coil address: the discrete input an output reads back at (-1
+     * none), and when its last set_digital_output was sent (0 never). */
+    int *readback_at;
+    uint64_t *output_sent_ms;
     bool sending_frequent; /* the command being sent is a setpoint's */
     struct log_ratelimit refuse_log_limit;
     char refusal[96]; /* why the last plc_commands_check refused */
