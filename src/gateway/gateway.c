@@ -9,6 +9,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
+#include <unistd.h>
 
 #define NEVER_MS GATEWAY_NEVER_MS
 
@@ -830,6 +832,18 @@ static int start_writes(struct gateway *gw)
 }
 
 /* The self-description values, which never change while running. */
+/* A number for this start of the gateway (start_id): a PLC that reads
+ * another one knows the gateway restarted and lost what it was written.
+ * Drawn from the clock and the pid: two starts agree once in 65536. */
+static unsigned draw_start_id(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    unsigned long mix = (unsigned long)ts.tv_sec * 1000003UL ^ (unsigned long)ts.tv_nsec ^
+                        (unsigned long)getpid() * 2654435761UL;
+    return (unsigned)((mix ^ mix >> 16 ^ mix >> 32) & 0xFFFF);
+}
+
 static void set_constant_values(struct gateway *gw)
 {
     double *v = gw->gw_values;
@@ -837,6 +851,7 @@ static void set_constant_values(struct gateway *gw)
 
     sscanf(JAKAGW_VERSION, "%u.%u.%u", &major, &minor, &patch);
     v[GW_map_magic] = REGMAP_MAGIC;
+    v[GW_start_id] = draw_start_id();
     v[GW_map_version] = REGMAP_VERSION;
     v[GW_map_crc] = gw->map.crc;
     v[GW_word_order] = gw->image.word_order;

@@ -81,6 +81,7 @@ enum regmap_word_order {
     X(status_age_ms)                                                           \
     X(documents_parsed)                                                        \
     X(status_sequence)                                                         \
+    X(start_id)                                                                \
     X(parse_errors)                                                            \
     X(framing_errors)                                                          \
     X(oversize_documents)                                                      \

@@ -292,6 +292,9 @@ const struct regmap_row regmap_table_rows[] = {
          "One more per status document parsed; wraps at 65535, never cleared: a "
          "PLC that reads a new value knows its image was refreshed from a new "
          "document (its stale check)"),
+    G_IR(14, start_id, REGMAP_U16, "",
+         "A number drawn when the gateway starts: another one than before means "
+         "the gateway restarted and lost what it was written (write it again)"),
 
     /* ---- input registers: gateway diagnostics ---- */
     G_IR(16, status_link_state, REGMAP_U16, "",
