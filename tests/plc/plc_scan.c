@@ -1314,6 +1314,85 @@ static void case_refusals(void)
     fig(", a move before the heartbeat refused (16#0201), Done once it runs");
 }
 
+/* A new Execute edge while a long move runs: the old one ends with
+ * CommandAborted, the arm stops (stop_program) and goes to the new target;
+ * Done there, and only there. */
+static void case_retrigger(void)
+{
+    start_up();
+    int j1 = K(JAKA_IR_JOINT_ACTUAL_POSITION_1);
+    float from = ir_f32(j1);
+    for (int i = 0; i < 6; i++)
+        P.MOVEJ.POSITION.value.table[i] = ir_f32(j1 + 2 * i);
+    P.MOVEJ.RELATIVE.value = 0;
+    P.MOVEJ.SPEED.value = 20.0f;
+    P.MOVEJ.POSITION.value.table[0] = from + 60.0f;
+    P.MOVEJ.EXECUTE.value = 1;
+    SCAN_UNTIL(P.MOVEJ.ACTIVE.value && IR(K(JAKA_IR_MOTION_STATE)) == 1, 5000, "the first move under way");
+    for (int i = 0; i < 30; i++)
+        scan();
+    float at = ir_f32(j1);
+    P.MOVEJ.EXECUTE.value = 0;
+    scan();
+    float target = from - 10.0f;
+    P.MOVEJ.POSITION.value.table[0] = target;
+    P.MOVEJ.SPEED.value = 40.0f;
+    P.MOVEJ.EXECUTE.value = 1;
+    scan();
+    if (!failed && !P.MOVEJ.COMMANDABORTED.value)
+        fail("the new edge: no CommandAborted for the old move");
+    long long t0 = clock_us();
+    scan(); /* CommandAborted was the old move's, for the call of the edge */
+    if (!failed && P.MOVEJ.COMMANDABORTED.value)
+        fail("CommandAborted held past the call of the new edge");
+    double t = SCAN_UNTIL(P.MOVEJ.DONE.value || P.MOVEJ.ERROR.value || P.MOVEJ.COMMANDABORTED.value,
+                          15000, "the new move's end");
+    if (!failed && !P.MOVEJ.DONE.value)
+        fail("the new move: Error %d (0x%04X) CommandAborted %d", P.MOVEJ.ERROR.value,
+             P.MOVEJ.ERRORID.value, P.MOVEJ.COMMANDABORTED.value);
+    check_arrived("the new move", j1, target, 0.1f);
+    fig(", joint 1 at %.1f of %.1f when re-triggered, Done at %.2f (target %.2f) %.0f ms later", at - from,
+        60.0, ir_f32(j1) - from, target - from, (clock_us() - t0) / 1000.0);
+    (void)t;
+    P.MOVEJ.EXECUTE.value = 0;
+    scan();
+}
+
+/* JAKA_Command with a move (joint_move, code 30): Done only on arrival. */
+static void case_mailbox_move(void)
+{
+    start_up();
+    int j1 = K(JAKA_IR_JOINT_ACTUAL_POSITION_1);
+    float from = ir_f32(j1);
+    P.MAILBOX.CODE.value = 30;
+    memset(P.MAILBOX.ARGS.value.table, 0, sizeof(P.MAILBOX.ARGS.value.table));
+    P.MAILBOX.ARGS.value.table[0] = 20.0f; /* joint 1 +20 deg */
+    P.MAILBOX.ARGS.value.table[6] = 40.0f; /* speed */
+    P.MAILBOX.ARGS.value.table[7] = 100.0f; /* accel */
+    P.MAILBOX.ARGS.value.table[8] = 1.0f; /* relative */
+    P.MAILBOX.EXECUTE.value = 1;
+    long long t0 = clock_us();
+    bool early = false;
+    while (!failed && !P.MAILBOX.DONE.value && !P.MAILBOX.ERROR.value) {
+        if (clock_us() - t0 > 10000000) {
+            fail("the mailbox move: not Done within 10 s");
+            break;
+        }
+        scan();
+        if (P.MAILBOX.DONE.value && (IR(K(JAKA_IR_MOTION_STATE)) != 2 || fabsf(ir_f32(j1) - from - 20.0f) > 0.1f))
+            early = true;
+    }
+    if (!failed && P.MAILBOX.ERROR.value)
+        fail("the mailbox move: ErrorID 0x%04X", P.MAILBOX.ERRORID.value);
+    if (!failed && early)
+        fail("the mailbox move Done at joint 1 %+.2f deg, motion state %u: before it arrived",
+             ir_f32(j1) - from, IR(K(JAKA_IR_MOTION_STATE)));
+    fig(", the mailbox's joint_move Done %.0f ms after Execute, on arrival (joint 1 %+.2f deg)",
+        (clock_us() - t0) / 1000.0, ir_f32(j1) - from);
+    P.MAILBOX.EXECUTE.value = 0;
+    scan();
+}
+
 static void case_link_lost(void)
 {
     link_up();
@@ -1369,6 +1448,7 @@ static int run_case(const char *name, const char *port, const char *pid, bool sp
         {"link_lost", case_link_lost},       {"estop", case_estop},
         {"mailbox", case_mailbox},           {"two_connections", case_startup},
         {"refusals", case_refusals},         {"example", case_example},
+        {"retrigger", case_retrigger},       {"mailbox_move", case_mailbox_move},
     };
     cl.host = "127.0.0.1";
     cl.port = atoi(port);

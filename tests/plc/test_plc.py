@@ -179,6 +179,8 @@ CASES = [
     ("two_connections", True, "reads and writes on two connections, as a Siemens PLC makes them"),
     ("refusals", True, "a move before the heartbeat: ErrorID 16#0201 from the gateway's reason"),
     ("example", True, "plc/examples/jaka_cell.st's whole sequence, each command once at the robot"),
+    ("retrigger", True, "a new Execute edge on a running move: CommandAborted, Done at the new target"),
+    ("mailbox_move", True, "JAKA_Command's joint_move: Done on arrival"),
 ]
 
 
