@@ -1604,17 +1604,17 @@ static int run_vendor(char **argv, int argc)
     const struct vc_stats *st = vc_stats();
     double s_total = (now_us() - t0) / 1e6;
     vc_close();
-    if (failed) {
-        printf("FAIL %s %d ms %s: %s\n", vc_vendor(), scan_ms, what, why);
-        return 1;
-    }
-    printf("PASS %s %d ms %s (%s; %.1f requests/s: %ld reads, %ld writes (heartbeat %ld, other "
+    if (failed)
+        printf("FAIL %s %d ms %s: %s (in %.1f s: ", vc_vendor(), scan_ms, what, why, s_total);
+    else
+        printf("PASS %s %d ms %s (%s; ", vc_vendor(), scan_ms, what, figures);
+    printf("%.1f requests/s: %ld reads, %ld writes (heartbeat %ld, other "
            "registers %ld, coils %ld), %ld refused, %ld reconnects; scan work mean %.2f ms, "
            "max %.2f ms, %ld overruns in %ld scans)\n",
-           vc_vendor(), scan_ms, what, figures, st->requests / s_total, st->reads, st->writes,
+           st->requests / s_total, st->reads, st->writes,
            st->heartbeat_writes, st->other_writes, st->coil_writes, st->refused, st->failures,
            scan_work_sum_ms / scans, scan_work_max_ms, overruns, scans);
-    return 0;
+    return failed ? 1 : 0;
 }
 
 int main(int argc, char **argv)

@@ -84,6 +84,7 @@ static struct {
     const char *host;
     int port;
     int delay_ms;          /* between two requests (ProSoft's Minimum Command Delay) */
+    bool first_changed;    /* "writes first": the writer takes the first block that changed */
     struct request req[MAX_REQUESTS];
     int n_req;
     struct instance inst[MAX_INSTANCES];
@@ -165,6 +166,9 @@ int vc_load(const char *path, const char *host, int port)
             ok = vc.rules != NULL;
         } else if (sscanf(line, "delay %d", &vc.delay_ms) == 1) {
             ok = vc.delay_ms >= 0;
+        } else if (strncmp(line, "writes first", 12) == 0) {
+            vc.first_changed = true;
+            ok = 1;
         } else if (vc.n_req < MAX_REQUESTS) {
             ok = parse_request(line) == 0;
         }
@@ -408,6 +412,8 @@ static void run_writer(int i, long long now)
     }
     struct instance *in = &vc.inst[i];
     struct request *pick = hb && !in->last_was_heartbeat ? hb : block ? block : coils ? coils : hb;
+    if (vc.first_changed) /* the rule the examples had: blocks in list order, then coils */
+        pick = hb ? hb : block ? block : coils;
     if (!pick)
         return;
     in->last_was_heartbeat = pick == hb;

@@ -8,6 +8,10 @@
  *
  * Request file, one line each ('#' starts a comment):
  *   vendor NAME                      codesys, siemens, twincat, rockwell
+ *   delay MS                         between two requests (a ProSoft module's)
+ *   writes first                     a writer's rule: the first block that
+ *                                    changed, in list order, then the coils
+ *                                    (the heartbeat first whenever it changed)
  *   request INSTANCE TABLE FIRST COUNT TRIGGER [heartbeat] [single]
  * TABLE ir, di, hr or co; TRIGGER "cyclic MS" (every MS ms), "change"
  * (when the image of the range differs from what was written last) or
