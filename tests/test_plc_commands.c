@@ -519,8 +519,9 @@ static void multiple_coils_queue_in_order(void **state)
 
 /* A cyclic channel rewrites each output's level every cycle: the same
  * value again sends nothing while the robot reports it, nor within
- * OUTPUT_RESEND_MS of its last set; after that, a value the robot reports
- * otherwise (changed elsewhere) is set again, once. */
+ * OUTPUT_RESEND_MS of its last set while that one is pending or done;
+ * after that, or when it failed, a value the robot reports otherwise is
+ * set again, once. */
 static void outputs_written_again_send_once(void **state)
 {
     (void)state;
@@ -546,10 +547,14 @@ static void outputs_written_again_send_once(void **state)
     img.mb->tab_input_bits[back] = 0; /* set to 0 elsewhere (a pendant) */
     assert_int_equal(write_raw(cab->table, cab->address, 1, &on), EX_NONE);
     assert_int_equal(robot.sent_count, 2);
+    reply("{\"errorCode\":\"1\",\"errorMsg\":\"io busy\"}"); /* that set failed */
+    robot.now += 10;
+    assert_int_equal(write_raw(cab->table, cab->address, 1, &on), EX_NONE);
+    assert_int_equal(robot.sent_count, 3); /* a failed set is no reason to wait */
     reply_ok();
     robot.now += 10;
     assert_int_equal(write_raw(cab->table, cab->address, 1, &on), EX_NONE);
-    assert_int_equal(robot.sent_count, 2);
+    assert_int_equal(robot.sent_count, 3);
 }
 
 /* ---- the exactly-once mailbox ---- */

@@ -591,13 +591,15 @@ static enum action trigger_action(const struct plc_commands *pc, const struct pl
 /*
  * An output's level written again with the value it had: nothing to send
  * when the robot reports that value, or when this output was set less than
- * OUTPUT_RESEND_MS ago (its report may not have come yet). A vendor's
- * cyclic channel rewrites every output of its block each cycle: a command
- * per write would flood the robot and fill the queue. A new value is
- * always sent; so is the old one when the robot reports otherwise (the
- * output changed elsewhere) and its last set is older.
+ * OUTPUT_RESEND_MS ago and set_digital_output's result is pending or done
+ * (on its way, or accepted with the report not in yet). A vendor's cyclic
+ * channel rewrites every output of its block each cycle: a command per
+ * write would flood the robot and fill the queue. A new value is always
+ * sent; so is the old one when the robot reports otherwise and its last
+ * set failed (not sent, refused, link lost) or is older (changed elsewhere).
  */
-static bool output_unchanged(const struct plc_commands *pc, const struct regmap_written *w)
+static bool output_unchanged(const struct plc_commands *pc, const struct plc_slot *slot,
+                             const struct regmap_written *w)
 {
     unsigned coil = regmap_element_address(w->row, w->element);
     int at = w->row->table == REGMAP_COIL ? pc->readback_at[coil] : -1;
@@ -607,7 +609,10 @@ static bool output_unchanged(const struct plc_commands *pc, const struct regmap_
     if ((pc->img->mb->tab_input_bits[at] != 0) == (w->value != 0))
         return true;
     uint64_t sent = pc->output_sent_ms[coil];
-    return sent != 0 && pc->now_ms(pc->clock) - sent < OUTPUT_RESEND_MS;
+    if (sent == 0 || pc->now_ms(pc->clock) - sent >= OUTPUT_RESEND_MS || !slot->state)
+        return false;
+    double state = regmap_get_number(pc->img, slot->state, 0);
+    return state == CMD_PENDING || state == CMD_DONE;
 }
 
 /* Records when an output's set goes out (output_unchanged). */
@@ -633,7 +638,7 @@ static enum action action_of(struct plc_commands *pc, const struct regmap_writte
             return ACT_NONE;
         *slot = &pc->slots[*def - cmd_table];
         if (row->fixed)
-            return output_unchanged(pc, w) ? ACT_NONE : ACT_SETPOINT;
+            return output_unchanged(pc, *slot, w) ? ACT_NONE : ACT_SETPOINT;
         if (!strchr(row->path, '.'))
             return trigger_action(pc, *slot, w, ACT_TRIGGER);
         return ACT_NONE;
