@@ -88,6 +88,29 @@ static void writes(void **state)
     assert_int_equal(CHECK(0x17, 0, 0, 0, 1, 0, 0, 0, 1, 3, 0, 9), 3);
 }
 
+/* The trigger block (coils 100-131) written whole, as a vendor's client
+ * channel writes it: its unassigned coils 115-119 and 121-129 take 0 and
+ * refuse 1; alone, or reaching clear_counters' side, they refuse. */
+static void coil_block_holes(void **state)
+{
+    (void)state;
+    assert_null(regmap_find(&map, REGMAP_COIL, 117));
+    /* FC15, 100-131: 32 coils, 4 bytes, coils 100 (power_on) and 131 set. */
+    assert_int_equal(CHECK(0x0F, 0, 100, 0, 32, 4, 0x01, 0x00, 0x00, 0x80), 0);
+    assert_int_equal(CHECK(0x0F, 0, 100, 0, 32, 4, 0x00, 0x00, 0x00, 0x00), 0);
+    /* 117 = bit 17: byte 2, bit 1. */
+    assert_int_equal(CHECK(0x0F, 0, 100, 0, 32, 4, 0x00, 0x00, 0x02, 0x00), 2);
+    /* 125 = bit 25: byte 3, bit 1. */
+    assert_int_equal(CHECK(0x0F, 0, 100, 0, 32, 4, 0x00, 0x00, 0x00, 0x02), 2);
+    assert_int_equal(CHECK(0x0F, 0, 115, 0, 5, 1, 0x00), 2);   /* the hole alone */
+    assert_int_equal(CHECK(0x0F, 0, 110, 0, 10, 2, 0, 0), 2);  /* ends in it */
+    assert_int_equal(CHECK(0x05, 0, 117, 0x00, 0x00), 2);
+    assert_int_equal(CHECK(0x0F, 0, 0, 0, 101, 13, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0), 2);
+    /* The outputs, 200-239 whole (holes 218-223 between tool and extension IO). */
+    assert_int_equal(CHECK(0x0F, 0, 200, 0, 40, 5, 0xFF, 0xFF, 0x03, 0xFF, 0xFF), 0);
+    assert_int_equal(CHECK(0x0F, 0, 200, 0, 40, 5, 0xFF, 0xFF, 0x07, 0xFF, 0xFF), 2);
+}
+
 static void other_functions(void **state)
 {
     (void)state;
@@ -192,6 +215,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(reads),
         cmocka_unit_test(writes),
+        cmocka_unit_test(coil_block_holes),
         cmocka_unit_test(other_functions),
         cmocka_unit_test(reserved_function_codes),
         cmocka_unit_test(write_ranges),

@@ -297,6 +297,39 @@ static void start_after_a_drop_is_refused_and_latches(void **state)
     assert_int_equal(sent_commands, 1);
 }
 
+/* The trigger block 100-131 in one FC15, as a vendor's client channel
+ * writes it (its unassigned coils 0): a start with motion enable dropped in
+ * the same write is judged after the drop, refused and never sent (fault 3
+ * latched, as for a start after a drop); the same block with motion enable
+ * held at 1 sends the start. */
+static void trigger_block_with_a_drop_refuses_the_start(void **state)
+{
+    (void)state;
+    start_bound();
+    const struct regmap_row *play = coil_row("play_program");
+    const struct regmap_row *first = coil_row("power_on");
+    unsigned count = pw.rows.motion_enable->address - first->address + 1;
+    uint16_t block[64] = {0};
+    assert_true(count <= 64);
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 1), 0);
+    block[play->address - first->address] = 1;
+    block[pw.rows.motion_enable->address - first->address] = 0;
+    assert_int_equal(write_coils(first, block, count), 1);
+    assert_int_equal(sent_commands, 0);
+    assert_int_equal(img.mb->tab_bits[play->address], 0);
+    assert_int_equal(img.mb->tab_bits[pw.rows.motion_enable->address], 0);
+    /* The refused start latched fault 3 (as a start after a drop does):
+     * motion enable back, the reaction judged (the arm still), the fault
+     * reset, then the block again. */
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.motion_enable, 1), 0);
+    action_done_arm_still();
+    assert_int_equal(write_one("192.0.2.1", 1, pw.rows.fault_reset, 1), 0);
+    block[pw.rows.motion_enable->address - first->address] = 1;
+    assert_int_equal(write_coils(first, block, count), 0);
+    assert_int_equal(sent_commands, 1);
+    assert_string_equal(last_sent, "{\"cmdName\":\"play_program\"}");
+}
+
 /* Never armed (no 1 written yet): motion enable at 0 refuses starts and
  * latches nothing, as before. */
 static void start_before_motion_enable_is_armed_is_only_refused(void **state)
@@ -509,6 +542,7 @@ int main(void)
         cmocka_unit_test_teardown(refused_writer_changes_nothing, teardown),
         cmocka_unit_test_teardown(drop_right_after_a_start_pauses, teardown),
         cmocka_unit_test_teardown(start_after_a_drop_is_refused_and_latches, teardown),
+        cmocka_unit_test_teardown(trigger_block_with_a_drop_refuses_the_start, teardown),
         cmocka_unit_test_teardown(start_before_motion_enable_is_armed_is_only_refused, teardown),
         cmocka_unit_test_teardown(reset_and_drop_in_one_write, teardown),
         cmocka_unit_test_teardown(reset_then_start_and_start_then_reset, teardown),

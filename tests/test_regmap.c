@@ -113,8 +113,12 @@ static void map_is_valid_and_stable(void **state)
     assert_int_equal(row->id, STATUS_F_joint_actual_position);
     row = regmap_find(&map, REGMAP_DISCRETE_INPUT, 17);
     assert_int_equal(row->id, STATUS_F_enabled);
+    row = regmap_find(&map, REGMAP_INPUT_REGISTER, 13);
+    assert_string_equal(row->name, "status_sequence");
+    row = regmap_find(&map, REGMAP_INPUT_REGISTER, 14);
+    assert_string_equal(row->name, "start_id");
     /* A hole reads as no row; past the end as well. */
-    assert_null(regmap_find(&map, REGMAP_INPUT_REGISTER, 14));
+    assert_null(regmap_find(&map, REGMAP_INPUT_REGISTER, 15));
     assert_null(regmap_find(&map, REGMAP_INPUT_REGISTER, 60000));
     /* Every status field appears in the map. */
     for (int id = 0; id < STATUS_FIELD_COUNT; id++) {

@@ -9,6 +9,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
+#include <unistd.h>
 
 #define NEVER_MS GATEWAY_NEVER_MS
 
@@ -103,6 +105,7 @@ static void on_status_document(struct robot_link *link, const char *json,
     gw->status = gw->scratch;
     gw->scratch = previous;
     gw->counters.documents_parsed++;
+    gw->status_sequence++;
     /* A fresh clock: the parse may have taken a while, and the age that
      * PLCs read must count from when the data became available. */
     uv_update_time(gw->loop);
@@ -343,6 +346,7 @@ void gateway_refresh_values(struct gateway *gw)
     v[GW_link_checks_failed] = (double)gw->command.queue.stats.checks_failed;
     v[GW_status_age_ms] = age_ms(gw, gw->last_document_ms);
     v[GW_documents_parsed] = (double)c->documents_parsed;
+    v[GW_status_sequence] = gw->status_sequence;
     v[GW_parse_errors] = (double)c->parse_errors;
     v[GW_framing_errors] = (double)c->framing_errors;
     v[GW_oversize_documents] = (double)c->oversize_documents;
@@ -887,6 +891,18 @@ static int start_writes(struct gateway *gw)
 }
 
 /* The self-description values, which never change while running. */
+/* A number for this start of the gateway (start_id): a PLC that reads
+ * another one knows the gateway restarted and lost what it was written.
+ * Drawn from the clock and the pid: two starts agree once in 65536. */
+static unsigned draw_start_id(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    unsigned long mix = (unsigned long)ts.tv_sec * 1000003UL ^ (unsigned long)ts.tv_nsec ^
+                        (unsigned long)getpid() * 2654435761UL;
+    return (unsigned)((mix ^ mix >> 16 ^ mix >> 32) & 0xFFFF);
+}
+
 static void set_constant_values(struct gateway *gw)
 {
     double *v = gw->gw_values;
@@ -894,6 +910,7 @@ static void set_constant_values(struct gateway *gw)
 
     sscanf(JAKAGW_VERSION, "%u.%u.%u", &major, &minor, &patch);
     v[GW_map_magic] = REGMAP_MAGIC;
+    v[GW_start_id] = draw_start_id();
     v[GW_map_version] = REGMAP_VERSION;
     v[GW_map_crc] = gw->map.crc;
     v[GW_word_order] = gw->image.word_order;

@@ -88,6 +88,8 @@ struct gateway {
     struct events events;    /* the status page's event log (events.h) */
     struct gateway_counters counters;
     double gw_values[GW_VALUE_COUNT];
+    /* status_sequence (IR 13): counts documents, not reset by clear_counters. */
+    uint16_t status_sequence;
 
     uint64_t started_ms;
     uint64_t last_document_ms; /* 0: none yet */

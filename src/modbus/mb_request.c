@@ -75,8 +75,13 @@ static int check_values(const struct regmap *map, enum regmap_table table,
         loop variant count - i;
     */
     for (unsigned i = 0; i < count; i++) {
-        if (regmap_write_skips(map, table, address + i, address, count))
+        if (regmap_write_skips(map, table, address + i, address, count)) {
+            /* A coil no row owns, inside a block of coils: 0 is what it
+             * reads and is ignored; 1 asks for something that is not there. */
+            if (table == REGMAP_COIL && values[i])
+                return ILLEGAL_ADDRESS;
             continue; /* inside a command's parameters: ignored */
+        }
         int ex = regmap_check_write(map, table, address + i, values[i]);
         if (ex)
             return ex;

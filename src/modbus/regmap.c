@@ -395,14 +395,14 @@ static void print_md_intro(const struct regmap *map, FILE *out)
  * at, found by its name in the table: a PLC checks that the output is set
  * without a second table to keep in step.
  */
-static void add_readback(const struct regmap *map, const struct regmap_row *row, unsigned i,
-                         struct element_text *t)
+int regmap_readback_address(const struct regmap *map, const struct regmap_row *row,
+                            unsigned i)
 {
     char want[96];
     struct element_text di;
 
     if (!row->readback)
-        return;
+        return -1;
     regmap_expand(want, sizeof(want), row->readback, row->index + i, i);
     for (unsigned r = 0; r < map->row_count; r++) {
         const struct regmap_row *in = &map->rows[r];
@@ -410,15 +410,27 @@ static void add_readback(const struct regmap *map, const struct regmap_row *row,
             continue;
         for (unsigned k = 0; k < in->elements; k++) {
             describe_element(in, k, &di);
-            if (strcmp(di.name, want) != 0)
-                continue;
-            size_t n = strlen(t->description);
-            snprintf(t->description + n, sizeof(t->description) - n,
-                     "; reads back at discrete input %u (%s)",
-                     regmap_element_address(in, k), di.name);
-            return;
+            if (strcmp(di.name, want) == 0)
+                return (int)regmap_element_address(in, k);
         }
     }
+    return -1;
+}
+
+static void add_readback(const struct regmap *map, const struct regmap_row *row, unsigned i,
+                         struct element_text *t)
+{
+    int at = regmap_readback_address(map, row, i);
+    struct element_text di;
+
+    if (at < 0)
+        return;
+    describe_element(regmap_find(map, REGMAP_DISCRETE_INPUT, (unsigned)at),
+                     (unsigned)at - regmap_find(map, REGMAP_DISCRETE_INPUT, (unsigned)at)->address,
+                     &di);
+    size_t n = strlen(t->description);
+    snprintf(t->description + n, sizeof(t->description) - n,
+             "; reads back at discrete input %d (%s)", at, di.name);
 }
 
 static void print_element(const struct regmap *map, const struct regmap_row *row, unsigned i,
@@ -872,6 +884,14 @@ static bool same_command(const struct regmap_row *a, const struct regmap_row *b)
     return strncmp(a->path, b->path, n) == 0 && b->path[n] == '.';
 }
 
+/* A coil that takes part in a block of coils a PLC writes whole: a
+ * trigger, a policy coil or an output (not clear_counters, alone at 0). */
+static bool is_block_coil(const struct regmap_row *row)
+{
+    return row && row->table == REGMAP_COIL && row->writable &&
+           row->write_class != REGMAP_CLASS_COUNTERS;
+}
+
 bool regmap_write_skips(const struct regmap *map, enum regmap_table table,
                         unsigned address, unsigned first, unsigned count)
 {
@@ -883,6 +903,8 @@ bool regmap_write_skips(const struct regmap *map, enum regmap_table table,
         below = regmap_find(map, table, a);
     for (unsigned a = address + 1; a < first + count && !above; a++)
         above = regmap_find(map, table, a);
+    if (table == REGMAP_COIL)
+        return is_block_coil(below) && is_block_coil(above);
     return is_parameter(below) && is_parameter(above) && same_command(below, above);
 }
 

@@ -80,6 +80,8 @@ enum regmap_word_order {
     X(command_link_state)                                                      \
     X(status_age_ms)                                                           \
     X(documents_parsed)                                                        \
+    X(status_sequence)                                                         \
+    X(start_id)                                                                \
     X(parse_errors)                                                            \
     X(framing_errors)                                                          \
     X(oversize_documents)                                                      \
@@ -373,6 +375,11 @@ int regmap_decode_write(const struct regmap_image *img, enum regmap_table table,
                         unsigned address, unsigned count, const uint16_t *values,
                         const uint16_t *old_values, regmap_written_cb cb, void *user);
 
+/* The discrete input that element 'i' of an output's coil row reads back
+ * at (the row's readback name), or -1 for a row without one. */
+int regmap_readback_address(const struct regmap *map, const struct regmap_row *row,
+                            unsigned i);
+
 /* Copies 'count' bits (0 or 1) or registers of a writable table out of the
  * image, or into it. */
 void regmap_save(const struct regmap_image *img, enum regmap_table table,
@@ -387,6 +394,10 @@ void regmap_load(struct regmap_image *img, enum regmap_table table,
  * the command's parameters from its first to its last register in one
  * request, as PLCs write a block: the unassigned register is accepted and
  * ignored. Alone, or at either end of a write, it is refused (02).
+ * Coils likewise: a coil no row owns, in a write that reaches writable
+ * coils (not clear_counters) on both sides of it (coils 115-119 in a write
+ * of the triggers 100-131, as a vendor's client writes the block whole);
+ * the caller refuses a 1 there (02) and ignores a 0.
  */
 /*@ requires regmap_readable(map);
     assigns \nothing;

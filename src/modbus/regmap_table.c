@@ -288,6 +288,13 @@ const struct regmap_row regmap_table_rows[] = {
     G_IR(10, version_major, REGMAP_U16, "", "Gateway version, major"),
     G_IR(11, version_minor, REGMAP_U16, "", "Gateway version, minor"),
     G_IR(12, version_patch, REGMAP_U16, "", "Gateway version, patch"),
+    G_IR(13, status_sequence, REGMAP_U16, "",
+         "One more per status document parsed; wraps at 65535, never cleared: a "
+         "PLC that reads a new value knows its image was refreshed from a new "
+         "document (its stale check)"),
+    G_IR(14, start_id, REGMAP_U16, "",
+         "A number drawn when the gateway starts: another one than before means "
+         "the gateway restarted and lost what it was written (write it again)"),
 
     /* ---- input registers: gateway diagnostics ---- */
     G_IR(16, status_link_state, REGMAP_U16, "",

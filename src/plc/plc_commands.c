@@ -210,6 +210,24 @@ static void find_parameter_spans(struct plc_commands *pc)
     }
 }
 
+/* Each output coil's read-back input, found once: a write judges it for
+ * every coil of a cyclic channel's request. */
+static int find_readbacks(struct plc_commands *pc)
+{
+    const struct regmap *map = pc->img->map;
+    unsigned coils = map->size[REGMAP_COIL];
+
+    pc->readback_at = malloc(coils * sizeof(*pc->readback_at));
+    pc->output_sent_ms = calloc(coils, sizeof(*pc->output_sent_ms));
+    if (!pc->readback_at || !pc->output_sent_ms)
+        return -ENOMEM;
+    for (unsigned a = 0; a < coils; a++) {
+        const struct regmap_row *row = regmap_find(map, REGMAP_COIL, a);
+        pc->readback_at[a] = row ? regmap_readback_address(map, row, a - row->address) : -1;
+    }
+    return 0;
+}
+
 int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
                       struct cmd_queue *queue, const struct plc_commands_config *cfg,
                       uint64_t (*now_ms)(void *clock), void *clock)
@@ -232,7 +250,7 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
             return -EINVAL;
         }
     pc->params_written = calloc(img->map->row_count, sizeof(*pc->params_written));
-    if (!pc->params_written)
+    if (!pc->params_written || find_readbacks(pc) != 0)
         return -ENOMEM;
     find_parameter_spans(pc);
     for (unsigned i = 0; i < cmd_table_count; i++) {
@@ -283,6 +301,10 @@ void plc_commands_free(struct plc_commands *pc)
     plc_commands_discard(pc);
     free(pc->params_written);
     pc->params_written = NULL;
+    free(pc->readback_at);
+    pc->readback_at = NULL;
+    free(pc->output_sent_ms);
+    pc->output_sent_ms = NULL;
 }
 
 static void set_result(struct plc_slot *slot, enum cmd_outcome outcome, long code,
@@ -496,6 +518,47 @@ static enum action trigger_action(const struct plc_commands *pc, const struct pl
     return slot->trigger_by == pc->writer ? ACT_NONE : ACT_STALE;
 }
 
+/* How long an output written again with its own value waits for the
+ * robot's report of the last set before it is sent again: many status
+ * periods (30 ms on jakasim, 8 ms on a controller). */
+#define OUTPUT_RESEND_MS 1000
+
+/*
+ * An output's level written again with the value it had: nothing to send
+ * when the robot reports that value, or when this output was set less than
+ * OUTPUT_RESEND_MS ago and set_digital_output's result is pending or done
+ * (on its way, or accepted with the report not in yet). A vendor's cyclic
+ * channel rewrites every output of its block each cycle: a command per
+ * write would flood the robot and fill the queue. A new value is always
+ * sent; so is the old one when the robot reports otherwise and its last
+ * set failed (not sent, refused, link lost) or is older (changed elsewhere).
+ */
+static bool output_unchanged(const struct plc_commands *pc, const struct plc_slot *slot,
+                             const struct regmap_written *w)
+{
+    unsigned coil = regmap_element_address(w->row, w->element);
+    int at = w->row->table == REGMAP_COIL ? pc->readback_at[coil] : -1;
+
+    if (at < 0 || w->value != w->previous)
+        return false;
+    if ((pc->img->mb->tab_input_bits[at] != 0) == (w->value != 0))
+        return true;
+    uint64_t sent = pc->output_sent_ms[coil];
+    if (sent == 0 || pc->now_ms(pc->clock) - sent >= OUTPUT_RESEND_MS || !slot->state)
+        return false;
+    double state = regmap_get_number(pc->img, slot->state, 0);
+    return state == CMD_PENDING || state == CMD_DONE;
+}
+
+/* Records when an output's set goes out (output_unchanged). */
+static void note_output_sent(struct plc_commands *pc, const struct regmap_written *w)
+{
+    if (w->row->table != REGMAP_COIL || !w->row->readback)
+        return;
+    uint64_t now = pc->now_ms(pc->clock);
+    pc->output_sent_ms[regmap_element_address(w->row, w->element)] = now ? now : 1;
+}
+
 /* What writing 'w' asks for; sets *def and *slot. */
 static enum action action_of(struct plc_commands *pc, const struct regmap_written *w,
                              const struct cmd_def **def, struct plc_slot **slot)
@@ -510,7 +573,7 @@ static enum action action_of(struct plc_commands *pc, const struct regmap_writte
             return ACT_NONE;
         *slot = &pc->slots[*def - cmd_table];
         if (row->fixed)
-            return ACT_SETPOINT;
+            return output_unchanged(pc, *slot, w) ? ACT_NONE : ACT_SETPOINT;
         if (!strchr(row->path, '.'))
             return trigger_action(pc, *slot, w, ACT_TRIGGER);
         return ACT_NONE;
@@ -928,6 +991,8 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
         slot->def = def; /* one pending at a time: its refresh, its log line */
     if (act == ACT_MAILBOX)
         regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
+    if (act == ACT_SETPOINT)
+        note_output_sent(pc, w);
     pc->sending_frequent = act == ACT_SETPOINT;
     submit(pc, slot, st->json, def);
     pc->sending_frequent = false;

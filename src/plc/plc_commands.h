@@ -162,6 +162,10 @@ struct plc_commands {
     /* Each command's parameter rows lie in rows [first, end) of the map:
      * building a triggered command looks only there. */
     uint16_t param_first[PLC_MAX_COMMANDS], param_end[PLC_MAX_COMMANDS];
+    /* Per coil address: the discrete input an output reads back at (-1
+     * none), and when its last set_digital_output was sent (0 never). */
+    int *readback_at;
+    uint64_t *output_sent_ms;
     bool sending_frequent; /* the command being sent is a setpoint's */
     struct log_ratelimit refuse_log_limit;
     char refusal[96]; /* why the last plc_commands_check refused */

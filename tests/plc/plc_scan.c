@@ -10,7 +10,7 @@
  *   plc_scan case NAME PORT SIM_PID split  with reads and writes on two connections
  *
  * Each scan (10 ms, on a monotonic clock):
- * 1. reads: input registers 0-12 (self-description), 16-19 (links, status
+ * 1. reads: input registers 0-14 (self-description, status sequence, start id), 16-19 (links, status
  *    age), 48-49 (heartbeat age), 60-89 (fault, owner), 100-115 (robot
  *    state, override), 200-235 (positions), 4000-4503 (every result
  *    block, in reads of 120), 4600-4676 (mailboxes), 5600-5603 (motion);
@@ -46,10 +46,14 @@
 #include "Cell.h"
 
 #include <stdbool.h> /* after matiec's headers, which take the name bool */
+#include <unistd.h>
+
+#include "vendor_client.h"
 
 TIME __CURRENT_TIME;
 extern JAKACELL RES__MAIN;
 extern JAKAEXAMPLE RES__EXAMPLE;
+extern JAKAPICKPLACE RES__PICKPLACE;
 #define P RES__MAIN
 #define EX RES__EXAMPLE
 void config_init__(void);
@@ -63,6 +67,10 @@ void config_run__(unsigned long tick);
 #define N_IR 5604
 #define N_HR 620
 #define SCAN_MS 10
+/* The task's period: 10 ms, or a vendor case's. */
+static int scan_ms = SCAN_MS;
+/* The image kept in step by a vendor's client model (vendor_client.c). */
+static bool vendor_mode;
 
 /* ---- time ---- */
 
@@ -159,7 +167,7 @@ static bool connected(void)
  * fault, the robot's flags and positions, every result block, the
  * mailboxes' results, the motion state. */
 static const struct range ir_reads[] = {
-    {0, 13}, {16, 4}, {48, 2}, {60, 30}, {100, 16}, {200, 36},
+    {0, 15}, {16, 4}, {48, 2}, {60, 30}, {100, 16}, {200, 36},
     {4000, 120}, {4120, 120}, {4240, 120}, {4360, 120}, {4480, 24},
     {4600, 77}, {5600, 4},
 };
@@ -268,24 +276,28 @@ static void set_time(void)
 static void scan(void)
 {
     long long start = now_us();
-    if (!simulated)
+    if (vendor_mode)
+        vc_publish_inputs();
+    else if (!simulated)
         read_inputs();
     set_time();
     config_run__(tick++);
-    if (!simulated)
+    if (vendor_mode)
+        vc_run_requests(now_us());
+    else if (!simulated)
         write_outputs();
     double work = (now_us() - start) / 1000.0;
     scans++;
     scan_work_sum_ms += work;
     if (work > scan_work_max_ms)
         scan_work_max_ms = work;
-    if (work > SCAN_MS)
+    if (work > scan_ms)
         overruns++;
     if (simulated) {
         sim_us += SCAN_MS * 1000;
         return;
     }
-    long long next = start + SCAN_MS * 1000;
+    long long next = start + scan_ms * 1000LL;
     long long left = next - now_us();
     if (left > 0) {
         struct timespec ts = {left / 1000000, (left % 1000000) * 1000};
@@ -415,34 +427,55 @@ static void unit_real_bits(void)
     report("unit_real_bits", figures);
 }
 
+/* The client brings a new status document: status_sequence moves on. */
+static void refresh(void)
+{
+    IR(K(JAKA_IR_STATUS_SEQUENCE))++;
+    scan();
+}
+
 static void unit_link(void)
 {
+    char figures[160];
     reset_program();
     fill_map_header();
     scan();
     uint16_t hb = HR(K(JAKA_HR_PLC_HEARTBEAT));
-    IR(K(JAKA_IR_STATUS_AGE_MS) + 1) = 5;
-    scan();
+    refresh();
     if (HR(K(JAKA_HR_PLC_HEARTBEAT)) == hb)
         fail("the heartbeat did not change from one scan to the next");
+    if (P.LINK.VALID.value)
+        fail("Valid after one refresh: a client reading its ranges in turn may not have read them all");
+    refresh();
     if (!P.LINK.VALID.value || !P.LINK.MAPCHECKED.value || !P.LINK.MAPEXACT.value)
         fail("not Valid (or not MapExact) with the map's magic, version, probe and CRC in place");
-    /* The image stops changing: stale after StaleTime (500 ms). */
-    double t = SCAN_UNTIL(!P.LINK.VALID.value, 1000, "Valid falls on a frozen image");
-    if (!failed && (t < 450 || P.LINK.ERRORID.value != 5))
-        fail("stale after %.0f ms with ErrorID %u (expected ~500 ms, 5)", t, P.LINK.ERRORID.value);
-    IR(K(JAKA_IR_STATUS_AGE_MS) + 1) = 6;
-    scan();
-    IR(K(JAKA_IR_STATUS_AGE_MS) + 1) = 7;
-    scan();
+    /* A client refreshing every 600 ms keeps it Valid (60 s of it). */
+    bool dropped = false;
+    for (int i = 0; i < 100 && !failed; i++) {
+        for (int k = 0; k < 60; k++) {
+            scan();
+            dropped = dropped || !P.LINK.VALID.value;
+        }
+        IR(K(JAKA_IR_STATUS_SEQUENCE))++;
+    }
+    if (dropped)
+        fail("Valid dropped with the image refreshed every 600 ms");
+    /* The image stops changing: stale after StaleTime (3 s). */
+    double t = SCAN_UNTIL(!P.LINK.VALID.value, 4000, "Valid falls on a frozen image");
+    if (!failed && (t < 2900 || P.LINK.ERRORID.value != 5))
+        fail("stale after %.0f ms with ErrorID %u (expected ~3000 ms, 5)", t, P.LINK.ERRORID.value);
+    refresh();
+    refresh();
     if (!P.LINK.VALID.value)
         fail("not Valid again when the image moves again");
+    snprintf(figures, sizeof(figures), "heartbeat each scan, Valid after two refreshes, 60 s at a 600 ms "
+             "refresh, stale at %.0f ms, CRC, version, word order, no map", t);
     /* Another CRC (a gateway with rows added): Valid, not MapExact. */
     reset_program();
     fill_map_header();
     IR(K(JAKA_IR_MAP_CRC))++;
-    IR(K(JAKA_IR_STATUS_AGE_MS) + 1) = 5;
-    scan();
+    refresh();
+    refresh();
     if (!P.LINK.VALID.value || P.LINK.MAPEXACT.value)
         fail("another map CRC: Valid %d MapExact %d", P.LINK.VALID.value, P.LINK.MAPEXACT.value);
     /* A wrong version: ErrorID 4, checked once at start. */
@@ -462,7 +495,41 @@ static void unit_link(void)
     /* No map within CheckTime (3 s). */
     reset_program();
     SCAN_UNTIL(P.LINK.ERROR.value, 3500, "no map: Error");
-    report("unit_link", "heartbeat each scan, stale at 500 ms, CRC, version, word order, no map");
+    report("unit_link", figures);
+}
+
+/* JAKA_Stop holds the stop while Execute stays TRUE: its trigger stays 1
+ * (nothing more is sent), a move is refused (16#0007) with its trigger
+ * untouched; Execute falls, the trigger goes to 0 and moves run again. */
+static void unit_stop_holds(void)
+{
+    int coil = K(JAKA_CO_CMD_STOP_PROGRAM), res = K(JAKA_IR_RESULT_STOP_PROGRAM_STATE);
+    reset_program();
+    fill_map_header();
+    DI(K(JAKA_DI_INPOS)) = 1;
+    P.HALT.EXECUTE.value = 1;
+    scan();
+    gateway_answers(res, 2, NULL);
+    scan();
+    scan();
+    if (!P.HALT.DONE.value || !CO(coil))
+        fail("stop: Done %d, trigger %d (held at 1 while Execute)", P.HALT.DONE.value, CO(coil));
+    P.MOVEJ.EXECUTE.value = 1;
+    scan();
+    if (!P.MOVEJ.ERROR.value || P.MOVEJ.ERRORID.value != 0x0007 || CO(K(JAKA_CO_CMD_JOINT_MOVE)))
+        fail("a move while the stop holds: Error %d ErrorID 0x%04X trigger %d", P.MOVEJ.ERROR.value,
+             P.MOVEJ.ERRORID.value, CO(K(JAKA_CO_CMD_JOINT_MOVE)));
+    P.MOVEJ.EXECUTE.value = 0;
+    P.HALT.EXECUTE.value = 0;
+    scan();
+    if (CO(coil))
+        fail("the stop's trigger still 1 after Execute fell");
+    P.MOVEJ.EXECUTE.value = 1;
+    scan();
+    if (!CO(K(JAKA_CO_CMD_JOINT_MOVE)) || P.MOVEJ.ERROR.value)
+        fail("a move after the stop released: trigger %d Error %d", CO(K(JAKA_CO_CMD_JOINT_MOVE)),
+             P.MOVEJ.ERROR.value);
+    report("unit_stop_holds", "trigger held while Execute, a move refused 16#0007, released on the fall");
 }
 
 /* A trigger block: an edge starts exactly one request (the trigger coil
@@ -474,40 +541,40 @@ static void unit_trigger_handshake(void)
     reset_program();
     fill_map_header();
     IR(res) = 2; /* a stale "done" from before: must not pass */
-    DI(K(JAKA_DI_INPOS)) = 1;
-    P.HALT.EXECUTE.value = 1;
+    P.PROG.COMMAND.value = 5; /* stop_program */
+    P.PROG.EXECUTE.value = 1;
     scan();
-    if (!CO(coil) || !P.HALT.BUSY.value)
-        fail("Execute: trigger coil %d, Busy %d", CO(coil), P.HALT.BUSY.value);
+    if (!CO(coil) || !P.PROG.BUSY.value)
+        fail("Execute: trigger coil %d, Busy %d", CO(coil), P.PROG.BUSY.value);
     for (int i = 0; i < 20; i++)
         scan();
-    if (P.HALT.DONE.value)
+    if (P.PROG.DONE.value)
         fail("Done on a stale result, before the count changed");
     gateway_answers(res, 1, NULL); /* pending */
     scan();
-    if (P.HALT.DONE.value || !CO(coil))
+    if (P.PROG.DONE.value || !CO(coil))
         fail("Done while pending");
     IR(res) = 2;
     scan();
     scan();
-    if (!P.HALT.DONE.value || P.HALT.BUSY.value || CO(coil))
-        fail("after done: Done %d Busy %d coil %d", P.HALT.DONE.value, P.HALT.BUSY.value, CO(coil));
+    if (!P.PROG.DONE.value || P.PROG.BUSY.value || CO(coil))
+        fail("after done: Done %d Busy %d coil %d", P.PROG.DONE.value, P.PROG.BUSY.value, CO(coil));
     for (int i = 0; i < 10; i++)
         scan();
-    if (!P.HALT.DONE.value)
+    if (!P.PROG.DONE.value)
         fail("Done not held while Execute is TRUE");
-    P.HALT.EXECUTE.value = 0;
+    P.PROG.EXECUTE.value = 0;
     scan();
-    if (P.HALT.DONE.value)
+    if (P.PROG.DONE.value)
         fail("Done held after Execute fell");
     /* Execute held TRUE does not start a second request. */
     uint16_t count = IR(res + 23);
-    P.HALT.EXECUTE.value = 1;
+    P.PROG.EXECUTE.value = 1;
     scan();
     gateway_answers(res, 2, NULL);
     scan();
     scan();
-    P.HALT.EXECUTE.value = 1;
+    P.PROG.EXECUTE.value = 1;
     for (int i = 0; i < 10; i++)
         scan();
     if (CO(coil))
@@ -515,17 +582,17 @@ static void unit_trigger_handshake(void)
     if (IR(res + 23) != (uint16_t)(count + 1))
         fail("count moved %d times", IR(res + 23) - count);
     /* Execute falls while busy: Done shows for exactly one scan. */
-    P.HALT.EXECUTE.value = 0;
+    P.PROG.EXECUTE.value = 0;
     scan();
-    P.HALT.EXECUTE.value = 1;
+    P.PROG.EXECUTE.value = 1;
     scan();
-    P.HALT.EXECUTE.value = 0;
+    P.PROG.EXECUTE.value = 0;
     scan();
     gateway_answers(res, 2, NULL);
     int shown = 0;
     for (int i = 0; i < 10; i++) {
         scan();
-        shown += P.HALT.DONE.value;
+        shown += P.PROG.DONE.value;
     }
     if (shown != 1)
         fail("Execute fell while busy: Done shown %d scans, expected 1", shown);
@@ -538,19 +605,20 @@ static void unit_timeouts(void)
     char figures[96];
     reset_program();
     fill_map_header();
-    P.HALT.TIMEOUT.value = (TIME){1, 0};
-    P.HALT.EXECUTE.value = 1;
-    double t = SCAN_UNTIL(P.HALT.ERROR.value, 2000, "no count change: Error");
-    if (P.HALT.ERRORID.value != 1 || CO(K(JAKA_CO_CMD_STOP_PROGRAM)))
-        fail("no count change: ErrorID %u coil %d", P.HALT.ERRORID.value, CO(K(JAKA_CO_CMD_STOP_PROGRAM)));
-    P.HALT.EXECUTE.value = 0;
+    P.PROG.COMMAND.value = 5;
+    P.PROG.TIMEOUT.value = (TIME){1, 0};
+    P.PROG.EXECUTE.value = 1;
+    double t = SCAN_UNTIL(P.PROG.ERROR.value, 2000, "no count change: Error");
+    if (P.PROG.ERRORID.value != 1 || CO(K(JAKA_CO_CMD_STOP_PROGRAM)))
+        fail("no count change: ErrorID %u coil %d", P.PROG.ERRORID.value, CO(K(JAKA_CO_CMD_STOP_PROGRAM)));
+    P.PROG.EXECUTE.value = 0;
     scan();
-    P.HALT.EXECUTE.value = 1;
+    P.PROG.EXECUTE.value = 1;
     scan();
     gateway_answers(res, 1, NULL);
-    double t2 = SCAN_UNTIL(P.HALT.ERROR.value, 2000, "pending for ever: Error");
-    if (P.HALT.ERRORID.value != 2)
-        fail("pending: ErrorID %u, expected 2", P.HALT.ERRORID.value);
+    double t2 = SCAN_UNTIL(P.PROG.ERROR.value, 2000, "pending for ever: Error");
+    if (P.PROG.ERRORID.value != 2)
+        fail("pending: ErrorID %u, expected 2", P.PROG.ERRORID.value);
     snprintf(figures, sizeof(figures), "no result: ErrorID 1 after %.0f ms; pending: 2 after %.0f ms", t, t2);
     report("unit_timeouts", figures);
 }
@@ -679,7 +747,59 @@ static void unit_move(void)
     move_ends_in(res, 4);
     if (!P.MOVEJ.ERROR.value || P.MOVEJ.ERRORID.value != 0x0302)
         fail("motion state 4: ErrorID 0x%04X", P.MOVEJ.ERRORID.value);
-    report("unit_move", "both word orders, Done only on this move's arrival, aborted, not arrived");
+    P.MOVEJ.EXECUTE.value = 0;
+    scan();
+    /* A new edge while the move runs: the old one ends (CommandAborted
+     * that call), stop_program, the arm stops, then the new move's
+     * trigger with the new target; Done on the new move's arrival. */
+    int stop = K(JAKA_IR_RESULT_STOP_PROGRAM_STATE);
+    P.MOVEJ.POSITION.value.table[0] = 10.0f;
+    P.MOVEJ.EXECUTE.value = 1;
+    scan();
+    gateway_answers(res, 2, NULL);
+    scan();
+    IR(K(JAKA_IR_MOTION_COUNT))++;
+    IR(K(JAKA_IR_MOTION_STATE)) = 1;
+    scan();
+    if (!P.MOVEJ.ACTIVE.value || !P.MOVEJ.BUSY.value)
+        fail("moving: Active %d Busy %d", P.MOVEJ.ACTIVE.value, P.MOVEJ.BUSY.value);
+    P.MOVEJ.EXECUTE.value = 0;
+    scan();
+    P.MOVEJ.POSITION.value.table[0] = 20.0f;
+    P.MOVEJ.EXECUTE.value = 1;
+    scan();
+    if (!P.MOVEJ.COMMANDABORTED.value || !P.MOVEJ.BUSY.value || !CO(K(JAKA_CO_CMD_STOP_PROGRAM)))
+        fail("re-triggered: CommandAborted %d Busy %d stop trigger %d", P.MOVEJ.COMMANDABORTED.value,
+             P.MOVEJ.BUSY.value, CO(K(JAKA_CO_CMD_STOP_PROGRAM)));
+    if (hr_f32(K(JAKA_HR_JOINT_MOVE_JOINT_1)) != 20.0f)
+        fail("re-triggered: the new target not in the image");
+    scan();
+    if (P.MOVEJ.COMMANDABORTED.value)
+        fail("CommandAborted of the replaced move held past its call");
+    gateway_answers(stop, 2, NULL);
+    scan();
+    scan();
+    if (CO(K(JAKA_CO_CMD_JOINT_MOVE)))
+        fail("the new move triggered while the arm still moves");
+    IR(K(JAKA_IR_MOTION_STATE)) = 3; /* stopped */
+    scan();
+    scan();
+    scan();
+    if (!CO(K(JAKA_CO_CMD_JOINT_MOVE)) || P.MOVEJ.DONE.value || P.MOVEJ.COMMANDABORTED.value)
+        fail("after the stop: trigger %d Done %d CommandAborted %d", CO(K(JAKA_CO_CMD_JOINT_MOVE)),
+             P.MOVEJ.DONE.value, P.MOVEJ.COMMANDABORTED.value);
+    gateway_answers(res, 2, NULL);
+    scan();
+    scan();
+    IR(K(JAKA_IR_MOTION_COUNT))++;
+    IR(K(JAKA_IR_MOTION_STATE)) = 2;
+    scan();
+    if (!P.MOVEJ.DONE.value || P.MOVEJ.ACTIVE.value)
+        fail("the new move arrived: Done %d Active %d", P.MOVEJ.DONE.value, P.MOVEJ.ACTIVE.value);
+    P.MOVEJ.EXECUTE.value = 0;
+    scan();
+    report("unit_move", "both word orders, Done only on this move's arrival, aborted, not arrived, "
+           "Active, a new edge replaces the running move");
 }
 
 static void unit_other_blocks(void)
@@ -785,9 +905,10 @@ static void unit_other_blocks(void)
     scan();
     if (!CO(K(JAKA_CO_MOTION_ENABLE)) || !CO(K(JAKA_CO_FAULT_RESET)))
         fail("reset: coils");
-    scan();
-    if (CO(K(JAKA_CO_FAULT_RESET)))
-        fail("reset: fault_reset not back to 0");
+    double held = SCAN_UNTIL(!CO(K(JAKA_CO_FAULT_RESET)), 1000, "reset: fault_reset back to 0");
+    if (!failed && held < 290)
+        fail("reset: fault_reset held %.0f ms, expected PulseTime (300 ms): a client writing every "
+             "100 ms could miss it", held);
     IR(K(JAKA_IR_FAULT)) = 0;
     scan();
     if (!P.RESET.DONE.value)
@@ -812,7 +933,70 @@ static void unit_other_blocks(void)
     scan();
     if (!P.MAILBOX.DONE.value)
         fail("mailbox: not Done");
-    report("unit_other_blocks", "power, program name and command, override, output, reset, mailbox");
+    P.MAILBOX.EXECUTE.value = 0;
+    scan();
+    /* A mailbox move (joint_move, code 30): Done on arrival, not when done. */
+    IR(K(JAKA_IR_MAILBOX_ACK_SEQ)) = 42;
+    P.MAILBOX.CODE.value = 30;
+    P.MAILBOX.EXECUTE.value = 1;
+    scan();
+    IR(K(JAKA_IR_MAILBOX_COUNT))++;
+    IR(K(JAKA_IR_MAILBOX_STATE)) = 2;
+    IR(K(JAKA_IR_MAILBOX_DONE_SEQ)) = 43;
+    for (int i = 0; i < 5; i++)
+        scan();
+    if (P.MAILBOX.DONE.value || !P.MAILBOX.BUSY.value)
+        fail("mailbox move: Done %d Busy %d before it arrived", P.MAILBOX.DONE.value, P.MAILBOX.BUSY.value);
+    IR(K(JAKA_IR_MOTION_COUNT))++;
+    IR(K(JAKA_IR_MOTION_STATE)) = 2;
+    scan();
+    if (!P.MAILBOX.DONE.value)
+        fail("mailbox move: not Done on arrival");
+    P.MAILBOX.EXECUTE.value = 0;
+    scan();
+    /* An output the image holds while the robot reports otherwise (an
+     * HMI set it): the other level for PulseTime, then the value. */
+    P.DIGOUT.EXECUTE.value = 0;
+    scan();
+    P.DIGOUT.INDEX.value = 3;
+    P.DIGOUT.VALUE.value = 1;
+    DI(K(JAKA_DI_DOUT_1) + 2) = 0;
+    P.DIGOUT.EXECUTE.value = 1;
+    scan();
+    if (CO(K(JAKA_CO_CABINET_DO_1) + 2) || !P.DIGOUT.BUSY.value)
+        fail("output set elsewhere: coil %d (expected the other level first)", CO(K(JAKA_CO_CABINET_DO_1) + 2));
+    double nudge = SCAN_UNTIL(CO(K(JAKA_CO_CABINET_DO_1) + 2), 1000, "output: the value after the pulse");
+    DI(K(JAKA_DI_DOUT_1) + 2) = 1;
+    scan();
+    if (!P.DIGOUT.DONE.value)
+        fail("output set elsewhere: not Done on the read-back");
+    P.DIGOUT.EXECUTE.value = 0;
+    scan();
+    /* The override likewise, one per mille off first. */
+    P.OVERRIDE.EXECUTE.value = 0;
+    scan();
+    P.OVERRIDE.FACTOR.value = 0.5f;
+    P.OVERRIDE.EXECUTE.value = 1;
+    scan();
+    P.OVERRIDE.EXECUTE.value = 0;
+    IR(K(JAKA_IR_RAPIDRATE_PERMILLE)) = 500;
+    scan();
+    scan();
+    IR(K(JAKA_IR_RAPIDRATE_PERMILLE)) = 700; /* an HMI changed it */
+    P.OVERRIDE.EXECUTE.value = 1;
+    scan();
+    if (HR(K(JAKA_HR_RAPID_RATE)) != 499)
+        fail("override changed elsewhere: HR %u first, expected 499", HR(K(JAKA_HR_RAPID_RATE)));
+    SCAN_UNTIL(HR(K(JAKA_HR_RAPID_RATE)) == 500, 1000, "override: the value after the pulse");
+    IR(K(JAKA_IR_RAPIDRATE_PERMILLE)) = 500;
+    scan();
+    if (!P.OVERRIDE.DONE.value)
+        fail("override changed elsewhere: not Done on the read-back");
+    char figures[160];
+    snprintf(figures, sizeof(figures), "power, program name and command, override, output, reset, "
+             "mailbox, a mailbox move Done on arrival, output and override set elsewhere (pulse %.0f ms)",
+             nudge);
+    report("unit_other_blocks", figures);
 }
 
 static int run_unit(void)
@@ -822,6 +1006,7 @@ static int run_unit(void)
     unit_real_bits();
     unit_link();
     unit_trigger_handshake();
+    unit_stop_holds();
     unit_timeouts();
     unit_refusals();
     unit_move();
@@ -1129,12 +1314,91 @@ static void case_refusals(void)
     fig(", a move before the heartbeat refused (16#0201), Done once it runs");
 }
 
+/* A new Execute edge while a long move runs: the old one ends with
+ * CommandAborted, the arm stops (stop_program) and goes to the new target;
+ * Done there, and only there. */
+static void case_retrigger(void)
+{
+    start_up();
+    int j1 = K(JAKA_IR_JOINT_ACTUAL_POSITION_1);
+    float from = ir_f32(j1);
+    for (int i = 0; i < 6; i++)
+        P.MOVEJ.POSITION.value.table[i] = ir_f32(j1 + 2 * i);
+    P.MOVEJ.RELATIVE.value = 0;
+    P.MOVEJ.SPEED.value = 20.0f;
+    P.MOVEJ.POSITION.value.table[0] = from + 60.0f;
+    P.MOVEJ.EXECUTE.value = 1;
+    SCAN_UNTIL(P.MOVEJ.ACTIVE.value && IR(K(JAKA_IR_MOTION_STATE)) == 1, 5000, "the first move under way");
+    for (int i = 0; i < 30; i++)
+        scan();
+    float at = ir_f32(j1);
+    P.MOVEJ.EXECUTE.value = 0;
+    scan();
+    float target = from - 10.0f;
+    P.MOVEJ.POSITION.value.table[0] = target;
+    P.MOVEJ.SPEED.value = 40.0f;
+    P.MOVEJ.EXECUTE.value = 1;
+    scan();
+    if (!failed && !P.MOVEJ.COMMANDABORTED.value)
+        fail("the new edge: no CommandAborted for the old move");
+    long long t0 = clock_us();
+    scan(); /* CommandAborted was the old move's, for the call of the edge */
+    if (!failed && P.MOVEJ.COMMANDABORTED.value)
+        fail("CommandAborted held past the call of the new edge");
+    double t = SCAN_UNTIL(P.MOVEJ.DONE.value || P.MOVEJ.ERROR.value || P.MOVEJ.COMMANDABORTED.value,
+                          15000, "the new move's end");
+    if (!failed && !P.MOVEJ.DONE.value)
+        fail("the new move: Error %d (0x%04X) CommandAborted %d", P.MOVEJ.ERROR.value,
+             P.MOVEJ.ERRORID.value, P.MOVEJ.COMMANDABORTED.value);
+    check_arrived("the new move", j1, target, 0.1f);
+    fig(", joint 1 at %.1f of %.1f when re-triggered, Done at %.2f (target %.2f) %.0f ms later", at - from,
+        60.0, ir_f32(j1) - from, target - from, (clock_us() - t0) / 1000.0);
+    (void)t;
+    P.MOVEJ.EXECUTE.value = 0;
+    scan();
+}
+
+/* JAKA_Command with a move (joint_move, code 30): Done only on arrival. */
+static void case_mailbox_move(void)
+{
+    start_up();
+    int j1 = K(JAKA_IR_JOINT_ACTUAL_POSITION_1);
+    float from = ir_f32(j1);
+    P.MAILBOX.CODE.value = 30;
+    memset(P.MAILBOX.ARGS.value.table, 0, sizeof(P.MAILBOX.ARGS.value.table));
+    P.MAILBOX.ARGS.value.table[0] = 20.0f; /* joint 1 +20 deg */
+    P.MAILBOX.ARGS.value.table[6] = 40.0f; /* speed */
+    P.MAILBOX.ARGS.value.table[7] = 100.0f; /* accel */
+    P.MAILBOX.ARGS.value.table[8] = 1.0f; /* relative */
+    P.MAILBOX.EXECUTE.value = 1;
+    long long t0 = clock_us();
+    bool early = false;
+    while (!failed && !P.MAILBOX.DONE.value && !P.MAILBOX.ERROR.value) {
+        if (clock_us() - t0 > 10000000) {
+            fail("the mailbox move: not Done within 10 s");
+            break;
+        }
+        scan();
+        if (P.MAILBOX.DONE.value && (IR(K(JAKA_IR_MOTION_STATE)) != 2 || fabsf(ir_f32(j1) - from - 20.0f) > 0.1f))
+            early = true;
+    }
+    if (!failed && P.MAILBOX.ERROR.value)
+        fail("the mailbox move: ErrorID 0x%04X", P.MAILBOX.ERRORID.value);
+    if (!failed && early)
+        fail("the mailbox move Done at joint 1 %+.2f deg, motion state %u: before it arrived",
+             ir_f32(j1) - from, IR(K(JAKA_IR_MOTION_STATE)));
+    fig(", the mailbox's joint_move Done %.0f ms after Execute, on arrival (joint 1 %+.2f deg)",
+        (clock_us() - t0) / 1000.0, ir_f32(j1) - from);
+    P.MAILBOX.EXECUTE.value = 0;
+    scan();
+}
+
 static void case_link_lost(void)
 {
     link_up();
     disconnect();
-    cl.down_until_us = now_us() + 2000000;
-    double t = SCAN_UNTIL(!P.LINK.VALID.value, 2000, "Valid falls with the link");
+    cl.down_until_us = now_us() + 4000000;
+    double t = SCAN_UNTIL(!P.LINK.VALID.value, 4000, "Valid falls with the link");
     if (!failed && P.LINK.ERRORID.value != 5)
         fail("link lost: ErrorID %u, expected 5 (stale)", P.LINK.ERRORID.value);
     double back = SCAN_UNTIL(P.LINK.VALID.value, 5000, "Valid again");
@@ -1184,6 +1448,7 @@ static int run_case(const char *name, const char *port, const char *pid, bool sp
         {"link_lost", case_link_lost},       {"estop", case_estop},
         {"mailbox", case_mailbox},           {"two_connections", case_startup},
         {"refusals", case_refusals},         {"example", case_example},
+        {"retrigger", case_retrigger},       {"mailbox_move", case_mailbox_move},
     };
     cl.host = "127.0.0.1";
     cl.port = atoi(port);
@@ -1215,14 +1480,154 @@ static int run_case(const char *name, const char *port, const char *pid, bool sp
     return 2;
 }
 
+/* ---- a cell in a vendor's client model ---- */
+
+#define PP RES__PICKPLACE
+
+static void bind_image(uint8_t *co, uint8_t *di, uint16_t *ir, uint16_t *hr)
+{
+    struct vc_image image = {.co = co, .di = di, .ir = ir, .hr = hr};
+    vc_bind(&image);
+}
+
+/* The shipped example's whole sequence, from its start button. */
+static void vendor_example(void)
+{
+    bind_image(EX.COILS.value.table, EX.INPUTS.value.table, EX.INREGS.value.table,
+               EX.HOLDREGS.value.table);
+    double t = SCAN_UNTIL(EX.LINK.VALID.value, 20000, "the example's JAKA_Link Valid");
+    fig("example Valid after %.0f ms", t);
+    EX.STARTBUTTON.value = 1;
+    SCAN_UNTIL(EX.SEQUENCE.value != 0, 2000, "the example's sequence started");
+    EX.STARTBUTTON.value = 0;
+    t = SCAN_UNTIL(EX.SEQUENCE.value == 0 || EX.ALARM.value, 40000, "the example's sequence's end");
+    if (!failed && EX.ALARM.value)
+        fail("the example's alarm, ErrorID 0x%04X", EX.ALARMID.value);
+    fig(", its sequence in %.0f ms", t);
+}
+
+/* Pick and place until 'cycles' loops are done, or an alarm. */
+static double vendor_cycles(int cycles, int limit_ms)
+{
+    PP.PAUSEAT.value = cycles; /* the cell stops there, no move begun after */
+    PP.START.value = 1;
+    double t = SCAN_UNTIL((PP.CYCLES.value >= cycles && PP.SEQUENCE.value == 0) || PP.ALARM.value,
+                          limit_ms, "the pick-and-place cycles");
+    PP.START.value = 0;
+    scan();
+    if (!failed && PP.ALARM.value)
+        fail("pick-and-place alarm after %d cycles: ErrorID 0x%04X at step %d", PP.CYCLES.value,
+             PP.ALARMID.value, PP.ALARMSTEP.value);
+    return t;
+}
+
+/* The operator's reset, when a fault is latched (a restarted gateway). */
+static void vendor_reset(void)
+{
+    PP.RESETBUTTON.value = 1;
+    SCAN_UNTIL(PP.RESET.DONE.value || PP.RESET.ERROR.value, 5000, "the operator's reset");
+    PP.RESETBUTTON.value = 0;
+    scan();
+}
+
+/*
+ * plc_scan vendor REQUESTS PORT SIM_PID PERIOD_MS WHAT SECONDS [GO_FILE]
+ * WHAT: "cell" (the example's sequence, then 3 pick-and-place cycles),
+ * "link" (JAKA_Link Valid all the time for SECONDS), "restart" (a cycle,
+ * "PAUSED" on stdout, wait for GO_FILE (the gateway restarted meanwhile),
+ * then 3 cycles more without a PLC restart).
+ */
+static int run_vendor(char **argv, int argc)
+{
+    const char *what = argv[6];
+    int seconds = atoi(argv[7]);
+    if (vc_load(argv[2], "127.0.0.1", atoi(argv[3])) != 0)
+        return 2;
+    sim_pid = atoi(argv[4]);
+    scan_ms = atoi(argv[5]);
+    vendor_mode = true;
+    config_init__();
+    long long t0 = now_us();
+    if (strcmp(what, "link") == 0) {
+        bind_image(PP.COILS.value.table, PP.INPUTS.value.table, PP.INREGS.value.table,
+                   PP.HOLDREGS.value.table);
+        double t = SCAN_UNTIL(PP.LINK.VALID.value, 20000, "JAKA_Link Valid");
+        long drops = 0;
+        bool was = true;
+        long long end = now_us() + seconds * 1000000LL;
+        while (!failed && now_us() < end) {
+            scan();
+            if (was && !PP.LINK.VALID.value)
+                drops++;
+            was = PP.LINK.VALID.value;
+        }
+        if (!failed && drops)
+            fail("JAKA_Link Valid dropped %ld times in %d s (ErrorID 0x%04X)", drops, seconds,
+                 PP.LINK.ERRORID.value);
+        fig("Valid after %.0f ms, kept %d s", t, seconds);
+    } else {
+        if (strcmp(what, "cell") == 0)
+            vendor_example();
+        if (!failed)
+            bind_image(PP.COILS.value.table, PP.INPUTS.value.table, PP.INREGS.value.table,
+                       PP.HOLDREGS.value.table);
+        if (!failed)
+            SCAN_UNTIL(PP.LINK.VALID.value, 20000, "the pick-and-place JAKA_Link Valid");
+        /* Its link had no image until now (ErrorID 4 after CheckTime): an
+         * alarm the operator resets. */
+        if (!failed && PP.ALARM.value)
+            vendor_reset();
+        if (strcmp(what, "restart") == 0 && !failed) {
+            vendor_cycles(1, seconds * 1000);
+            SCAN_UNTIL(PP.SEQUENCE.value == 0, 5000, "the cell paused");
+            printf("PAUSED\n");
+            fflush(stdout);
+            const char *go = argc > 8 ? argv[8] : "";
+            SCAN_UNTIL(access(go, F_OK) == 0, 30000, "the gateway restarted");
+            SCAN_UNTIL(PP.LINK.RESTARTS.value > 0, 10000, "JAKA_Link sees the restart (start_id)");
+            SCAN_UNTIL(PP.LINK.VALID.value, 20000, "JAKA_Link Valid after the restart");
+            /* The robot's own network-exception handler pauses the arm
+             * timeLimit (1 s) after its command connection was lost,
+             * whatever connects meanwhile (jakasim, after the manual): the
+             * operator starts the cell again once that has passed. */
+            long long restarted = now_us();
+            SCAN_UNTIL(now_us() - restarted > 1500000, 3000, "the robot's handler acted");
+            if (PP.LINK.FAULT.value != 0 || PP.ALARM.value)
+                vendor_reset();
+            fig("a cycle, the gateway restarted (a new start_id seen)");
+        }
+        if (!failed) {
+            double t = vendor_cycles(PP.CYCLES.value + 3, seconds * 1000);
+            fig("%s3 pick-and-place cycles in %.0f ms", figures[0] ? ", " : "", t);
+        }
+    }
+    const struct vc_stats *st = vc_stats();
+    double s_total = (now_us() - t0) / 1e6;
+    vc_close();
+    if (failed)
+        printf("FAIL %s %d ms %s: %s (in %.1f s: ", vc_vendor(), scan_ms, what, why, s_total);
+    else
+        printf("PASS %s %d ms %s (%s; ", vc_vendor(), scan_ms, what, figures);
+    printf("%.1f requests/s: %ld reads, %ld writes (heartbeat %ld, other "
+           "registers %ld, coils %ld), %ld refused, %ld reconnects; scan work mean %.2f ms, "
+           "max %.2f ms, %ld overruns in %ld scans)\n",
+           st->requests / s_total, st->reads, st->writes,
+           st->heartbeat_writes, st->other_writes, st->coil_writes, st->refused, st->failures,
+           scan_work_sum_ms / scans, scan_work_max_ms, overruns, scans);
+    return failed ? 1 : 0;
+}
+
 int main(int argc, char **argv)
 {
     signal(SIGPIPE, SIG_IGN);
     if (argc == 2 && strcmp(argv[1], "unit") == 0)
         return run_unit();
+    if (argc >= 8 && strcmp(argv[1], "vendor") == 0)
+        return run_vendor(argv, argc);
     if (argc >= 4 && strcmp(argv[1], "case") == 0)
         return run_case(argv[2], argv[3], argc > 4 ? argv[4] : NULL,
                         argc > 5 && strcmp(argv[5], "split") == 0);
-    fprintf(stderr, "usage: plc_scan unit | plc_scan case NAME PORT [SIM_PID [split]]\n");
+    fprintf(stderr, "usage: plc_scan unit | plc_scan case NAME PORT [SIM_PID [split]] | "
+                    "plc_scan vendor REQUESTS PORT SIM_PID PERIOD_MS cell|link|restart SECONDS [GO_FILE]\n");
     return 2;
 }

@@ -17,6 +17,8 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
+import threading
 import time
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "integration"))
@@ -28,6 +30,8 @@ OUT = os.path.join(BUILD, "plc")
 MAP = os.path.join(ROOT, "plc", "jaka_map.st")
 LIB = os.path.join(ROOT, "plc", "jaka.st")
 EXAMPLE = os.path.join(ROOT, "plc", "examples", "jaka_cell.st")
+PICK_PLACE = os.path.join(ROOT, "tests", "plc", "pick_place.st")
+EXAMPLES = os.path.join(ROOT, "plc", "examples")
 
 GATEWAY_CONFIG = """
 [commands]
@@ -111,8 +115,9 @@ def build_harness(matiec):
     matiec: a run that changes none of them compiles only plc_scan.c."""
     # The cell (every block) as Main; the shipped example as Example, run
     # by the same task (its image is kept in step only in case "example").
-    source = unit_source([os.path.join(ROOT, "tests", "plc", "cell.st"), EXAMPLE], "JakaCell",
-                         "  PROGRAM Example WITH Scan : JakaExample;\n")
+    source = unit_source([os.path.join(ROOT, "tests", "plc", "cell.st"), EXAMPLE, PICK_PLACE],
+                         "JakaCell", "  PROGRAM Example WITH Scan : JakaExample;\n"
+                         "  PROGRAM PickPlace WITH Scan : JakaPickPlace;\n")
     includes = ["-std=gnu11"]
     san = ["-O1", "-g", "-fno-omit-frame-pointer", "-fsanitize=address,undefined",
            "-fno-sanitize-recover=all"]
@@ -142,7 +147,8 @@ def build_harness(matiec):
     exe = os.path.join(OUT, "plc_scan")
     os.makedirs(OUT, exist_ok=True)
     subprocess.run(["cc"] + includes + san + ["-Wall", "-Wextra", "-Werror",
-                                              os.path.join(ROOT, "tests", "plc", "plc_scan.c")] +
+                                              os.path.join(ROOT, "tests", "plc", "plc_scan.c"),
+                                              os.path.join(ROOT, "tests", "plc", "vendor_client.c")] +
                    objs + ["-o", exe] + modbus + ["-lm"], check=True)
     return exe
 
@@ -173,7 +179,210 @@ CASES = [
     ("two_connections", True, "reads and writes on two connections, as a Siemens PLC makes them"),
     ("refusals", True, "a move before the heartbeat: ErrorID 16#0201 from the gateway's reason"),
     ("example", True, "plc/examples/jaka_cell.st's whole sequence, each command once at the robot"),
+    ("retrigger", True, "a new Execute edge on a running move: CommandAborted, Done at the new target"),
+    ("mailbox_move", True, "JAKA_Command's joint_move: Done on arrival"),
 ]
+
+
+# ---- the vendors' set-ups, read from the shipped examples ----
+
+FUNCTIONS = {"FC04": "ir", "FC02": "di", "FC16": "hr", "FC15": "co"}
+
+
+def markdown_rows(text, header):
+    """The rows of the Markdown table whose header line starts 'header'."""
+    lines = text[text.index(header):].splitlines()
+    rows = []
+    for l in lines[2:]:
+        if not l.startswith("|"):
+            break
+        rows.append([c.strip() for c in l.strip().strip("|").split("|")])
+    return rows
+
+
+def function_of(text):
+    m = re.search(r"FC(0[1-6]|1[56])", text)
+    check(m and m.group(0) in FUNCTIONS, "no function code in '%s'" % text)
+    return FUNCTIONS[m.group(0)]
+
+
+def codesys_requests():
+    """plc/examples/codesys/README.md's channel table: one slave, one
+    connection; each channel's function, trigger (cyclic N ms or rising
+    edge of a "changed" bit), offset and length."""
+    text = open(os.path.join(EXAMPLES, "codesys", "README.md")).read()
+    lines = ["vendor codesys"]
+    for name, access, trigger, offset, length, _ in markdown_rows(text, "| Channel | Access type"):
+        cyclic = re.match(r"cyclic (\d+) ms", trigger)
+        check(cyclic or trigger.startswith("rising edge"), "channel %s: trigger '%s'" % (name, trigger))
+        lines.append("request 0 %s %d %d %s" % (function_of(access), int(offset), int(length),
+                                                 "cyclic " + cyclic.group(1) if cyclic else "change"))
+    return lines
+
+
+def array_constant(text, name):
+    m = re.search(r"\b%s\s*:\s*Array\s*\[[^\]]*\]\s*of\s*\w+\s*:=\s*\[([^\]]*)\]" % name, text,
+                  re.I)
+    check(m, "no constant %s" % name)
+    return [int(v) for v in m.group(1).split(",")]
+
+
+def instance_requests(vendor, text):
+    """Siemens' JakaModbus.scl, TwinCAT's MB_Sync: the ranges read in turn
+    by one instance (IR_FIRST/IR_COUNT, DI_FIRST/DI_COUNT), the blocks
+    written by the other (HR_FIRST/HR_COUNT, the first the heartbeat), and
+    the coils (CoilsSent's size) one changed coil per request."""
+    lines = ["vendor " + vendor]
+    for table, first, count in (("ir", "IR_FIRST", "IR_COUNT"), ("di", "DI_FIRST", "DI_COUNT")):
+        for a, n in zip(array_constant(text, first), array_constant(text, count)):
+            lines.append("request 0 %s %d %d turn" % (table, a, n))
+    for a, n in zip(array_constant(text, "HR_FIRST"), array_constant(text, "HR_COUNT")):
+        lines.append("request 1 hr %d %d turn%s" % (a, n, " heartbeat" if a == 0 else ""))
+    coils = re.search(r"CoilsSent\s*:\s*Array\s*\[0\.\.(\d+)\]", text, re.I)
+    check(coils, "no CoilsSent")
+    lines.append("request 1 co 0 %d turn single" % (int(coils.group(1)) + 1))
+    return lines
+
+
+def siemens_requests():
+    return instance_requests("siemens", open(os.path.join(EXAMPLES, "siemens", "JakaModbus.scl")).read())
+
+
+def twincat_requests():
+    text = open(os.path.join(EXAMPLES, "twincat", "README.md")).read()
+    return instance_requests("twincat", text[text.index("PROGRAM MB_Sync"):])
+
+
+def rockwell_requests():
+    """plc/examples/rockwell/README.md's ProSoft command list: Enable 1
+    continuous (every Poll Interval), 2 conditional (on change)."""
+    text = open(os.path.join(EXAMPLES, "rockwell", "README.md")).read()
+    m = re.search(r"Minimum Command Delay (\d+) ms", text)
+    check(m, "no Minimum Command Delay")
+    lines = ["vendor rockwell", "delay " + m.group(1)]
+    for _, enable, interval, fc, address, count, image in markdown_rows(text, "| Cmd | Enable"):
+        check(enable in ("1", "2"), "command enable '%s'" % enable)
+        lines.append("request 0 %s %d %d %s%s" % (
+            function_of(fc), int(address), int(count),
+            "cyclic %d" % max(1, int(interval)) if enable == "1" else "change",
+            " heartbeat" if "heartbeat" in image else ""))
+    return lines
+
+
+VENDORS = (("codesys", codesys_requests), ("siemens", siemens_requests),
+           ("twincat", twincat_requests), ("rockwell", rockwell_requests))
+PERIODS_MS = (1, 10, 100)
+# Each cell case: the example's sequence, then 3 pick-and-place cycles.
+CELL_SECONDS = 60
+# A one-request-at-a-time client: 13 reads of 46 ms: each range every 600 ms.
+LINK_CASE = ("siemens", 46, "link", 60)
+RESTART_CASE = ("twincat", 10, "restart", 60)
+# What the cell asks of the robot: set_digital_output per gripper change
+# at most twice; each move once.
+GRIPPER_CHANGES = {"cell": 1 + 2 * 3, "restart": 2 * 4, "link": 0}
+MOVES = {"cell": {"joint_move": 1 + 2 * 3, "moveL": 3}, "restart": {"joint_move": 2 * 4, "moveL": 4},
+         "link": {}}
+
+gateway_lock = threading.Lock()
+
+
+def new_gateway(sim, port=None):
+    """A jakagw in front of 'sim'; on 'port' (a restart) if given."""
+    import harness
+    with gateway_lock:
+        if port is None:
+            return Gateway(sim, GATEWAY_CONFIG)
+        free = harness.free_port
+        harness.free_port = lambda: port
+        try:
+            return Gateway(sim, GATEWAY_CONFIG)
+        finally:
+            harness.free_port = free
+
+
+def vendor_case(exe, vendor, lines, period, what, seconds, out):
+    """One set-up at one task period, with its own jakasim and jakagw;
+    appends (ok, name, text) to out."""
+    name = "vendor_%s_%dms_%s" % (vendor, period, what)
+    sim = Sim("--log-commands")
+    gw = None
+    try:
+        gw = new_gateway(sim)
+        with tempfile.TemporaryDirectory(prefix="plc-vendor-") as tmp:
+            requests = os.path.join(tmp, "requests")
+            go = os.path.join(tmp, "go")
+            with open(requests, "w") as f:
+                f.write("\n".join(lines) + "\n")
+            proc = subprocess.Popen([exe, "vendor", requests, str(gw.modbus_port), str(sim.proc.pid),
+                                     str(period), what, str(seconds), go],
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            err = []
+            reader = threading.Thread(target=lambda: err.append(proc.stderr.read()))
+            reader.start()
+            result = []
+            for l in proc.stdout:
+                if l.strip() == "PAUSED":
+                    # The gateway restarts on the same port; the PLC goes on.
+                    port = gw.modbus_port
+                    gw.stop()
+                    gw = new_gateway(sim, port)
+                    open(go, "w").close()
+                else:
+                    result.append(l.rstrip())
+            proc.wait(timeout=seconds + 120)
+            reader.join()
+        text = result[-1] if result else "no output; stderr: " + "".join(err)[-1500:]
+        ok = proc.returncode == 0 and text.startswith("PASS")
+        if ok:
+            sent = sim_commands_named(sim, None)
+            outputs = sum(1 for c in sent if c.get("cmdName") == "set_digital_output")
+            bad = []
+            if outputs > 2 * GRIPPER_CHANGES[what]:
+                bad.append("%d set_digital_output for %d gripper changes" % (outputs, GRIPPER_CHANGES[what]))
+            for move, n in MOVES[what].items():
+                got = sum(1 for c in sent if c.get("cmdName") == move)
+                if got != n:
+                    bad.append("%d %s at the robot, the cell asked %d" % (got, move, n))
+            if bad:
+                ok = False
+                text += "; " + ", ".join(bad)
+            else:
+                text += "; the robot received %d set_digital_output for %d changes" % (
+                    outputs, GRIPPER_CHANGES[what])
+        text = re.sub(r"^(PASS|FAIL) \S+ \d+ ms \S+:? ?", "", text)
+        if not ok:
+            log = gw.stop()
+            gw = None
+            text += "\n" + "".join(err)[-1000:] + "\njakagw:\n" + log[-1500:]
+        out.append((ok, name, " " + text if ok else ": " + text))
+    except Exception as e:  # a case's harness failure is its failure, not the run's
+        out.append((False, name, ": %s" % e))
+    finally:
+        if gw:
+            gw.stop()
+        sim.stop()
+
+
+def vendor_cases(exe):
+    """Every vendor's set-up at every task period, side by side (one
+    jakasim, jakagw and PLC process each), with the one-request-at-a-time
+    link case and a gateway restart."""
+    runs = []
+    for vendor, requests in VENDORS:
+        lines = requests()
+        for period in PERIODS_MS:
+            runs.append((vendor, lines, period, "cell", CELL_SECONDS))
+    build = dict(VENDORS)
+    for vendor, period, what, seconds in (LINK_CASE, RESTART_CASE):
+        runs.append((vendor, build[vendor](), period, what, seconds))
+    out = []
+    threads = [threading.Thread(target=vendor_case, args=(exe,) + r + (out,)) for r in runs]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for ok, name, text in sorted(out, key=lambda r: r[1]):
+        line(ok, name, text)
 
 
 def run_case(exe, name, needs_contract, contract):
@@ -259,10 +468,16 @@ def main():
     if u.returncode != 0 and "FAIL" not in u.stdout:
         line(False, "unit", ": exit %d %s" % (u.returncode, u.stderr[-1500:]))
     contract = contract_in_place()
+    only = os.environ.get("PLC_CASES")  # e.g. "vendor" or "moves,example"
+    t_vendor = time.monotonic()
+    if contract and (not only or "vendor" in only.split(",")):
+        vendor_cases(exe)
+    t_vendor = time.monotonic() - t_vendor
     for name, needs, _ in CASES:
-        run_case(exe, name, needs, contract)
-    print("times: matiec %.1f s (cached when under 1 s), compile and link %.1f s, total %.1f s"
-          % (t_matiec, t_build - t_matiec, time.monotonic() - start))
+        if not only or name in only.split(","):
+            run_case(exe, name, needs, contract)
+    print("times: matiec %.1f s (cached when under 1 s), compile and link %.1f s, vendor cases "
+          "%.1f s, total %.1f s" % (t_matiec, t_build - t_matiec, t_vendor, time.monotonic() - start))
     passed = sum(1 for ok in results if ok)
     failed = len(results) - passed
     print("%d passed, %d failed" % (passed, failed))
