@@ -17,7 +17,7 @@
  *   idle       no status stream
  *   1 kHz      the status document (the 8979-byte real one) written to
  *              both status ports every millisecond by a thread
- *   backlog    the server stopped (SIGSTOP), 50 documents written to its
+ *   backlog    the server stopped (SIGSTOP), 50 documents (--backlog) written to its
  *              status port, then the FC05 sent; timed from SIGCONT
  *
  * Where valgrind and strace are installed, also: the instructions each
@@ -27,7 +27,7 @@
  * it) and the system calls per forwarded command (strace -c attached over
  * the same two kinds of cycles).
  *
- *   bench_forward [--samples N] [--rounds N]
+ *   bench_forward [--samples N] [--rounds N] [--backlog DOCUMENTS] [--no-counts]
  *
  * (BUILD/bench/bench_forward: BUILD/jakagw, BUILD/bench/floor_forwarder.)
  */
@@ -40,6 +40,7 @@
 #include "regmap.h"
 
 #define BACKLOG_DOCUMENTS 50
+static unsigned backlog_documents = BACKLOG_DOCUMENTS; /* --backlog N */
 #define BACKLOG_SAMPLES 7
 #define COUNT_CYCLES 200
 
@@ -243,7 +244,7 @@ static void *stream_main(void *arg)
 }
 
 enum kind { K_IDLE, K_STREAM, K_BACKLOG, K_COUNT };
-static const char *const kind_names[K_COUNT] = {"idle", "1 kHz status", "backlog of 50"};
+static const char *const kind_names[K_COUNT] = {"idle", "1 kHz status", "backlog"};
 
 /* Counting (instructions, system calls): the reply is given time to be
  * taken before the result is polled, so that every cycle polls once, and
@@ -264,7 +265,7 @@ static double sample(enum server which, bool backlog)
         kill(s->pid, SIGSTOP);
         if (waitpid(s->pid, &st, WUNTRACED) != s->pid || !WIFSTOPPED(st))
             die("%s did not stop", server_names[which]);
-        for (int i = 0; i < BACKLOG_DOCUMENTS; i++)
+        for (unsigned i = 0; i < backlog_documents; i++)
             send_all(s->status, document, document_size);
         modbus_send(s, 5, trigger_address, 0xFF00);
         t0 = now_us();
@@ -492,11 +493,13 @@ int main(int argc, char **argv)
             rounds = (unsigned)atoi(argv[++i]);
         else if (strcmp(argv[i], "--document") == 0 && i + 1 < argc)
             doc_path = argv[++i];
+        else if (strcmp(argv[i], "--backlog") == 0 && i + 1 < argc)
+            backlog_documents = (unsigned)atoi(argv[++i]);
         else if (strcmp(argv[i], "--no-counts") == 0)
             counts = false;
         else
             die("usage: bench_forward [--samples N] [--rounds N] [--document PATH] "
-                "[--no-counts]");
+                "[--backlog DOCUMENTS] [--no-counts]");
     }
     bench_begin("bench_forward");
     load_document(doc_path);
@@ -545,9 +548,9 @@ int main(int argc, char **argv)
         unsigned r = k == K_BACKLOG ? 1 : rounds;
         double a50 = median(p50[k][JAKAGW], r), f50 = median(p50[k][FLOOR], r);
         if (k == K_BACKLOG) {
-            printf("  %-15s median of %u: jakagw %8.1f us  floor %7.1f us  ratio %5.2f "
+            printf("  %-7s of %3u median of %u: jakagw %8.1f us  floor %7.1f us  ratio %5.2f "
                    "(timed from SIGCONT)\n",
-                   kind_names[k], BACKLOG_SAMPLES, a50, f50, a50 / f50);
+                   kind_names[k], backlog_documents, BACKLOG_SAMPLES, a50, f50, a50 / f50);
             continue;
         }
         printf("  %-15s p50 jakagw %7.1f us floor %6.1f us (%4.2fx)  p99 jakagw %8.1f us "
