@@ -17,7 +17,7 @@
  *   idle       no status stream
  *   1 kHz      the status document (the 8979-byte real one) written to
  *              both status ports every millisecond by a thread
- *   backlog    the server stopped (SIGSTOP), 50 documents written to its
+ *   backlog    the server stopped (SIGSTOP), 50 documents (--backlog) written to its
  *              status port, then the FC05 sent; timed from SIGCONT
  *
  * Where valgrind and strace are installed, also: the instructions each
@@ -27,7 +27,7 @@
  * it) and the system calls per forwarded command (strace -c attached over
  * the same two kinds of cycles).
  *
- *   bench_forward [--samples N] [--rounds N]
+ *   bench_forward [--samples N] [--rounds N] [--backlog DOCUMENTS] [--no-counts]
  *
  * (BUILD/bench/bench_forward: BUILD/jakagw, BUILD/bench/floor_forwarder.)
  */
@@ -40,6 +40,7 @@
 #include "regmap.h"
 
 #define BACKLOG_DOCUMENTS 50
+static unsigned backlog_documents = BACKLOG_DOCUMENTS; /* --backlog N */
 #define BACKLOG_SAMPLES 7
 #define COUNT_CYCLES 200
 
@@ -243,7 +244,13 @@ static void *stream_main(void *arg)
 }
 
 enum kind { K_IDLE, K_STREAM, K_BACKLOG, K_COUNT };
-static const char *const kind_names[K_COUNT] = {"idle", "1 kHz status", "backlog of 50"};
+static const char *const kind_names[K_COUNT] = {"idle", "1 kHz status", "backlog"};
+
+/* Counting (instructions, system calls): the reply is given time to be
+ * taken before the result is polled, so that every cycle polls once, and
+ * a cycle without a command waits as long. */
+static bool counting;
+static double count_wait_s = 0.002; /* longer under valgrind */
 
 /* One command through one server; microseconds to the robot. */
 static double sample(enum server which, bool backlog)
@@ -258,7 +265,7 @@ static double sample(enum server which, bool backlog)
         kill(s->pid, SIGSTOP);
         if (waitpid(s->pid, &st, WUNTRACED) != s->pid || !WIFSTOPPED(st))
             die("%s did not stop", server_names[which]);
-        for (int i = 0; i < BACKLOG_DOCUMENTS; i++)
+        for (unsigned i = 0; i < backlog_documents; i++)
             send_all(s->status, document, document_size);
         modbus_send(s, 5, trigger_address, 0xFF00);
         t0 = now_us();
@@ -272,6 +279,8 @@ static double sample(enum server which, bool backlog)
         die("%s sent no command", server_names[which]);
     modbus_answer(s, 5, rsp, sizeof(rsp));
     send_all(s->robot, ok_reply, sizeof(ok_reply) - 1);
+    if (counting)
+        sleep_s(count_wait_s);
     wait_done(s, which);
     return t1 - t0;
 }
@@ -280,6 +289,7 @@ static double sample(enum server which, bool backlog)
 static void idle_cycle(enum server which)
 {
     write_coil(&servers[which], false);
+    sleep_s(count_wait_s);
     read_input(&servers[which], trigger_state);
 }
 
@@ -391,9 +401,7 @@ static double count_instructions(enum server which, const struct paths *p, bool 
     char *jakagw_wrapper[] = {"/usr/bin/valgrind", "--tool=callgrind", arg,
                               "--collect-atstart=no",
                               "--toggle-collect=on_client_read",
-                              "--toggle-collect=on_reply",
-                              "--toggle-collect=on_deferred_work",
-                              NULL};
+                              "--toggle-collect=on_reply", NULL};
     char *floor_wrapper[] = {"/usr/bin/valgrind", "--tool=callgrind", arg,
                              "--collect-atstart=no", "--toggle-collect=serve",
                              "--toggle-collect=drop_reply", NULL};
@@ -485,11 +493,13 @@ int main(int argc, char **argv)
             rounds = (unsigned)atoi(argv[++i]);
         else if (strcmp(argv[i], "--document") == 0 && i + 1 < argc)
             doc_path = argv[++i];
+        else if (strcmp(argv[i], "--backlog") == 0 && i + 1 < argc)
+            backlog_documents = (unsigned)atoi(argv[++i]);
         else if (strcmp(argv[i], "--no-counts") == 0)
             counts = false;
         else
             die("usage: bench_forward [--samples N] [--rounds N] [--document PATH] "
-                "[--no-counts]");
+                "[--backlog DOCUMENTS] [--no-counts]");
     }
     bench_begin("bench_forward");
     load_document(doc_path);
@@ -538,9 +548,9 @@ int main(int argc, char **argv)
         unsigned r = k == K_BACKLOG ? 1 : rounds;
         double a50 = median(p50[k][JAKAGW], r), f50 = median(p50[k][FLOOR], r);
         if (k == K_BACKLOG) {
-            printf("  %-15s median of %u: jakagw %8.1f us  floor %7.1f us  ratio %5.2f "
+            printf("  %-7s of %3u median of %u: jakagw %8.1f us  floor %7.1f us  ratio %5.2f "
                    "(timed from SIGCONT)\n",
-                   kind_names[k], BACKLOG_SAMPLES, a50, f50, a50 / f50);
+                   kind_names[k], backlog_documents, BACKLOG_SAMPLES, a50, f50, a50 / f50);
             continue;
         }
         printf("  %-15s p50 jakagw %7.1f us floor %6.1f us (%4.2fx)  p99 jakagw %8.1f us "
@@ -550,6 +560,7 @@ int main(int argc, char **argv)
                r, samples);
     }
     fflush(stdout);
+    counting = true;
     if (counts && have_program("strace")) {
         double c[SERVERS][2];
         for (int s = 0; s < SERVERS; s++)
@@ -562,6 +573,7 @@ int main(int argc, char **argv)
     }
     for (int s = 0; s < SERVERS; s++)
         stop_server((enum server)s);
+    count_wait_s = 0.03;
     if (counts && have_program("valgrind")) {
         double c[SERVERS][2];
         for (int s = 0; s < SERVERS; s++)
