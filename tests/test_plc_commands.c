@@ -956,6 +956,14 @@ static void busy(void **state)
     assert_int_equal(cmd_queue_pending(&queue), CMD_QUEUE_CAPACITY);
     assert_int_equal(write_u16(rate, 0, 999), EX_BUSY);
     assert_int_equal(img.mb->tab_registers[rate->address], CMD_QUEUE_CAPACITY - 1);
+    /* A trigger refused for the full queue: its count moved, and its result
+     * says so (not the last power_on's "done", which a PLC would take). */
+    double count = gw_number("result.power_on.count");
+    assert_int_equal(trigger("power_on"), EX_BUSY);
+    assert_int_equal(gw_number("result.power_on.count"), count + 1);
+    assert_int_equal(result_state("power_on"), CMD_REFUSED);
+    assert_string_equal(result_text("power_on"), "busy: the command queue is full");
+    rearm("power_on");
     reply_ok();
     /* One place, but a write of two outputs needs two. */
     const struct regmap_row *cab = cmd_row("set_digital_output.value");

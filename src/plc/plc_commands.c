@@ -857,10 +857,10 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
         snprintf(pc->refusal, sizeof(pc->refusal), "busy: the previous one is pending");
         return EX_BUSY;
     }
-    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY) {
-        snprintf(pc->refusal, sizeof(pc->refusal), "busy: the command queue is full");
-        return EX_BUSY;
-    }
+    /* Its count moved (count_handled): the result says why, or a PLC
+     * would take the last command's "done" for this one's. */
+    if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY)
+        return refuse(pc, slot, EX_BUSY, CMD_REFUSED, "busy: the command queue is full");
     return 0;
 }
 
