@@ -367,18 +367,22 @@ static bool due(const struct request *r, long long now)
 
 /* A client thread's queue: every request due, in list order, one at a
  * time; with a minimum delay between two, as many as the time since the
- * last run allows (at least one). */
+ * last run allows (at least one), the next run going on where this one
+ * stopped (a command list is walked round, not restarted). */
 static void run_queue(long long now)
 {
+    static int cursor;
     long budget = vc.n_req * 125; /* no limit but the delay */
     if (vc.delay_ms > 0) {
         long long since = vc.last_run_us ? now - vc.last_run_us : 0;
         budget = since / (vc.delay_ms * 1000LL);
         if (budget < 1)
             budget = 1;
+    } else {
+        cursor = 0; /* the whole list each cycle: always from its top */
     }
-    for (int i = 0; i < vc.n_req && budget > 0; i++) {
-        struct request *r = &vc.req[i];
+    for (int n = 0; n < vc.n_req && budget > 0; n++, cursor = (cursor + 1) % vc.n_req) {
+        struct request *r = &vc.req[cursor];
         if (!due(r, now))
             continue;
         int coil = r->single ? changed_coil(r) : 0;
