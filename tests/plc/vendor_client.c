@@ -85,6 +85,7 @@ static struct {
     int port;
     int delay_ms;          /* between two requests (ProSoft's Minimum Command Delay) */
     bool first_changed;    /* "writes first": the writer takes the first block that changed */
+    bool keep_on_reconnect; /* "reconnect keeps": what was written is not written again */
     struct request req[MAX_REQUESTS];
     int n_req;
     struct instance inst[MAX_INSTANCES];
@@ -166,6 +167,9 @@ int vc_load(const char *path, const char *host, int port)
             ok = vc.rules != NULL;
         } else if (sscanf(line, "delay %d", &vc.delay_ms) == 1) {
             ok = vc.delay_ms >= 0;
+        } else if (strncmp(line, "reconnect keeps", 15) == 0) {
+            vc.keep_on_reconnect = true;
+            ok = 1;
         } else if (strncmp(line, "writes first", 12) == 0) {
             vc.first_changed = true;
             ok = 1;
@@ -217,7 +221,7 @@ static modbus_t *connection(int i, long long now)
     in->ctx = ctx;
     /* A new connection: the gateway may have restarted and hold 0
      * everywhere; what is not 0 in the image is written again. */
-    for (int k = 0; k < vc.n_req; k++)
+    for (int k = 0; k < vc.n_req && !vc.keep_on_reconnect; k++)
         if (vc.req[k].instance == i && !is_read(&vc.req[k]))
             memset(vc.req[k].data, 0, sizeof(vc.req[k].data));
     return ctx;
