@@ -85,6 +85,7 @@ static struct {
     int port;
     int delay_ms;          /* between two requests (ProSoft's Minimum Command Delay) */
     bool first_changed;    /* "writes first": the writer takes the first block that changed */
+    bool keep_on_reconnect; /* "reconnect keeps": what was written is not written again */
     struct request req[MAX_REQUESTS];
     int n_req;
     struct instance inst[MAX_INSTANCES];
@@ -166,6 +167,9 @@ int vc_load(const char *path, const char *host, int port)
             ok = vc.rules != NULL;
         } else if (sscanf(line, "delay %d", &vc.delay_ms) == 1) {
             ok = vc.delay_ms >= 0;
+        } else if (strncmp(line, "reconnect keeps", 15) == 0) {
+            vc.keep_on_reconnect = true;
+            ok = 1;
         } else if (strncmp(line, "writes first", 12) == 0) {
             vc.first_changed = true;
             ok = 1;
@@ -217,7 +221,7 @@ static modbus_t *connection(int i, long long now)
     in->ctx = ctx;
     /* A new connection: the gateway may have restarted and hold 0
      * everywhere; what is not 0 in the image is written again. */
-    for (int k = 0; k < vc.n_req; k++)
+    for (int k = 0; k < vc.n_req && !vc.keep_on_reconnect; k++)
         if (vc.req[k].instance == i && !is_read(&vc.req[k]))
             memset(vc.req[k].data, 0, sizeof(vc.req[k].data));
     return ctx;
@@ -367,18 +371,22 @@ static bool due(const struct request *r, long long now)
 
 /* A client thread's queue: every request due, in list order, one at a
  * time; with a minimum delay between two, as many as the time since the
- * last run allows (at least one). */
+ * last run allows (at least one), the next run going on where this one
+ * stopped (a command list is walked round, not restarted). */
 static void run_queue(long long now)
 {
+    static int cursor;
     long budget = vc.n_req * 125; /* no limit but the delay */
     if (vc.delay_ms > 0) {
         long long since = vc.last_run_us ? now - vc.last_run_us : 0;
         budget = since / (vc.delay_ms * 1000LL);
         if (budget < 1)
             budget = 1;
+    } else {
+        cursor = 0; /* the whole list each cycle: always from its top */
     }
-    for (int i = 0; i < vc.n_req && budget > 0; i++) {
-        struct request *r = &vc.req[i];
+    for (int n = 0; n < vc.n_req && budget > 0; n++, cursor = (cursor + 1) % vc.n_req) {
+        struct request *r = &vc.req[cursor];
         if (!due(r, now))
             continue;
         int coil = r->single ? changed_coil(r) : 0;

@@ -12,6 +12,8 @@
  *   writes first                     a writer's rule: the first block that
  *                                    changed, in list order, then the coils
  *                                    (the heartbeat first whenever it changed)
+ *   reconnect keeps                  after a reconnect, what was written is
+ *                                    taken as still there (no write again)
  *   request INSTANCE TABLE FIRST COUNT TRIGGER [heartbeat] [single]
  * TABLE ir, di, hr or co; TRIGGER "cyclic MS" (every MS ms), "change"
  * (when the image of the range differs from what was written last) or
