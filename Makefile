@@ -203,22 +203,26 @@ bench-http-registers: all
 deps:
 	@scripts/install-deps.sh $(DEPS_GROUPS)
 
+# The builds that make test, make san, make demo and the fuzz targets start
+# compile on every processor (JOBS=1 for one at a time).
+JOBS ?= $(shell nproc 2>/dev/null || echo 1)
+
 # The sanitizer build: the same sources in build-san/ with ASan and UBSan.
 SAN_FLAGS := -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all
 san:
-	$(MAKE) BUILD=build-san CFLAGS="$(SAN_FLAGS)" EXTRA_LDFLAGS="-fsanitize=address,undefined" all unit-tests
+	$(MAKE) -j$(JOBS) BUILD=build-san CFLAGS="$(SAN_FLAGS)" EXTRA_LDFLAGS="-fsanitize=address,undefined" all unit-tests
 
 # The builds run in a sub-make: pkg-config's flags are read when a make
 # starts, and on a fresh machine the packages arrive only with 'deps'.
 # The demo needs only what builds it; make test installs the rest.
 demo:
 	@scripts/install-deps.sh build
-	$(MAKE) all
+	$(MAKE) -j$(JOBS) all
 	@scripts/demo.sh
 
 test: deps
 ifeq ($(TRIPLET),)
-	$(MAKE) all unit-tests $(BUILD)/bench/ref_slave
+	$(MAKE) -j$(JOBS) all unit-tests $(BUILD)/bench/ref_slave
 	$(MAKE) san
 	@tests/run.sh
 	@if [ "$$CI" = true ]; then $(MAKE) fuzz-ci FUZZ_SECONDS=$(CI_FUZZ_SECONDS); fi
@@ -227,7 +231,7 @@ else
 # (JAKAGW_RUNNER), then the package. The sanitizers and the fuzzers run on
 # this machine's build (qemu-user cannot host ASan's shadow memory).
 # SUITES="status_map commands" picks integration suites (tests/run.sh).
-	$(MAKE) all unit-tests $(BUILD)/bench/ref_slave
+	$(MAKE) -j$(JOBS) all unit-tests $(BUILD)/bench/ref_slave
 	@BUILDS=$(BUILD) JAKAGW_ARCH=$(ARCH) tests/run.sh
 endif
 
@@ -337,7 +341,7 @@ fuzz-check:
 	@command -v clang >/dev/null || { echo "make fuzz needs clang: make deps DEPS_GROUPS=fuzz" >&2; exit 1; }
 
 fuzz: fuzz-check
-	$(MAKE) $(FUZZ_TARGETS:%=$(FUZZ_BUILD)/%)
+	$(MAKE) -j$(JOBS) $(FUZZ_TARGETS:%=$(FUZZ_BUILD)/%)
 	@for t in $(FUZZ_TARGETS); do \
 	    mkdir -p $(FUZZ_BUILD)/corpus-$${t#fuzz_} && \
 	    $(FUZZ_BUILD)/$$t -max_total_time=$(FUZZ_SECONDS) -timeout=10 \
@@ -346,7 +350,7 @@ fuzz: fuzz-check
 	done
 
 fuzz-ci: fuzz-check
-	$(MAKE) $(FUZZ_TARGETS:%=$(FUZZ_BUILD)/%)
+	$(MAKE) -j$(JOBS) $(FUZZ_TARGETS:%=$(FUZZ_BUILD)/%)
 	@FUZZ_SECONDS=$(FUZZ_SECONDS) fuzz/run-ci.sh $(FUZZ_BUILD) $(FUZZ_TARGETS)
 
 # The man pages: man/*.in with the options of --help, the keys of

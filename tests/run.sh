@@ -23,7 +23,9 @@
 # the amd64 build only, and so does the service VM test (the package under
 # systemd in qemu, tests/service/test_service_vm.py), after the package test.
 # The alert suite (tests/integration/test_alerts.py, mostly waiting on
-# Prometheus) runs beside those two when they run, its output after theirs.
+# Prometheus) and the PLC library's (tests/plc/test_plc.py, mostly waiting
+# on its cells' scans) run beside those two when they run, their output
+# after theirs.
 set -u
 cd "$(dirname "$0")/.."
 
@@ -43,9 +45,14 @@ passed=0
 failed=0
 failures=""
 log=$(mktemp)
-alerts_beside="" alerts_pid="" alerts_log=""
-# A suite still running beside the others is stopped with the run.
-trap '[ -n "$alerts_pid" ] && kill "$alerts_pid" 2>/dev/null; rm -f "$log" "$alerts_log"' EXIT
+alerts_beside=""
+# Suites that wait more than they compute run beside the package and
+# service VM tests, which build, install and boot (start_beside); their
+# output follows those tests' (finish_beside). A suite still running beside
+# the others is stopped with the run.
+beside_labels=() beside_pids=() beside_logs=() beside_starts=()
+trap 'for p in "${beside_pids[@]}"; do kill "$p" 2>/dev/null; done
+      rm -f "$log" "${beside_logs[@]}"' EXIT
 
 # Each suite's wall time, from the end of the one before it (or from the
 # given start, for a suite that ran beside others), printed at the end,
@@ -64,6 +71,29 @@ record() { # name exit-status passed-cases failed-cases [start-seconds]
         failures="$failures $1"
         [ "$4" -eq 0 ] && failed=$((failed + 1))
     fi
+}
+
+# Starts a suite in the background, its output into a file of its own.
+start_beside() { # label command...
+    local label=$1 out
+    shift
+    out=$(mktemp)
+    echo "== $label started beside the package tests; its output follows them"
+    "$@" >"$out" 2>&1 &
+    beside_labels+=("$label") beside_pids+=($!) beside_logs+=("$out") beside_starts+=($SECONDS)
+}
+
+# Waits for every suite started beside, prints its output and records it.
+finish_beside() {
+    local i status
+    for i in "${!beside_pids[@]}"; do
+        wait "${beside_pids[$i]}"
+        status=$?
+        echo "== ${beside_labels[$i]}"
+        cat "${beside_logs[$i]}"
+        record_summary "${beside_labels[$i]}" "$status" "${beside_logs[$i]}" "${beside_starts[$i]}"
+    done
+    beside_pids=()
 }
 
 # record() for a suite that printed "N passed, N failed" into a file.
@@ -158,13 +188,20 @@ done
 
 # The PLC library run as a PLC (make test-plc): once, with the first
 # native build; SUITES leaves it out unless it names plc.
+# In a whole run it goes beside the package tests (below): about two minutes,
+# most of them the vendor clients' cells waiting on their scans.
+plc_beside=""
 if [ "$what" = all ] && [ -z "${JAKAGW_ARCH:-}" ] &&
    { [ -z "$SUITES" ] || [[ " $SUITES " == *" plc "* ]]; }; then
     build=${BUILDS%% *}
-    echo "== tests/plc/test_plc.py ($build)"
-    JAKAGW_BIN_DIR="$build" "$PYTHON" tests/plc/test_plc.py 2>&1 | tee "$log"
-    status=${PIPESTATUS[0]}
-    record_summary "tests/plc/test_plc.py($build)" "$status" "$log"
+    if [ -z "$SUITES" ]; then
+        plc_beside=$build
+    else
+        echo "== tests/plc/test_plc.py ($build)"
+        JAKAGW_BIN_DIR="$build" "$PYTHON" tests/plc/test_plc.py 2>&1 | tee "$log"
+        status=${PIPESTATUS[0]}
+        record_summary "tests/plc/test_plc.py($build)" "$status" "$log"
+    fi
 fi
 
 # The CAN mirror on a real kernel CAN stack, and netem on single links, in
@@ -193,17 +230,14 @@ fi
 # it out unless WITH_PACKAGE=1.
 if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; then
     build=${BUILDS%% *}
-    # The alert suite waits on Prometheus most of its 2.5 minutes and uses
-    # little CPU: it runs beside the package and service VM tests, which
-    # build, install and boot, and its output follows theirs.
-    if [ -n "$alerts_beside" ]; then
-        echo "== tests/integration/test_alerts.py ($alerts_beside) started beside the package tests; its output follows them"
-        alerts_log=$(mktemp)
-        JAKAGW_BIN_DIR="$alerts_beside" "$PYTHON" tests/integration/test_alerts.py \
-            >"$alerts_log" 2>&1 &
-        alerts_pid=$!
-        alerts_start=$SECONDS
-    fi
+    # The alert suite waits on Prometheus most of its 2.5 minutes, and the
+    # PLC library's cells on their scans: both use little CPU and run beside
+    # the package and service VM tests, their output after those tests'.
+    [ -n "$alerts_beside" ] && JAKAGW_BIN_DIR="$alerts_beside" \
+        start_beside "tests/integration/test_alerts.py($alerts_beside)" \
+        "$PYTHON" tests/integration/test_alerts.py
+    [ -n "$plc_beside" ] && JAKAGW_BIN_DIR="$plc_beside" \
+        start_beside "tests/plc/test_plc.py($plc_beside)" "$PYTHON" tests/plc/test_plc.py
     echo "== tests/package/test_package.py ($build)"
     package_mark=$(mktemp)
     "$PYTHON" tests/package/test_package.py "$build" 2>&1 | tee "$log"
@@ -225,14 +259,7 @@ if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; t
         record_summary "tests/service/test_service_vm.py" "$status" "$log"
     fi
     rm -f "$package_mark"
-    if [ -n "$alerts_pid" ]; then
-        wait "$alerts_pid"
-        status=$?
-        alerts_pid=""
-        echo "== tests/integration/test_alerts.py ($alerts_beside)"
-        cat "$alerts_log"
-        record_summary "tests/integration/test_alerts.py($alerts_beside)" "$status" "$alerts_log" "$alerts_start"
-    fi
+    finish_beside
 fi
 
 echo
