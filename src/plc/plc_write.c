@@ -225,12 +225,14 @@ int plc_write_judge(struct plc_write *pw, const struct mb_write *w)
     pw->where[0] = '\0';
     if (ex) {
         snprintf(pw->why, sizeof(pw->why), "outside role \"%s\"", w->role ? w->role : "");
+        plc_write_name_range(pw, w);
         return ex; /* changes nothing (may_write) */
     }
     ex = plc_write_authorize(pw, w);
     if (ex) {
         why_unauthorized(pw, w);
-        return ex;
+        plc_write_name_range(pw, w);
+        return ex; /* changes nothing (may_write) */
     }
     if (w->count == 0 || w->count > MODBUS_MAX_WRITE_BITS) {
         snprintf(pw->why, sizeof(pw->why), "invalid count");
