@@ -808,8 +808,9 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
             return refuse(pc, slot, ex, CMD_REFUSED, why);
     }
     /* A PLC's pause or stop is never refused busy: it goes ahead of the
-     * queue and takes out what would move the arm (cmd_queue_submit_urgent). */
-    if (halts)
+     * queue and takes out what would move the arm (cmd_queue_submit_urgent).
+     * (One write stages at most a few: the bound below is never reached.) */
+    if (halts && pc->staged < CMD_QUEUE_CAPACITY)
         return 0;
     /* A setpoint may queue behind itself; a command or mailbox may not. */
     if (act != ACT_SETPOINT && slot->pending)
