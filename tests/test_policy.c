@@ -1317,6 +1317,9 @@ static void keep_is_flag_only(void **state)
     assert_int_equal(sent.calls, 0);
     assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
     assert_int_equal(p.reaction, POLICY_REACTION_FLAG_ONLY);
+    /* Nothing sent, no stop to cancel: the reset passes, the arm moving. */
+    char why[48];
+    assert_int_equal(policy_may_reset(&p, why, sizeof(why)), 0);
     policy_reset(&p);
     assert_int_equal(p.reaction, POLICY_REACTION_NONE);
 }

@@ -362,8 +362,11 @@ int policy_may_reset(const struct policy *p, char *why, size_t why_size)
         snprintf(why, why_size, "reaction still judged: wait");
         return -EBUSY;
     }
-    enum policy_robot robot = robot_seen(p);
-    if (robot == POLICY_ROBOT_MOVING) {
+    /* With nothing sent (action keep, or the robot idle at the fault)
+     * there is no stop to cancel. */
+    if (p->reaction == POLICY_REACTION_NONE || p->reaction == POLICY_REACTION_FLAG_ONLY)
+        return 0;
+    if (robot_seen(p) == POLICY_ROBOT_MOVING) {
         snprintf(why, why_size, "arm still moving: wait");
         return -EBUSY;
     }

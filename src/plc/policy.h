@@ -363,9 +363,9 @@ uint64_t policy_status_period_ms(const struct policy *p);
 /*
  * May the PLC reset the latched fault now? 0, or -EBUSY with the reason in
  * 'why' (a result's 40 bytes) while the action's reaction is still judged
- * (sent, or escalated, no status yet showing the arm still) or the status
- * shows the arm moving: a reset then would cancel the check, and with it a
- * second stop the arm may still need.
+ * (sent, or escalated, no status yet showing the arm still) or, an action
+ * having been sent, the status shows the arm moving: a reset then would
+ * cancel the check, and with it a second stop the arm may still need.
  */
 int policy_may_reset(const struct policy *p, char *why, size_t why_size);
 
