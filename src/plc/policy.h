@@ -243,6 +243,7 @@ struct policy {
     uint64_t reaction_answered_ms;
     double reaction_min_step; /* the smallest step() since the reply; < 0 none */
     bool reaction_refused;    /* the robot refused the action */
+    bool reaction_lost;       /* not sent, or lost with its link: no reply comes */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;

@@ -337,8 +337,8 @@ def test_brakes_and_answers_in_order():
         # A program paused slows down to rest, and stays resumable.
         check(r.call("load_program", programName="demo.jks")["errorCode"] == "0", "load")
         check(r.call("play_program")["errorCode"] == "0", "play")
-        for _ in range(10):
-            docs.next()
+        wait_until(lambda: docs.next()["joint_actual_position"] != docs.next()
+                   ["joint_actual_position"], 60, "the program moving the arm")
         check(r.call("pause_program")["errorCode"] == "0", "pause")
         a, b = docs.next()["joint_actual_position"], docs.next()["joint_actual_position"]
         check(a != b, "a paused program stood still at once")
