@@ -204,7 +204,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         FUZZ_REQUIRE(p.reaction <= POLICY_REACTION_STILL_MOVING, "reaction %d", p.reaction);
         FUZZ_REQUIRE(actions <= 2, "%u actions for one fault", actions);
         if ((p.reaction == POLICY_REACTION_SENT || p.reaction == POLICY_REACTION_ESCALATED) &&
-            p.fault != POLICY_FAULT_NONE)
+            p.fault != POLICY_FAULT_NONE && !p.reaction_lost)
             FUZZ_REQUIRE(policy_may_reset(&p, why, sizeof(why)) != 0,
                          "a reset allowed while the reaction is judged");
     }

@@ -1039,6 +1039,12 @@ static void halts_own_the_queue(void **state)
     while (cmd_queue_pending(&queue))
         reply_ok();
     assert_int_equal(result_state("stop_program"), CMD_DONE);
+    /* The mailbox keeps one command pending, a stop too: its done_seq
+     * and its result are one command's (the stop trigger is the way). */
+    assert_int_equal(mailbox(1, NULL, 0, 7), EX_NONE);
+    assert_int_equal(mailbox(cmd_find("stop_program")->code, NULL, 0, 8), EX_BUSY);
+    reply_ok();
+    assert_int_equal(gw_number("mailbox.done_seq"), 7);
 }
 
 /* A number that is not finite never goes out: 1e999 reads as infinity. */

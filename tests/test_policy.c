@@ -1317,8 +1317,30 @@ static void keep_is_flag_only(void **state)
     assert_int_equal(sent.calls, 0);
     assert_int_equal(p.fault, POLICY_FAULT_HEARTBEAT);
     assert_int_equal(p.reaction, POLICY_REACTION_FLAG_ONLY);
+    /* Nothing sent, no stop to cancel: the reset passes, the arm moving. */
+    char why[48];
+    assert_int_equal(policy_may_reset(&p, why, sizeof(why)), 0);
     policy_reset(&p);
     assert_int_equal(p.reaction, POLICY_REACTION_NONE);
+}
+
+/* An action lost with its link has no reply to judge it by: the reset
+ * waits only for the arm to stand still, never for ever. */
+static void reset_after_an_action_lost_with_its_link(void **state)
+{
+    (void)state;
+    char why[48];
+    start_with_robot(POLICY_PAUSE, false, POLICY_ROBOT_PROGRAM);
+    heartbeat_lost_at(T0 + LIMIT, MOVING);
+    expect_one(POLICY_PAUSE, POLICY_FAULT_HEARTBEAT);
+    assert_int_equal(policy_may_reset(&p, why, sizeof(why)), -EBUSY);
+    assert_string_equal(why, "reaction still judged: wait");
+    policy_action_unknown(&p, POLICY_PAUSE);
+    robot_now = POLICY_ROBOT_MOVING;
+    assert_int_equal(policy_may_reset(&p, why, sizeof(why)), -EBUSY);
+    assert_string_equal(why, "arm still moving: wait");
+    robot_now = POLICY_ROBOT_STILL;
+    assert_int_equal(policy_may_reset(&p, why, sizeof(why)), 0);
 }
 
 static void reaction_follows_the_status_after_the_reply(void **state)
@@ -1600,6 +1622,7 @@ int main(void)
         cmocka_unit_test(move_not_shown_yet_is_stopped),
         cmocka_unit_test(blind_after_a_move_stops),
         cmocka_unit_test(keep_is_flag_only),
+        cmocka_unit_test(reset_after_an_action_lost_with_its_link),
         cmocka_unit_test(reaction_follows_the_status_after_the_reply),
         cmocka_unit_test(still_moving_is_escalated_once),
         cmocka_unit_test(escalated_stop_that_works_reads_stopped),

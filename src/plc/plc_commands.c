@@ -801,13 +801,16 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
         if (ex)
             return refuse(pc, slot, ex, CMD_REFUSED, why);
     }
-    /* A PLC's pause or stop is never refused busy: it goes ahead of the
-     * queue and takes out what would move the arm (cmd_queue_submit_urgent). */
-    if (halts)
-        return 0;
-    /* A setpoint may queue behind itself; a command or mailbox may not. */
-    if (act != ACT_SETPOINT && slot->pending)
+    /* A setpoint may queue behind itself; a command or mailbox may not,
+     * except a pause or stop trigger: the mailboxes keep one pending (their
+     * done_seq and reply are one command's). */
+    if (act != ACT_SETPOINT && slot->pending && !(halts && act == ACT_TRIGGER))
         return refuse(pc, slot, EX_BUSY, CMD_REFUSED, "busy: the previous one is pending");
+    /* A pause or stop never waits for room: it goes ahead of the queue and
+     * takes out what would move the arm (cmd_queue_submit_urgent). (One
+     * write stages at most a few: the bound is never reached.) */
+    if (halts && pc->staged < CMD_QUEUE_CAPACITY)
+        return 0;
     if (cmd_queue_pending(pc->queue) + pc->staged >= CMD_QUEUE_CAPACITY)
         return refuse(pc, slot, EX_BUSY, CMD_REFUSED, "busy: the command queue is full");
     return 0;

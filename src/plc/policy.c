@@ -237,10 +237,14 @@ static void act(struct policy *p, uint64_t now_ms, enum policy_action action,
     p->reaction_min_step = -1;
     if (p->reaction != POLICY_REACTION_ESCALATED)
         set_reaction(p, now_ms, POLICY_REACTION_SENT);
-    if (p->sink.send_action(p->sink.user, action, reason))
+    p->reaction_lost = false;
+    if (p->sink.send_action(p->sink.user, action, reason)) {
         p->owed = POLICY_KEEP;
-    else if (action > p->owed)
-        p->owed = action; /* stop outranks pause */
+    } else {
+        p->reaction_lost = true; /* nothing in flight to judge */
+        if (action > p->owed)
+            p->owed = action; /* stop outranks pause */
+    }
 }
 
 /*
@@ -358,12 +362,18 @@ int policy_may_reset(const struct policy *p, char *why, size_t why_size)
 {
     if (p->fault == POLICY_FAULT_NONE)
         return 0;
-    if (p->reaction == POLICY_REACTION_SENT || p->reaction == POLICY_REACTION_ESCALATED) {
+    /* An action lost with its link (owed again while the robot may move)
+     * has no reply to judge it by: the arm's stillness decides below. */
+    if ((p->reaction == POLICY_REACTION_SENT || p->reaction == POLICY_REACTION_ESCALATED) &&
+        !p->reaction_lost) {
         snprintf(why, why_size, "reaction still judged: wait");
         return -EBUSY;
     }
-    enum policy_robot robot = robot_seen(p);
-    if (robot == POLICY_ROBOT_MOVING) {
+    /* With nothing sent (action keep, or the robot idle at the fault)
+     * there is no stop to cancel. */
+    if (p->reaction == POLICY_REACTION_NONE || p->reaction == POLICY_REACTION_FLAG_ONLY)
+        return 0;
+    if (robot_seen(p) == POLICY_ROBOT_MOVING) {
         snprintf(why, why_size, "arm still moving: wait");
         return -EBUSY;
     }
@@ -374,6 +384,7 @@ void policy_action_unknown(struct policy *p, enum policy_action action)
 {
     if (p->fault == POLICY_FAULT_NONE || action == POLICY_KEEP)
         return;
+    p->reaction_lost = true; /* no reply will come to judge it by */
     if (action > p->owed)
         p->owed = action; /* stop outranks pause */
 }

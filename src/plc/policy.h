@@ -243,6 +243,7 @@ struct policy {
     uint64_t reaction_answered_ms;
     double reaction_min_step; /* the smallest step() since the reply; < 0 none */
     bool reaction_refused;    /* the robot refused the action */
+    bool reaction_lost;       /* not sent, or lost with its link: no reply comes */
     /* The latched fault. */
     enum policy_fault fault;
     uint64_t fault_since_ms;
@@ -363,9 +364,9 @@ uint64_t policy_status_period_ms(const struct policy *p);
 /*
  * May the PLC reset the latched fault now? 0, or -EBUSY with the reason in
  * 'why' (a result's 40 bytes) while the action's reaction is still judged
- * (sent, or escalated, no status yet showing the arm still) or the status
- * shows the arm moving: a reset then would cancel the check, and with it a
- * second stop the arm may still need.
+ * (sent, or escalated, no status yet showing the arm still) or, an action
+ * having been sent, the status shows the arm moving: a reset then would
+ * cancel the check, and with it a second stop the arm may still need.
  */
 int policy_may_reset(const struct policy *p, char *why, size_t why_size);
 

@@ -430,10 +430,9 @@ static void fail_taken_out(struct cmd_queue *q, struct cmd_entry *taken, unsigne
 int cmd_queue_submit_urgent(struct cmd_queue *q, const char *json, size_t size,
                             cmd_done_cb done, void *user)
 {
-    /* Static: CMD_QUEUE_CAPACITY entries twice are large for a stack, and
-     * the loop runs on one thread; nothing here calls out before they are
-     * used up. */
-    static struct cmd_entry saved[CMD_QUEUE_CAPACITY], taken[CMD_QUEUE_CAPACITY];
+    /* On the stack (2 x 64 entries, 7 KiB): a done callback told below may
+     * submit another safety action, which needs its own. */
+    struct cmd_entry saved[CMD_QUEUE_CAPACITY], taken[CMD_QUEUE_CAPACITY];
     struct cmd_entry displaced = {0};
     unsigned saved_count = q->count, taken_count;
 

@@ -285,7 +285,10 @@ def test_stops_read_stopped_before_arriving():
             if sig == signal.SIGRTMIN:
                 check(plc.pulse(addr("coil", "cmd_clear_error")) == 0, "clear_error")
             start = plc.joints()[0]
-            check(plc.joint_move([start + 30, 90, 90, 0, 90, 0]) == 0, "%s: move refused" % what)
+            ex = plc.joint_move([start + 30, 90, 90, 0, 90, 0])
+            check(ex == 0, "%s: move refused %02x (fault %d, result %d '%s')"
+                  % (what, ex, plc.ir(I_FAULT)[0], plc.ir(I_JOINT_MOVE_STATE)[0],
+                     reason(plc, I_JOINT_MOVE_MSG)))
             wait_until(lambda: plc.joints()[0] > start + 2, 5, "%s: the move to show" % what)
             sim.proc.send_signal(sig)
             wait_until(lambda: plc.state()[0] != MOVING, 2, "%s: the move to end" % what)
