@@ -46,6 +46,7 @@ uint16_t rtu_crc16(const uint8_t *data, size_t size)
 {
     uint16_t crc = 0xFFFF;
 
+    /* (uint8_t) rather than & 0xFF: the same index, one WP can bound. */
     /*@ loop invariant 0 <= i <= size;
         loop assigns i, crc;
         loop variant size - i;
@@ -239,7 +240,7 @@ enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
             return RTU_LENGTH_UNKNOWN; /* no quantity: not a request of these */
         *size = 5 + (count + 7) / 8;
         return RTU_LENGTH_EXACT;
-    case 3: case 4: case 23:
+    case 3: case 4: case 23: /* 23: the read's count, as for 3 */
         if (request_size < 8)
             return RTU_LENGTH_UNKNOWN;
         *size = 5 + 2 * (size_t)count;
