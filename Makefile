@@ -4,6 +4,7 @@
 #   make demo       install missing packages, build, run the gateway on the simulator
 #   make test       install missing packages, build, run every test (plain and ASan/UBSan)
 #   make test-plc   the PLC library (plc/) compiled with matiec and run as a PLC (docs/plc-library.md)
+#   make prove      prove the Modbus request check and the RTU CRC and length functions (Frama-C WP)
 #   make install    install into $(DESTDIR)$(PREFIX) (binaries, config, units, man pages, docs)
 #   make deb        build the Debian package into $(BUILD)/deb/
 #   make ARCH=arm64 (or armhf), make deb ARCH=..., make test ARCH=...
@@ -234,6 +235,16 @@ else
 	$(MAKE) -j$(JOBS) all unit-tests $(BUILD)/bench/ref_slave
 	@BUILDS=$(BUILD) JAKAGW_ARCH=$(ARCH) tests/run.sh
 endif
+
+# Frama-C's WP proves src/modbus/mb_request.c and rtu_frame.c's CRC and
+# length functions free of runtime errors and true to their ACSL contracts
+# (with z3 and cvc4 through why3; the group prove of make deps), prints
+# "N of N goals proved" per file, fails on any goal not proved, and checks
+# that a copy with one bound removed fails (scripts/prove.sh,
+# docs/tests.md). PROVE_TIMEOUT: seconds per goal (default 30).
+.PHONY: prove
+prove:
+	@scripts/prove.sh $(BUILD) "$(INC_FLAGS) $(PKG_CFLAGS) -D_DEFAULT_SOURCE"
 
 # The PLC library (plc/) run as a PLC: builds matiec from its source
 # tarball outside this tree (MATIEC_TARBALL, default

@@ -24,6 +24,7 @@ static unsigned get16(const uint8_t *p) { return p[0] * 256u + p[1]; }
     requires mb_pdu_readable(pdu, size);
     assigns \nothing;
     ensures mb_answer(\result) && \result != MB_REQUEST_NOT_A_REQUEST;
+    ensures \result == 0 ==> size == 5 && mb_read_inside(map, table, pdu, max);
 */
 static int check_read(const struct regmap *map, enum regmap_table table,
                       const uint8_t *pdu, size_t size, unsigned max)

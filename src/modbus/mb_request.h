@@ -52,6 +52,10 @@
         a == MODBUS_EXCEPTION_ILLEGAL_FUNCTION ||
         a == MODBUS_EXCEPTION_ILLEGAL_DATA_ADDRESS ||
         a == MODBUS_EXCEPTION_ILLEGAL_DATA_VALUE;
+    predicate mb_read_inside(struct regmap *map, enum regmap_table table, uint8_t *pdu,
+                             integer max) =
+        1 <= pdu[3] * 256 + pdu[4] <= max &&
+        pdu[1] * 256 + pdu[2] + pdu[3] * 256 + pdu[4] <= map->size[table];
 */
 
 /*
@@ -68,6 +72,14 @@
     assigns \nothing;
     ensures mb_answer(\result);
     ensures size >= 1 && (pdu[0] & 0x80) != 0 <==> \result == MB_REQUEST_NOT_A_REQUEST;
+    ensures \result == 0 && pdu[0] == MODBUS_FC_READ_COILS ==> size == 5 &&
+            mb_read_inside(img->map, REGMAP_COIL, pdu, MODBUS_MAX_READ_BITS);
+    ensures \result == 0 && pdu[0] == MODBUS_FC_READ_DISCRETE_INPUTS ==> size == 5 &&
+            mb_read_inside(img->map, REGMAP_DISCRETE_INPUT, pdu, MODBUS_MAX_READ_BITS);
+    ensures \result == 0 && pdu[0] == MODBUS_FC_READ_HOLDING_REGISTERS ==> size == 5 &&
+            mb_read_inside(img->map, REGMAP_HOLDING_REGISTER, pdu, MODBUS_MAX_READ_REGISTERS);
+    ensures \result == 0 && pdu[0] == MODBUS_FC_READ_INPUT_REGISTERS ==> size == 5 &&
+            mb_read_inside(img->map, REGMAP_INPUT_REGISTER, pdu, MODBUS_MAX_READ_REGISTERS);
 */
 int mb_request_check(const struct regmap_image *img, const uint8_t *pdu,
                      size_t size);

@@ -46,8 +46,13 @@ uint16_t rtu_crc16(const uint8_t *data, size_t size)
 {
     uint16_t crc = 0xFFFF;
 
+    /* (uint8_t) rather than & 0xFF: the same index, one WP can bound. */
+    /*@ loop invariant 0 <= i <= size;
+        loop assigns i, crc;
+        loop variant size - i;
+    */
     for (size_t i = 0; i < size; i++)
-        crc = (uint16_t)((crc >> 8) ^ crc_table[(crc ^ data[i]) & 0xFF]);
+        crc = (uint16_t)((crc >> 8) ^ crc_table[(uint8_t)(crc ^ data[i])]);
     return crc;
 }
 
@@ -146,6 +151,10 @@ enum rtu_length rtu_request_length(const uint8_t *d, size_t avail, size_t *size)
 /* Read device identification's response: MEI type, code, conformity, more
  * follows, next object, the number of objects, then each object's id,
  * length and value. */
+/*@ requires rtu_bytes(d, avail) && \valid(size);
+    assigns *size;
+    ensures rtu_length_told(\result, *size, avail) && \result != RTU_LENGTH_UNKNOWN;
+*/
 static enum rtu_length device_id_length(const uint8_t *d, size_t avail, size_t *size)
 {
     size_t end = 8;
@@ -154,6 +163,11 @@ static enum rtu_length device_id_length(const uint8_t *d, size_t avail, size_t *
         *size = 8 + 2;
         return RTU_LENGTH_MORE;
     }
+    /*@ loop invariant 0 <= i <= d[7];
+        loop invariant 8 <= end <= 8 + 257 * i;
+        loop assigns i, end;
+        loop variant d[7] - i;
+    */
     for (unsigned i = 0; i < d[7]; i++) {
         if (end + 2 > avail) {
             *size = end + 2 + 2;
@@ -170,6 +184,10 @@ static enum rtu_length device_id_length(const uint8_t *d, size_t avail, size_t *
  * the line's history changes: a fixed size, or its own byte count.
  * RTU_LENGTH_UNKNOWN for the others (each caller knows those its own way).
  */
+/*@ requires rtu_bytes(d, avail) && \valid(size);
+    assigns *size;
+    ensures rtu_length_told(\result, *size, avail);
+*/
 static enum rtu_length own_length(uint8_t fc, const uint8_t *d, size_t avail, size_t *size)
 {
     switch (fc) {
@@ -204,7 +222,9 @@ static enum rtu_length own_length(uint8_t fc, const uint8_t *d, size_t avail, si
 enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
                                     const uint8_t *d, size_t avail, size_t *size)
 {
-    unsigned count = (unsigned)request[4] << 8 | request[5];
+    /* The quantity a read asks for (23: its read's), where the request
+     * holds it: theirs are 8 bytes and more. */
+    unsigned count = request_size >= 8 ? request[4] * 256u + request[5] : 0;
 
     if (avail < 2) {
         *size = 5;
@@ -216,9 +236,13 @@ enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
     }
     switch (request[1]) {
     case 1: case 2:
+        if (request_size < 8)
+            return RTU_LENGTH_UNKNOWN; /* no quantity: not a request of these */
         *size = 5 + (count + 7) / 8;
         return RTU_LENGTH_EXACT;
     case 3: case 4: case 23: /* 23: the read's count, as for 3 */
+        if (request_size < 8)
+            return RTU_LENGTH_UNKNOWN;
         *size = 5 + 2 * (size_t)count;
         return RTU_LENGTH_EXACT;
     case 8: /* return query data repeats the request; the others, 8 bytes */
@@ -230,8 +254,9 @@ enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
     case 43:
         return device_id_length(d, avail, size);
     default:
-        return own_length(request[1], d, avail, size);
+        break; /* after the switch: WP proves its call's assigns there */
     }
+    return own_length(request[1], d, avail, size);
 }
 
 /*
@@ -240,6 +265,10 @@ enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
  * size); RTU_LENGTH_UNKNOWN where only the request tells (21, FC08's
  * return query data).
  */
+/*@ requires rtu_bytes(d, avail) && \valid(size);
+    assigns *size;
+    ensures rtu_length_told(\result, *size, avail);
+*/
 static enum rtu_length response_form_length(const uint8_t *d, size_t avail, size_t *size)
 {
     if (avail < 3) {
@@ -268,8 +297,9 @@ static enum rtu_length response_form_length(const uint8_t *d, size_t avail, size
             return RTU_LENGTH_UNKNOWN;
         return device_id_length(d, avail, size);
     default:
-        return own_length(d[1], d, avail, size);
+        break; /* after the switch: WP proves its call's assigns there */
     }
+    return own_length(d[1], d, avail, size);
 }
 
 /* ---- the line as a conversation ---- */
@@ -548,6 +578,9 @@ enum frame_kind { FRAME_NONE, FRAME_REQUEST, FRAME_RESPONSE };
 
 /* The length the tail at 'd' ('avail' bytes) lacks to be a frame of the
  * form 'len' says. */
+/*@ assigns \nothing;
+    ensures \result == 0 || (\result + avail == len && len <= RTU_MAX_ADU);
+*/
 static size_t lacking(enum rtu_length how, size_t len, size_t avail)
 {
     if (how == RTU_LENGTH_UNKNOWN || len > RTU_MAX_ADU || len <= avail)
@@ -555,12 +588,19 @@ static size_t lacking(enum rtu_length how, size_t len, size_t avail)
     return len - avail;
 }
 
+/*@ assigns \nothing;
+    ensures \result == a || \result == b;
+*/
 static size_t least_lacking(size_t a, size_t b)
 {
     return !a ? b : !b ? a : a < b ? a : b;
 }
 
 /* Is a frame of the form 'how', 'len' at 'd' whole, with its CRC? */
+/*@ requires rtu_bytes(d, avail);
+    assigns \nothing;
+    ensures \result ==> RTU_MIN_ADU <= len <= avail && len <= RTU_MAX_ADU;
+*/
 static bool whole_frame(enum rtu_length how, size_t len, const uint8_t *d, size_t avail)
 {
     return how == RTU_LENGTH_EXACT && len >= RTU_MIN_ADU && len <= avail && len <= RTU_MAX_ADU &&
@@ -668,6 +708,10 @@ static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size
  * if it is also a whole response of another length (its own fields
  * giving it), else 0. 05 and 06, whose request and response are alike,
  * have one length. */
+/*@ requires rtu_bytes(d, avail);
+    assigns \nothing;
+    ensures \result <= avail && \result <= RTU_MAX_ADU;
+*/
 static size_t response_reading(const uint8_t *d, size_t avail, size_t len)
 {
     size_t rsp_len = 0;
@@ -676,6 +720,10 @@ static size_t response_reading(const uint8_t *d, size_t avail, size_t len)
 }
 
 /* What a frame at 'd' lacks to be a whole response by its own fields. */
+/*@ requires rtu_bytes(d, avail);
+    assigns \nothing;
+    ensures \result <= RTU_MAX_ADU;
+*/
 static size_t response_lacking(const uint8_t *d, size_t avail)
 {
     size_t len = 0;

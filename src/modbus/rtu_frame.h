@@ -149,12 +149,24 @@
 #define RTU_BROADCAST 0
 
 /* The Modbus CRC-16 (polynomial 0xA001 reflected, initial 0xFFFF), by table. */
+/*@ requires \valid_read(data + (0 .. size - 1));
+    assigns \nothing;
+*/
 uint16_t rtu_crc16(const uint8_t *data, size_t size);
 
 /* Does the frame end in the CRC of what precedes it (low byte first)? */
+/*@ requires \valid_read(frame + (0 .. size - 1));
+    assigns \nothing;
+    ensures \result ==> size >= RTU_MIN_ADU;
+*/
 bool rtu_crc_ok(const uint8_t *frame, size_t size);
 
-/* Appends the CRC to 'size' bytes at 'frame' (room for two more). */
+/* Appends the CRC to 'size' bytes at 'frame' (room for two more; a frame
+ * is at most RTU_MAX_ADU). */
+/*@ requires size <= RTU_MAX_ADU - 2 && \valid(frame + (0 .. size + 1));
+    assigns frame[size .. size + 1];
+    ensures \result == size + 2;
+*/
 size_t rtu_append_crc(uint8_t *frame, size_t size);
 
 /*
@@ -162,6 +174,9 @@ size_t rtu_append_crc(uint8_t *frame, size_t size);
  * of 1 start bit, 8 data bits, the parity bit and the stop bits; above
  * 19200 baud the fixed 750 us and 1750 us the specification gives.
  */
+/*@ requires \valid(t15_ns) && \valid(t35_ns) && \separated(t15_ns, t35_ns);
+    assigns *t15_ns, *t35_ns;
+*/
 void rtu_char_times(unsigned baud, bool parity, unsigned stop_bits, uint32_t *t15_ns,
                     uint32_t *t35_ns);
 
@@ -172,11 +187,30 @@ enum rtu_length {
     RTU_LENGTH_UNKNOWN, /* a function whose form we do not know */
 };
 
+/* The facts the proofs of the length functions rest on (make prove): a
+ * frame is 'avail' readable bytes; a length told is one of the three
+ * answers, and MORE's bound lies beyond what is there. */
+/*@ predicate rtu_bytes(uint8_t *d, size_t avail) = \valid_read(d + (0 .. avail - 1));
+    predicate rtu_length_told(enum rtu_length how, size_t size, size_t avail) =
+        (how == RTU_LENGTH_EXACT || how == RTU_LENGTH_MORE || how == RTU_LENGTH_UNKNOWN) &&
+        (how == RTU_LENGTH_MORE ==> size > avail);
+*/
+
 /* The length of the request at 'frame' ('avail' bytes there). */
+/*@ requires rtu_bytes(frame, avail) && \valid(size);
+    assigns *size;
+    ensures rtu_length_told(\result, *size, avail);
+*/
 enum rtu_length rtu_request_length(const uint8_t *frame, size_t avail, size_t *size);
 
 /* The length of the response at 'frame' ('avail' bytes there) to the
- * request 'request' ('request_size' bytes, whole). */
+ * request 'request' ('request_size' bytes, whole: at least RTU_MIN_ADU;
+ * only what it holds is read). */
+/*@ requires rtu_bytes(request, request_size) && request_size >= RTU_MIN_ADU;
+    requires rtu_bytes(frame, avail) && \valid(size);
+    assigns *size;
+    ensures rtu_length_told(\result, *size, avail);
+*/
 enum rtu_length rtu_response_length(const uint8_t *request, size_t request_size,
                                     const uint8_t *frame, size_t avail, size_t *size);
 
