@@ -676,6 +676,69 @@ static void a_repeated_write_is_executed_each_time(void **state)
     assert_int_equal(r.l->stats.echoes, 0);
 }
 
+/* A spoiled echo (a byte flipped, its last byte missing, a noise byte
+ * glued before it) never costs the next request, with either setting:
+ * the master's retry of the same write 50 ms later is executed and
+ * answered; with local_echo = true an echo missing its last byte closes
+ * the echo's wait (a collision) and the next request 30 ms, 200 ms or 1 s
+ * later is executed (before: 0 of 5 each). */
+static void a_spoiled_echo_never_costs_the_next_request(void **state)
+{
+    static const uint64_t later_ms[] = {30, 50, 200, 1000};
+    (void)state;
+    for (int echo = 0; echo < 2; echo++)
+        for (int how = 0; how < 3; how++)
+            for (size_t l = 0; l < 4; l++) {
+                struct rig r;
+                uint8_t write[8], spoiled[16];
+                size_t n = write_coil(write, UNIT, 200, true), m = 8;
+                rig_init(&r, 115200, echo, false);
+                start_synced(&r);
+                deliver(&r, r.now + 5 * MS, write, n);
+                run_to(&r, r.now + 5 * MS);
+                assert_int_equal(r.executed, 1);
+                memcpy(spoiled, r.reply, 8);
+                if (how == 0) {
+                    spoiled[3] ^= 0x10; /* flipped */
+                } else if (how == 1) {
+                    m = 7; /* its last byte missing */
+                } else {
+                    spoiled[0] = 0x5A; /* a noise byte before it */
+                    memcpy(spoiled + 1, r.reply, 8);
+                    m = 9;
+                }
+                uint64_t at = r.l->tx_end_ns + r.l->cfg.delivery_ns / 2;
+                deliver(&r, at, spoiled, m);
+                deliver(&r, at + later_ms[l] * MS, write, n);
+                run_to(&r, r.now + 50 * MS);
+                if (r.executed != 2 || r.replies != 2)
+                    fail_msg("local_echo %d, echo %s, the retry %llu ms later: %zu executed, "
+                             "%zu replies",
+                             echo, how == 0 ? "flipped" : how == 1 ? "cut short" : "after noise",
+                             (unsigned long long)later_ms[l], r.executed, r.replies);
+            }
+}
+
+/* An exception's form addressed to our unit (our exception reply heard
+ * back) is counted and skipped: never a request, the line keeps its
+ * place (before: handed to the server, which closed the line's
+ * connection). */
+static void an_exception_form_for_us_is_skipped(void **state)
+{
+    struct rig r;
+    uint8_t exc[8] = {UNIT, 0x85, 0x02}, read[8];
+    (void)state;
+    rig_init(&r, 19200, false, false);
+    start_synced(&r);
+    deliver(&r, r.now + 20 * MS, exc, rtu_append_crc(exc, 3));
+    run_to(&r, r.now + 30 * MS);
+    assert_int_equal(r.executed, 0);
+    assert_int_equal(r.l->stats.exceptions, 1);
+    deliver(&r, r.now + 5 * MS, read, read_request(read, UNIT, 4, 0, 1));
+    run_to(&r, r.now + 10 * MS);
+    assert_int_equal(r.executed, 1);
+}
+
 /* Bytes after our request in the same chunk: the master did not wait for
  * our reply; nothing of it is executed. A broadcast never is. */
 static void our_request_must_end_its_chunk(void **state)
@@ -2253,6 +2316,8 @@ int main(void)
         cmocka_unit_test(an_echo_is_judged_by_its_arrival),
         cmocka_unit_test(a_repeated_write_is_executed_each_time),
         cmocka_unit_test(our_request_must_end_its_chunk),
+        cmocka_unit_test(a_spoiled_echo_never_costs_the_next_request),
+        cmocka_unit_test(an_exception_form_for_us_is_skipped),
         cmocka_unit_test(our_frames_keep_t35_apart),
         cmocka_unit_test(an_echo_is_never_a_request),
         cmocka_unit_test(usb_adapters_deliver_whole_conversations),
