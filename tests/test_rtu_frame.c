@@ -1083,6 +1083,42 @@ static void a_master_without_t35_is_answered(void **state)
     }
 }
 
+/* The delivery bound at open (mb_rtu.c's set_up_delivery) on a pty, with
+ * a sysfs tree of our own (the seam [rtu] has for tests): an FTDI
+ * adapter's latency_timer of 16 is set to 1 and read back, and the line
+ * takes 1 ms; without one, [rtu] delivery_ms. */
+static void the_delivery_bound_is_read_back(void **state)
+{
+    char root[] = "/tmp/jakagw-sysfs-XXXXXX", path[256], name[64], mk[700];
+    struct mb_rtu rtu;
+    struct stat st;
+    int fd = open("/dev/ptmx", O_RDWR | O_NOCTTY), unlock = 0, n = -1;
+    (void)state;
+    assert_true(fd >= 0 && ioctl(fd, TIOCSPTLCK, &unlock) == 0 && ioctl(fd, TIOCGPTN, &n) == 0);
+    snprintf(name, sizeof(name), "/dev/pts/%d", n);
+    int pty = open(name, O_RDWR | O_NOCTTY);
+    assert_true(pty >= 0 && fstat(pty, &st) == 0);
+    assert_non_null(mkdtemp(root));
+    memset(&rtu, 0, sizeof(rtu));
+    snprintf(rtu.device, sizeof(rtu.device), "test");
+    rtu.sysfs_root = root;
+    rtu.cfg.delivery_ms = 16;
+    rtu.char_ns = 520833;
+    set_up_delivery(&rtu, pty);
+    assert_int_equal(rtu.delivery_bound_ms, 16); /* no latency_timer: [rtu] delivery_ms */
+    snprintf(path, sizeof(path), "%s/dev/char/%u:%u/device", root, major(st.st_rdev),
+             minor(st.st_rdev));
+    snprintf(mk, sizeof(mk), "mkdir -p %s && echo 16 > %s/latency_timer", path, path);
+    assert_int_equal(system(mk), 0);
+    set_up_delivery(&rtu, pty);
+    assert_int_equal(rtu.delivery_bound_ms, 1);
+    assert_int_equal(rtu.line.cfg.delivery_ns, 4ull * 520833 + MB_RTU_DELIVERY_NS + 1 * MS);
+    snprintf(mk, sizeof(mk), "grep -qx 1 %s/latency_timer && rm -r %s", path, root);
+    assert_int_equal(system(mk), 0);
+    close(pty);
+    close(fd);
+}
+
 /* ---- USB adapters (usb_adapter.h) ---- */
 
 /* What the adapter holds reaches the host at the next USB frame after 't'. */
@@ -2320,6 +2356,7 @@ int main(void)
         cmocka_unit_test(an_exception_form_for_us_is_skipped),
         cmocka_unit_test(our_frames_keep_t35_apart),
         cmocka_unit_test(an_echo_is_never_a_request),
+        cmocka_unit_test(the_delivery_bound_is_read_back),
         cmocka_unit_test(usb_adapters_deliver_whole_conversations),
         cmocka_unit_test(the_same_write_after_the_window_is_answered),
         cmocka_unit_test(a_stall_never_makes_an_echo_a_request),

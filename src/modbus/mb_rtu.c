@@ -127,7 +127,8 @@ static int latency_timer(const struct mb_rtu *rtu, const struct stat *st, const 
 
     snprintf(path, sizeof(path), "%s/dev/char/%u:%u/device/latency_timer", rtu->sysfs_root,
              major(st->st_rdev), minor(st->st_rdev));
-    if (value && (fd = open(path, O_WRONLY | O_CLOEXEC)) >= 0) {
+    /* O_TRUNC as a shell's "echo 1 >" does: sysfs takes it. */
+    if (value && (fd = open(path, O_WRONLY | O_TRUNC | O_CLOEXEC)) >= 0) {
         /* Refused without the right to write it: what is read back holds. */
         if (write(fd, value, strlen(value)) < 0)
             log_info("rtu: %s: cannot set the adapter's latency timer to %s ms: %s",
