@@ -719,6 +719,33 @@ static void a_spoiled_echo_never_costs_the_next_request(void **state)
             }
 }
 
+/* local_echo = true, an adapter that gave our reply nothing back: the
+ * master's next write starts as our reply did (the same unit, function
+ * and address), then pauses 30 ms inside. The part taken for the echo and
+ * the rest are never joined into a request across the pause (before: the
+ * part was put back as input stamped with the rest, and the write was
+ * executed); nothing is executed, and the next whole request is. */
+static void a_paused_request_like_our_reply_is_never_executed(void **state)
+{
+    struct rig r;
+    uint8_t on[8], off[8];
+    write_coil(on, UNIT, 200, true);
+    write_coil(off, UNIT, 200, false);
+    (void)state;
+    rig_init(&r, 19200, true, false);
+    start_synced(&r);
+    deliver(&r, r.now + 5 * MS, on, 8);
+    run_to(&r, r.now + 5 * MS);
+    assert_int_equal(r.executed, 1);
+    deliver(&r, r.now + 5 * MS, off, 4);
+    deliver(&r, r.now + 30 * MS, off + 4, 4);
+    run_to(&r, r.now + 100 * MS);
+    assert_int_equal(r.executed, 1);
+    deliver(&r, r.now + 5 * MS, off, 8);
+    run_to(&r, r.now + 100 * MS);
+    assert_int_equal(r.executed, 2);
+}
+
 /* An exception's form addressed to our unit (our exception reply heard
  * back) is counted and skipped: never a request, the line keeps its
  * place (before: handed to the server, which closed the line's
@@ -2354,6 +2381,7 @@ int main(void)
         cmocka_unit_test(our_request_must_end_its_chunk),
         cmocka_unit_test(a_spoiled_echo_never_costs_the_next_request),
         cmocka_unit_test(an_exception_form_for_us_is_skipped),
+        cmocka_unit_test(a_paused_request_like_our_reply_is_never_executed),
         cmocka_unit_test(our_frames_keep_t35_apart),
         cmocka_unit_test(an_echo_is_never_a_request),
         cmocka_unit_test(the_delivery_bound_is_read_back),
