@@ -1765,9 +1765,16 @@ static bool chance_crc_in_cycle(const struct cycle_log *f)
             continue; /* crafted */
         const uint8_t *d = f->stream + f->starts[k];
         size_t left = f->stream_n - f->starts[k];
-        for (size_t len = RTU_MIN_ADU; len <= left && len <= RTU_MAX_ADU; len++)
-            if (len != f->lens[k] && rtu_crc_ok(d, len))
+        /* One pass: the running CRC of the first len - 2 bytes. */
+        uint16_t crc = 0xFFFF;
+        for (size_t len = 3; len <= left && len <= RTU_MAX_ADU; len++) {
+            crc ^= d[len - 3];
+            for (int bit = 0; bit < 8; bit++)
+                crc = (uint16_t)(crc & 1 ? (crc >> 1) ^ 0xA001 : crc >> 1);
+            if (len >= RTU_MIN_ADU && len != f->lens[k] && d[len - 2] == (crc & 0xFF) &&
+                d[len - 1] == (crc >> 8))
                 return true;
+        }
     }
     return false;
 }
