@@ -128,7 +128,8 @@ static int latency_timer(const struct mb_rtu *rtu, const struct stat *st, const 
 
     snprintf(path, sizeof(path), "%s/dev/char/%u:%u/device/latency_timer", rtu->sysfs_root,
              major(st->st_rdev), minor(st->st_rdev));
-    if (value && (fd = open(path, O_WRONLY | O_CLOEXEC)) >= 0) {
+    /* O_TRUNC as a shell's "echo 1 >" does: sysfs takes it. */
+    if (value && (fd = open(path, O_WRONLY | O_TRUNC | O_CLOEXEC)) >= 0) {
         /* Refused without the right to write it: what is read back holds. */
         if (write(fd, value, strlen(value)) < 0)
             log_info("rtu: %s: cannot set the adapter's latency timer to %s ms: %s",
@@ -360,9 +361,12 @@ static void arm_timer(struct mb_rtu *rtu)
     /* Looks at the port when our turn ends (our reply's end plus t3.5)
      * and when the delivery bound after it ends: found empty then, what
      * comes later surely came after it, and a frame equal to our reply is
-     * the master's request; bytes found there may be our reply heard back. */
+     * the master's request; bytes found there may be our reply heard back.
+     * And, with local_echo, when the rest of an echo that came in part is
+     * late: found empty then, the echo was spoiled. */
     const uint64_t looks[] = {rtu_line_tx_ready_ns(&rtu->line),
-                              rtu_line_bound_end_ns(&rtu->line)};
+                              rtu_line_bound_end_ns(&rtu->line),
+                              rtu_line_echo_look_ns(&rtu->line)};
 
     for (size_t i = 0; i < sizeof(looks) / sizeof(looks[0]); i++)
         if (looks[i] && rtu->seen_empty_ns < looks[i] && (!at || looks[i] < at))

@@ -1155,6 +1155,13 @@ uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line)
     return line->tx_end_ns ? line->tx_end_ns + line->cfg.t35_ns : 0;
 }
 
+uint64_t rtu_line_echo_look_ns(const struct rtu_line *line)
+{
+    if (!line->echo_pending || !line->echo_at)
+        return 0;
+    return line->echo_last_ns + line->cfg.delivery_ns + line->cfg.t35_ns;
+}
+
 uint64_t rtu_line_bound_end_ns(const struct rtu_line *line)
 {
     if (!line->tx_end_ns)

@@ -359,4 +359,11 @@ uint64_t rtu_line_tx_ready_ns(const struct rtu_line *line);
  * master's. */
 uint64_t rtu_line_bound_end_ns(const struct rtu_line *line);
 
+/* local_echo: when the rest of an echo that came back in part is late
+ * (t3.5 beyond the port's delivery after its last bytes; 0: no echo in
+ * part). A reader that looks at the port then, and finds it empty, lets
+ * the echo be closed as spoiled at the next bytes, which are the
+ * master's. */
+uint64_t rtu_line_echo_look_ns(const struct rtu_line *line);
+
 #endif

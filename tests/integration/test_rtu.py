@@ -58,6 +58,7 @@ def frame(unit, pdu):
 
 IR_RTU_ECHOES = 5558  # input register rtu_echoes (u32)
 IR_RTU_COLLISIONS = 5560  # input register rtu_collisions (u32)
+IR_RTU_DELIVERY_MS = 5564  # input register rtu_delivery_ms (u16)
 
 
 def read_ir_pdu(address, count):
@@ -640,6 +641,8 @@ class EchoingMaster:
         self.master = RawMaster(path, t35)
         self.echo = False
         self.garble = False
+        self.cut = 0  # the next 'cut' echoes come back spoiled: their last byte lost
+        self.flip = 0  # the next 'flip' echoes: their last byte changed
         self.echo_delay = echo_delay
         self.lock = threading.Lock()
         self.buf = b""
@@ -664,6 +667,12 @@ class EchoingMaster:
                 if self.echo_delay:
                     time.sleep(self.echo_delay)
                 if self.garble:
+                    data = data[:-1] + bytes([data[-1] ^ 0xFF])
+                if self.cut:
+                    self.cut -= 1
+                    data = data[:-1]
+                elif self.flip:
+                    self.flip -= 1
                     data = data[:-1] + bytes([data[-1] ^ 0xFF])
                 os.write(fd, data)
 
@@ -801,6 +810,41 @@ def test_local_echo_faults_are_counted_and_logged_once():
             em.close()
 
 
+def test_spoiled_echo_never_costs_the_next_request():
+    """The echo of a write's reply comes back spoiled (its last byte
+    flipped, or lost), with either setting; the master, which saw no
+    proper reply, sends the same write again 50 ms later (local_echo =
+    true: 30 and 200 ms, the echo cut short): answered each time, 3 of 3
+    (before: 0 of 5 in every variant; the retry was taken for an echo or
+    glued to the spoiled one)."""
+    bad = []
+    for local_echo, spoil, later in (("false", "garble", 0.05), ("false", "cut", 0.05),
+                                     ("true", "garble", 0.05), ("true", "cut", 0.03),
+                                     ("true", "cut", 0.2)):
+        with rig(rights="outputs", local_echo=local_echo) as r:
+            em = EchoingMaster(r.line.master, r.t35())
+            try:
+                write = frame(UNIT, write_coil_pdu(COIL_DO0, 1))
+                answered = 0
+                # An adapter that echoes echoes every reply; the first
+                # echo of each round comes back spoiled.
+                em.echo = True
+                for _ in range(3):
+                    em.flip, em.cut = spoil == "garble", spoil == "cut"
+                    check(em.request(write) == write, "the write answered")
+                    time.sleep(later)
+                    answered += em.request(write, timeout=1.0) == write
+                    time.sleep(0.1)
+                print("    local_echo %-5s echo %-6s retry %3d ms later: %d of 3 answered" %
+                      (local_echo, spoil, later * 1000, answered))
+                if answered < 3:
+                    bad.append("local_echo %s, %s echo, %d ms: %d of 3" %
+                               (local_echo, spoil, later * 1000, answered))
+            finally:
+                em.close()
+    check(not bad, "; ".join(bad))
+
+
 def test_echo_judged_when_it_arrived():
     """The gateway's loop stalls (SIGSTOP for 0.3 s) after an echo arrived
     and before its silence was judged (1200 baud: t3.5 is 29 ms): the echo
@@ -878,6 +922,11 @@ def test_cyclic_rewrite_is_answered_every_time():
     with a 120 ms echo window, every other one went unanswered: 10 of 20)."""
     with rig(rights="outputs") as r:
         wait_until(lambda: r.plc.ir(IR_TASK_STATE)[0] in (1, 2, 3, 4), 10, "robot status")
+        # A pty has no sysfs latency timer: the bound is [rtu] delivery_ms.
+        check(r.plc.ir(IR_RTU_DELIVERY_MS)[0] == 16, "rtu_delivery_ms reads %r" %
+              r.plc.ir(IR_RTU_DELIVERY_MS))
+        check(log_lines(r.gw, "delivery bound 16 ms ([rtu] delivery_ms)"),
+              "the bound logged: %s" % r.gw.output())
         m = r.master()
         try:
             write = frame(UNIT, write_coil_pdu(COIL_DO0, 1))
@@ -1345,6 +1394,7 @@ if __name__ == "__main__":
          test_line_counts_as_a_client_while_polled, test_overrun_drops_to_the_next_silence,
          test_echoing_line_acts_once, test_local_echo_faults_are_counted_and_logged_once,
          test_echo_judged_when_it_arrived,
+         test_spoiled_echo_never_costs_the_next_request,
          test_frame_hidden_in_a_foreign_response_is_never_acted_on,
          test_cyclic_rewrite_is_answered_every_time,
          test_master_retry_after_a_lost_reply_is_answered,
