@@ -624,7 +624,7 @@ def test_overrun_drops_to_the_next_silence():
             m.close()
 
 
-COIL_DO0 = 200  # cabinet digital output 0: each write sends set_digital_output
+COIL_DO0 = 200  # cabinet digital output 1: a write of a new level sends set_digital_output
 COIL_POWER_OFF = 101
 
 
@@ -709,10 +709,20 @@ class EchoingMaster:
         self.master.close()
 
 
-def echo_case(r, em, reads_before, value=1):
+def next_do0(r):
+    """The value that changes digital output 0 (jakasim starts it at 0):
+    an output written again with the level the robot reports sends nothing
+    (docs/commands.md), so a write meant to reach the robot toggles it."""
+    r.do0 = 1 - getattr(r, "do0", 0)
+    return r.do0
+
+
+def echo_case(r, em, reads_before, value=None):
     """'reads_before' reads without echo, then echo on and one write of
-    digital output 0. Returns (set_digital_output at the robot in 0.6 s,
-    replies to the write)."""
+    digital output 0 (toggled). Returns (set_digital_output at the robot in
+    0.6 s, replies to the write)."""
+    if value is None:
+        value = next_do0(r)
     read = frame(UNIT, read_ir_pdu(IR_MAGIC, 1))
     for i in range(reads_before):
         check(em.request(read) is not None, "read %d answered" % i)
@@ -929,9 +939,10 @@ def test_cyclic_rewrite_is_answered_every_time():
               "the bound logged: %s" % r.gw.output())
         m = r.master()
         try:
-            write = frame(UNIT, write_coil_pdu(COIL_DO0, 1))
             results = []
             for period in (0.05, 0.1):
+                # A new level each period: its first write reaches the robot.
+                write = frame(UNIT, write_coil_pdu(COIL_DO0, next_do0(r)))
                 before = len(sim_commands(r.sim, "set_digital_output"))
                 answered = 0
                 for _ in range(20):
@@ -1055,7 +1066,7 @@ def test_master_retry_after_a_lost_reply_is_answered():
             write_bit, close = libmodbus_write_bit(lossy.client, 19200)
             try:
                 first = len(sim_commands(r.sim, "set_digital_output"))
-                check(write_bit(COIL_DO0, 0), "libmodbus: a first write")
+                check(write_bit(COIL_DO0, 1), "libmodbus: a first write")
                 wait_until(lambda: len(sim_commands(r.sim, "set_digital_output")) > first, 5,
                            "the first write at the robot")
                 ok = 0
@@ -1063,7 +1074,7 @@ def test_master_retry_after_a_lost_reply_is_answered():
                 before = len(sim_commands(r.sim, "set_digital_output"))
                 for i in range(6):
                     lossy.spoil = 1
-                    ok += write_bit(COIL_DO0, (i + 1) & 1)
+                    ok += write_bit(COIL_DO0, i & 1)
                     time.sleep(0.1)
                 time.sleep(0.3)
                 acted = len(sim_commands(r.sim, "set_digital_output")) - before
@@ -1203,7 +1214,7 @@ def test_late_echo_acts_once_with_either_setting():
                 try:
                     row = []
                     for i, delay in enumerate(delays):
-                        sent, replies = echo_executions(r, em, delay, i & 1,
+                        sent, replies = echo_executions(r, em, delay, next_do0(r),
                                                         1.5 if table else 0.5)
                         if (sent, replies) != want and not table:
                             # Once more: a host so loaded that this thread
@@ -1211,7 +1222,7 @@ def test_late_echo_acts_once_with_either_setting():
                             # an echo past its window; a loop fails twice.
                             print("    local_echo %s, %d baud, echo %g ms: %d/%d, once more" %
                                   (local_echo, baud, delay * 1000, sent, replies))
-                            sent, replies = echo_executions(r, em, delay, i & 1, 0.5)
+                            sent, replies = echo_executions(r, em, delay, next_do0(r), 0.5)
                         row.append("%d/%d" % (sent, replies))
                         if (sent, replies) != want:
                             bad.append("local_echo %s, %d baud, echo %.2f ms: "
@@ -1246,7 +1257,7 @@ def test_stall_never_makes_local_echo_a_request():
                                      "two pieces, 105 ms apart")):
                 sent_before = len(sim_commands(r.sim, "set_digital_output"))
                 replies_before = len(em.replies())
-                reply = em.request(frame(UNIT, write_coil_pdu(COIL_DO0, i & 1)))
+                reply = em.request(frame(UNIT, write_coil_pdu(COIL_DO0, 1 - (i & 1))))
                 check(reply is not None, "the write answered")
                 time.sleep(0.005)
                 if how == "stall before the read":
@@ -1357,8 +1368,8 @@ def test_master_without_t35_is_answered():
             raw = 0
             for i in range(50):
                 m.quiet_until = 0  # no t3.5 after the reply
-                write = frame(UNIT, write_coil_pdu(COIL_DO0, i & 1))
-                raw += m.request(UNIT, write_coil_pdu(COIL_DO0, i & 1), timeout=0.3) == write
+                write = frame(UNIT, write_coil_pdu(COIL_DO0, 1 - (i & 1)))
+                raw += m.request(UNIT, write_coil_pdu(COIL_DO0, 1 - (i & 1)), timeout=0.3) == write
         finally:
             m.close()
         time.sleep(0.05)
@@ -1368,7 +1379,7 @@ def test_master_without_t35_is_answered():
         try:
             answered = 0
             for i in range(50):
-                rr = client.write_coil(COIL_DO0, bool(i & 1), slave=UNIT)
+                rr = client.write_coil(COIL_DO0, bool(1 - (i & 1)), slave=UNIT)
                 answered += not rr.isError()
         finally:
             client.close()
