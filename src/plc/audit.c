@@ -470,14 +470,15 @@ void audit_default_emit(void *user, const struct audit_record *r)
     static int journal = -1;
 
     (void)user;
-    log_escape(msg, sizeof(msg), r->error_msg, strlen(r->error_msg));
-    log_escape(subject, sizeof(subject), r->who.subject, strlen(r->who.subject));
-    log_escape(role, sizeof(role), r->who.role, strlen(r->who.role));
-    log_escape(client, sizeof(client), r->who.client, strlen(r->who.client));
-    snprintf(what, sizeof(what), "%s%s%s", r->command, r->what[0] ? " " : "", r->what);
     if (journal < 0)
         journal = audit_stderr_is_journal();
     if (journal) {
+        /* The journal's fields, escaped: only this path reads them. */
+        log_escape(msg, sizeof(msg), r->error_msg, strlen(r->error_msg));
+        log_escape(subject, sizeof(subject), r->who.subject, strlen(r->who.subject));
+        log_escape(role, sizeof(role), r->who.role, strlen(r->who.role));
+        log_escape(client, sizeof(client), r->who.client, strlen(r->who.client));
+        snprintf(what, sizeof(what), "%s%s%s", r->command, r->what[0] ? " " : "", r->what);
         int rc = sd_journal_send(
             "MESSAGE=audit: %s by %s %s: %s%s%s%s%s (x%u)", what, r->who.transport, client,
             r->result, r->reason[0] ? ": " : "", r->reason, msg[0] ? ": " : "", msg, r->count,
