@@ -279,6 +279,9 @@ void audit_command_sent_what(struct audit *a, const void *key, const char *comma
     }
     memset(slot, 0, sizeof(*slot));
     slot->key = key;
+    unsigned at = (unsigned)(slot - a->pending);
+    if (at >= a->pending_top)
+        a->pending_top = at + 1;
     slot->order = ++a->order;
     slot->frequent = frequent;
     copy(slot->command, sizeof(slot->command), command);
@@ -319,7 +322,7 @@ void audit_command_done(struct audit *a, const void *key, const struct cmd_resul
 
     if (!a)
         return;
-    for (unsigned i = 0; i < AUDIT_PENDING; i++)
+    for (unsigned i = 0; i < a->pending_top; i++)
         if (a->pending[i].key == key && (!p || a->pending[i].order < p->order))
             p = &a->pending[i];
     if (!p)
@@ -332,6 +335,8 @@ void audit_command_done(struct audit *a, const void *key, const struct cmd_resul
     copy(r.error_msg, sizeof(r.error_msg), res->error_msg);
     bool frequent = p->frequent;
     p->key = NULL;
+    while (a->pending_top > 0 && !a->pending[a->pending_top - 1].key)
+        a->pending_top--;
     if (frequent)
         aggregate(a, &r);
     else

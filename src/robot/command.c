@@ -241,7 +241,8 @@ static void note_member(struct flat_member *m, unsigned n, const char *key, size
                         enum flat_kind kind, const char *text, size_t len)
 {
     for (unsigned i = 0; i < n; i++)
-        if (m[i].kind == FLAT_ABSENT && strlen(m[i].key) == key_len &&
+        if (m[i].kind == FLAT_ABSENT && key_len && m[i].key[0] == key[0] &&
+            strlen(m[i].key) == key_len &&
             memcmp(m[i].key, key, key_len) == 0) {
             m[i] = (struct flat_member){.key = m[i].key, .kind = kind, .text = text, .len = len};
             return;
