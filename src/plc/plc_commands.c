@@ -949,9 +949,13 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
                    const struct cmd_def *def)
 {
     /* Pause and stop go out at once, ahead of whatever waits. */
+    /* A command built from its table entry moves as the entry says; the
+     * JSON mailbox's text is read for its name. */
+    bool built = slot != &pc->json && def;
     int rc = def && (def->flags & CMD_HALTS)
                  ? cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot)
-                 : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+             : built ? cmd_queue_submit_def(pc->queue, def, json, strlen(json), on_done, slot)
+                     : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
     audit_sent(pc, slot, json, def, false);
     if (rc < 0) {
         char why[48];

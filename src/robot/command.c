@@ -167,8 +167,12 @@ static struct json_arena arena;
  */
 enum flat_kind { FLAT_ABSENT, FLAT_STRING, FLAT_NUMBER };
 
+/* A member to look for, named by a string literal. */
+#define FLAT_KEY(name) {.key = (name), .key_len = sizeof(name) - 1}
+
 struct flat_member {
     const char *key;
+    size_t key_len;
     enum flat_kind kind;
     const char *text; /* a string's bytes, without quotes */
     size_t len;
@@ -241,10 +245,11 @@ static void note_member(struct flat_member *m, unsigned n, const char *key, size
                         enum flat_kind kind, const char *text, size_t len)
 {
     for (unsigned i = 0; i < n; i++)
-        if (m[i].kind == FLAT_ABSENT && key_len && m[i].key[0] == key[0] &&
-            strlen(m[i].key) == key_len &&
+        if (m[i].kind == FLAT_ABSENT && m[i].key_len == key_len &&
             memcmp(m[i].key, key, key_len) == 0) {
-            m[i] = (struct flat_member){.key = m[i].key, .kind = kind, .text = text, .len = len};
+            m[i].kind = kind;
+            m[i].text = text;
+            m[i].len = len;
             return;
         }
 }
@@ -308,7 +313,7 @@ static void judge_code_text(struct cmd_result *r, const char *code)
  * when the reply is not one (cJSON reads it then). */
 static bool parse_flat_reply(const char *json, size_t size, struct cmd_result *r)
 {
-    struct flat_member m[2] = {{.key = "errorCode"}, {.key = "errorMsg"}};
+    struct flat_member m[2] = {FLAT_KEY("errorCode"), FLAT_KEY("errorMsg")};
     char code[64];
 
     if (!scan_flat_object(json, size, m, 2) || m[0].kind == FLAT_NUMBER ||
@@ -432,7 +437,7 @@ static void fail_head_lost(struct cmd_queue *q, const char *why_sent,
  */
 static bool command_moves(const char *json, size_t size)
 {
-    struct flat_member m = {.key = "cmdName"};
+    struct flat_member m = FLAT_KEY("cmdName");
     char text[64];
 
     if (scan_flat_object(json, size, &m, 1) && (m.kind != FLAT_STRING || m.len < sizeof(text))) {
@@ -528,8 +533,24 @@ static bool only_checks_before(struct cmd_queue *q, unsigned n)
     return true;
 }
 
+static int submit_entry(struct cmd_queue *q, const char *json, size_t size, bool moves,
+                        cmd_done_cb done, void *user);
+
 int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
                      cmd_done_cb done, void *user)
+{
+    return submit_entry(q, json, size, command_moves(json, size), done, user);
+}
+
+int cmd_queue_submit_def(struct cmd_queue *q, const struct cmd_def *def, const char *json,
+                         size_t size, cmd_done_cb done, void *user)
+{
+    return submit_entry(q, json, size, def->flags & (CMD_MOTION | CMD_STARTS_MOTION), done,
+                        user);
+}
+
+static int submit_entry(struct cmd_queue *q, const char *json, size_t size, bool moves,
+                        cmd_done_cb done, void *user)
 {
     if (!q->connected)
         return -ENOTCONN;
@@ -541,7 +562,7 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
     memcpy(copy, json, size);
     struct cmd_entry *e = entry_at(q, q->count);
     *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user,
-                            .moves = command_moves(json, size)};
+                            .moves = moves};
     q->count++;
     /* Only an empty queue sends at once: a command submitted from a done
      * callback, while others wait, must not jump ahead of them. Behind a
