@@ -15,6 +15,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <cJSON.h>
+
 #include "command.h"
 
 #define MAX_SENT 256
@@ -311,6 +313,126 @@ static void error_codes(void **state)
 }
 
 /* The replies real controllers sent, from tests/data. */
+/*
+ * The reply as cJSON reads it, the way cmd_parse_reply() read every reply
+ * before flat replies were read without a tree: the reference the fast
+ * path must agree with.
+ */
+static void parse_reply_with_cjson(const char *json, size_t size, struct cmd_result *r)
+{
+    cJSON *doc = cJSON_ParseWithLength(json, size);
+    const cJSON *code = cJSON_GetObjectItemCaseSensitive(doc, "errorCode");
+    const cJSON *msg = cJSON_GetObjectItemCaseSensitive(doc, "errorMsg");
+
+    memset(r, 0, sizeof(*r));
+    if (!cJSON_IsObject(doc)) {
+        r->outcome = CMD_ROBOT_ERROR;
+        r->error_code = -1;
+        snprintf(r->error_msg, sizeof(r->error_msg), "reply is not a JSON object");
+    } else if (cJSON_IsNumber(code) || (cJSON_IsString(code) && code->valuestring[0])) {
+        char *end = NULL;
+        bool huge = cJSON_IsNumber(code) &&
+                    !(code->valuedouble > -2147483648.0 && code->valuedouble < 2147483648.0);
+        r->error_code = cJSON_IsNumber(code) ? (huge ? -1 : (long)code->valuedouble)
+                                             : strtol(code->valuestring, &end, 10);
+        if (huge) {
+            r->outcome = CMD_ROBOT_ERROR;
+            snprintf(r->error_msg, sizeof(r->error_msg), "errorCode %g is out of range",
+                     code->valuedouble);
+        } else if (cJSON_IsString(code) && *end != '\0') {
+            r->outcome = CMD_ROBOT_ERROR;
+            r->error_code = -1;
+            snprintf(r->error_msg, sizeof(r->error_msg), "errorCode '%.60s' is not a number",
+                     code->valuestring);
+        } else {
+            r->outcome = r->error_code == 0 ? CMD_DONE : CMD_ROBOT_ERROR;
+        }
+    } else {
+        r->outcome = CMD_ROBOT_ERROR;
+        r->error_code = -1;
+        snprintf(r->error_msg, sizeof(r->error_msg), "reply has no errorCode");
+    }
+    if (cJSON_IsString(msg) && r->error_msg[0] == '\0')
+        snprintf(r->error_msg, sizeof(r->error_msg), "%s", msg->valuestring);
+    cJSON_Delete(doc);
+}
+
+/* Pieces replies are made of: members, values, spacing, the odd byte. */
+static const char *const reply_keys[] = {"errorCode", "errorMsg", "cmdName", "errorcode",
+                                         "error\\u0043ode", "x"};
+static const char *const reply_values[] = {
+    "\"0\"", "\"1\"", "\"-1\"", "\"2\"", "\"\"", "\"ok\"", "\"0x\"", "\" 3\"", "\"0 \"",
+    "0", "7", "-1", "0.5", "1e3", "-0", "01", "1.", "3000000000", "-2147483649", "1E+2",
+    "\"call joint_move failed\"", "\"a\\\"b\"", "\"\\u00e9t\\u00e9\"", "\"\xc3\xa9t\xc3\xa9\"",
+    "\"tab\there\"", "null", "true", "false", "[0]", "{\"errorCode\":\"0\"}",
+    "\"Exception:function call failed, a message long enough to be cut where the "
+    "result's text ends: 128 bytes are all a result keeps, and the rest goes\"",
+};
+static const char *const reply_spaces[] = {"", "", "", " ", "\n", "\t \r\n", "\v", "\f"};
+
+static const char *pick(const char *const *list, size_t n)
+{
+    return list[(size_t)rand() % n];
+}
+#define PICK(list) pick(list, sizeof(list) / sizeof(list[0]))
+
+/* A generated reply: mostly flat objects, some broken on purpose. */
+static size_t generate_reply(char *out, size_t cap)
+{
+    size_t n = 0;
+    unsigned members = (unsigned)rand() % 5;
+
+    n += (size_t)snprintf(out + n, cap - n, "%s{%s", PICK(reply_spaces), PICK(reply_spaces));
+    for (unsigned i = 0; i < members && n < cap; i++)
+        n += (size_t)snprintf(out + n, cap - n, "%s\"%s\"%s:%s%s%s", i ? "," : "",
+                              PICK(reply_keys), PICK(reply_spaces), PICK(reply_spaces),
+                              PICK(reply_values), PICK(reply_spaces));
+    if (n < cap)
+        n += (size_t)snprintf(out + n, cap - n, "}%s", PICK(reply_spaces));
+    if (n >= cap)
+        n = cap - 1;
+    switch (rand() % 8) {
+    case 0: /* cut short */
+        n = n ? (size_t)rand() % n : 0;
+        break;
+    case 1: /* one byte changed */
+        if (n)
+            out[(size_t)rand() % n] = "{}[],:\"\\ 0a\x01\x80"[rand() % 14];
+        break;
+    case 2: /* something after the object */
+        n += (size_t)snprintf(out + n, cap - n, "%s", rand() % 2 ? "x" : "{}");
+        break;
+    default:
+        break;
+    }
+    out[n] = '\0';
+    return n;
+}
+
+static void replies_read_as_cjson_reads_them(void **state)
+{
+    (void)state;
+    unsigned rounds = 20000;
+    const char *arch = getenv("JAKAGW_ARCH");
+    if (arch && arch[0])
+        rounds /= 10;
+    srand(44);
+    for (unsigned i = 0; i < rounds; i++) {
+        char text[1024];
+        size_t n = generate_reply(text, sizeof(text));
+        struct cmd_result got, want;
+        cmd_parse_reply(text, n, &got);
+        parse_reply_with_cjson(text, n, &want);
+        if (got.outcome != want.outcome || got.error_code != want.error_code ||
+            strcmp(got.error_msg, want.error_msg) != 0)
+            fail_msg("reply '%s': %d %ld '%s', cJSON reads %d %ld '%s'", text, got.outcome,
+                     got.error_code, got.error_msg, want.outcome, want.error_code,
+                     want.error_msg);
+        assert_ptr_equal(got.reply, text);
+        assert_int_equal(got.reply_size, n);
+    }
+}
+
 static void recorded_replies(void **state)
 {
     (void)state;
@@ -1079,6 +1201,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(replies_matched_by_order_not_name, setup, teardown),
         cmocka_unit_test_setup_teardown(error_codes, setup, teardown),
         cmocka_unit_test_setup_teardown(recorded_replies, setup, teardown),
+        cmocka_unit_test(replies_read_as_cjson_reads_them),
         cmocka_unit_test_setup_teardown(timeout_at_the_limit_restarts_and_fails_the_rest,
                                         setup, teardown),
         cmocka_unit_test_setup_teardown(late_reply_after_restart_never_matches, setup,

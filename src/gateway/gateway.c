@@ -32,7 +32,10 @@ static void events_check(struct gateway *gw)
         .handler = gw->commands.handle_state,
         .motion_enabled = gw->policy.motion_enabled,
     };
-    snprintf(s.owner, sizeof(s.owner), "%s", gw->policy.owner_address);
+    /* A copy, not snprintf: this runs on every write a PLC makes. */
+    size_t owner_len = strnlen(gw->policy.owner_address, sizeof(s.owner) - 1);
+    memcpy(s.owner, gw->policy.owner_address, owner_len);
+    s.owner[owner_len] = '\0';
     robot_view_of(gw->status, fresh, &s.robot);
     events_update(&gw->events, &s);
 }

@@ -742,13 +742,17 @@ void regmap_encode_value(uint16_t *regs, enum regmap_type type, double value,
 
 void regmap_encode_string(uint16_t *regs, unsigned reg_count, const char *text)
 {
-    size_t len = strlen(text);
+    /* Whole pairs, an odd last byte, then zeros: no test per byte (a
+     * result's message is written on every command's reply). */
+    size_t len = strnlen(text, 2 * (size_t)reg_count);
+    const unsigned char *t = (const unsigned char *)text;
+    unsigned r = 0;
 
-    for (unsigned r = 0; r < reg_count; r++) {
-        unsigned char hi = 2 * r < len ? (unsigned char)text[2 * r] : 0;
-        unsigned char lo = 2 * r + 1 < len ? (unsigned char)text[2 * r + 1] : 0;
-        regs[r] = (uint16_t)(hi << 8 | lo);
-    }
+    for (; r < len / 2; r++)
+        regs[r] = (uint16_t)(t[2 * r] << 8 | t[2 * r + 1]);
+    if (len % 2)
+        regs[r++] = (uint16_t)(t[len - 1] << 8);
+    memset(&regs[r], 0, (reg_count - r) * sizeof(regs[0]));
 }
 
 static void encode_bit(struct regmap_image *img, const struct regmap_row *row,

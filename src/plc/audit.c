@@ -279,6 +279,9 @@ void audit_command_sent_what(struct audit *a, const void *key, const char *comma
     }
     memset(slot, 0, sizeof(*slot));
     slot->key = key;
+    unsigned at = (unsigned)(slot - a->pending);
+    if (at >= a->pending_top)
+        a->pending_top = at + 1;
     slot->order = ++a->order;
     slot->frequent = frequent;
     copy(slot->command, sizeof(slot->command), command);
@@ -319,7 +322,7 @@ void audit_command_done(struct audit *a, const void *key, const struct cmd_resul
 
     if (!a)
         return;
-    for (unsigned i = 0; i < AUDIT_PENDING; i++)
+    for (unsigned i = 0; i < a->pending_top; i++)
         if (a->pending[i].key == key && (!p || a->pending[i].order < p->order))
             p = &a->pending[i];
     if (!p)
@@ -332,6 +335,8 @@ void audit_command_done(struct audit *a, const void *key, const struct cmd_resul
     copy(r.error_msg, sizeof(r.error_msg), res->error_msg);
     bool frequent = p->frequent;
     p->key = NULL;
+    while (a->pending_top > 0 && !a->pending[a->pending_top - 1].key)
+        a->pending_top--;
     if (frequent)
         aggregate(a, &r);
     else
@@ -470,14 +475,15 @@ void audit_default_emit(void *user, const struct audit_record *r)
     static int journal = -1;
 
     (void)user;
-    log_escape(msg, sizeof(msg), r->error_msg, strlen(r->error_msg));
-    log_escape(subject, sizeof(subject), r->who.subject, strlen(r->who.subject));
-    log_escape(role, sizeof(role), r->who.role, strlen(r->who.role));
-    log_escape(client, sizeof(client), r->who.client, strlen(r->who.client));
-    snprintf(what, sizeof(what), "%s%s%s", r->command, r->what[0] ? " " : "", r->what);
     if (journal < 0)
         journal = audit_stderr_is_journal();
     if (journal) {
+        /* The journal's fields, escaped: only this path reads them. */
+        log_escape(msg, sizeof(msg), r->error_msg, strlen(r->error_msg));
+        log_escape(subject, sizeof(subject), r->who.subject, strlen(r->who.subject));
+        log_escape(role, sizeof(role), r->who.role, strlen(r->who.role));
+        log_escape(client, sizeof(client), r->who.client, strlen(r->who.client));
+        snprintf(what, sizeof(what), "%s%s%s", r->command, r->what[0] ? " " : "", r->what);
         int rc = sd_journal_send(
             "MESSAGE=audit: %s by %s %s: %s%s%s%s%s (x%u)", what, r->who.transport, client,
             r->result, r->reason[0] ? ": " : "", r->reason, msg[0] ? ": " : "", msg, r->count,

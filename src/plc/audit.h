@@ -125,6 +125,9 @@ struct audit {
     struct audit_who writer; /* the write being judged, if any */
     bool have_writer;
     struct audit_pending_cmd pending[AUDIT_PENDING];
+    /* One past the last entry of pending in use: a reply looks for its
+     * command among these only, not all AUDIT_PENDING. */
+    unsigned pending_top;
     uint64_t order;
     struct audit_aggregate aggregates[AUDIT_AGGREGATES];
     struct audit_ring {

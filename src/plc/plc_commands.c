@@ -250,8 +250,12 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
             return -EINVAL;
         }
     pc->params_written = calloc(img->map->row_count, sizeof(*pc->params_written));
-    if (!pc->params_written || find_readbacks(pc) != 0)
+    pc->row_cmd = calloc(img->map->row_count, sizeof(*pc->row_cmd));
+    if (!pc->params_written || !pc->row_cmd || find_readbacks(pc) != 0)
         return -ENOMEM;
+    for (unsigned r = 0; r < img->map->row_count; r++)
+        if (img->map->rows[r].source == REGMAP_SRC_CMD)
+            pc->row_cmd[r] = command_of(img->map->rows[r].path);
     find_parameter_spans(pc);
     for (unsigned i = 0; i < cmd_table_count; i++) {
         struct plc_slot *slot = &pc->slots[i];
@@ -301,6 +305,8 @@ void plc_commands_free(struct plc_commands *pc)
     plc_commands_discard(pc);
     free(pc->params_written);
     pc->params_written = NULL;
+    free(pc->row_cmd);
+    pc->row_cmd = NULL;
     free(pc->readback_at);
     pc->readback_at = NULL;
     free(pc->output_sent_ms);
@@ -568,7 +574,7 @@ static enum action action_of(struct plc_commands *pc, const struct regmap_writte
     *def = NULL;
     *slot = NULL;
     if (row->source == REGMAP_SRC_CMD) {
-        *def = command_of(row->path);
+        *def = pc->row_cmd[row - pc->img->map->rows];
         if (!*def)
             return ACT_NONE;
         *slot = &pc->slots[*def - cmd_table];
@@ -889,13 +895,19 @@ static void set_handle_state(struct plc_commands *pc, enum plc_handle_state stat
  */
 static void members_of_built(const char *json, const char *name, char *what, size_t size)
 {
-    size_t head = strlen("{\"cmdName\":\"") + strlen(name) + 1;
+    size_t name_len = strlen(name);
+    size_t head = strlen("{\"cmdName\":\"") + name_len + 1;
 
     what[0] = '\0';
-    if (strncmp(json, "{\"cmdName\":\"", 12) != 0 || strncmp(json + 12, name, strlen(name)) != 0 ||
+    if (strncmp(json, "{\"cmdName\":\"", 12) != 0 || strncmp(json + 12, name, name_len) != 0 ||
         strlen(json) <= head || json[head] != ',')
         return; /* no members */
-    snprintf(what, size, "{%s", json + head + 1);
+    /* "{" and the rest, cut to fit as snprintf would: a copy, on every
+     * command. */
+    size_t n = strnlen(json + head + 1, size - 2);
+    what[0] = '{';
+    memcpy(what + 1, json + head + 1, n);
+    what[n + 1] = '\0';
 }
 
 /* The same for the JSON mailbox's request, the PLC's own text. */
@@ -924,7 +936,9 @@ static void audit_sent(struct plc_commands *pc, struct plc_slot *slot, const cha
     if (!pc->cfg.audit)
         return;
     if (slot != &pc->json && def) {
-        snprintf(name, sizeof(name), "%s", def->name);
+        size_t n = strnlen(def->name, sizeof(name) - 1);
+        memcpy(name, def->name, n);
+        name[n] = '\0';
         members_of_built(json, def->name, what, sizeof(what));
     } else {
         members_of_request(json, name, sizeof(name), what, sizeof(what));
@@ -938,9 +952,13 @@ static void submit(struct plc_commands *pc, struct plc_slot *slot, const char *j
                    const struct cmd_def *def)
 {
     /* Pause and stop go out at once, ahead of whatever waits. */
+    /* A command built from its table entry moves as the entry says; the
+     * JSON mailbox's text is read for its name. */
+    bool built = slot != &pc->json && def;
     int rc = def && (def->flags & CMD_HALTS)
                  ? cmd_queue_submit_urgent(pc->queue, json, strlen(json), on_done, slot)
-                 : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
+             : built ? cmd_queue_submit_def(pc->queue, def, json, strlen(json), on_done, slot)
+                     : cmd_queue_submit(pc->queue, json, strlen(json), on_done, slot);
     audit_sent(pc, slot, json, def, false);
     if (rc < 0) {
         char why[48];

@@ -159,6 +159,9 @@ struct plc_commands {
     /* The parameter rows' elements written since start and not refused
      * since: a bit per element, by row index in the map. */
     uint32_t *params_written;
+    /* Per row of the map: the command a command row ("<cmdName>" or
+     * "<cmdName>.<param>") belongs to, found once at init; NULL for others. */
+    const struct cmd_def **row_cmd;
     /* Each command's parameter rows lie in rows [first, end) of the map:
      * building a triggered command looks only there. */
     uint16_t param_first[PLC_MAX_COMMANDS], param_end[PLC_MAX_COMMANDS];

@@ -2,6 +2,8 @@
 /* command.c - the command table and the command queue (command.h). */
 #include "command.h"
 
+#include "json_arena.h"
+
 #include <cJSON.h>
 #include <errno.h>
 #include <stdio.h>
@@ -144,9 +146,204 @@ const char *cmd_outcome_name(enum cmd_outcome outcome)
     return (unsigned)outcome < sizeof(names) / sizeof(names[0]) ? names[outcome] : "?";
 }
 
+/*
+ * The trees of a command read for its name and of a reply: their nodes come
+ * from this arena (json_arena.h), not a malloc and a free each (for a
+ * reply of a few members, half of what reading it cost). Nothing of a tree
+ * outlives the function that parsed it.
+ */
+static struct json_arena arena;
+
+/*
+ * The members of a flat object, read without a tree: a command as the
+ * gateway builds it and a reply as the controller sends it
+ * ({"cmdName":"power_on","errorCode":"0","errorMsg":""}) are one level of
+ * string keys and plain values. scan_flat_object() takes only strict JSON
+ * that cJSON reads the same way (strings of printable ASCII without
+ * escapes, numbers of JSON's own grammar, the object alone up to the
+ * end); anything else (nesting, escapes, literals, other bytes) returns
+ * false and is parsed with cJSON, so what it finds is what cJSON's lookup
+ * would (the first member of a name).
+ */
+enum flat_kind { FLAT_ABSENT, FLAT_STRING, FLAT_NUMBER };
+
+/* A member to look for, named by a string literal. */
+#define FLAT_KEY(name) {.key = (name), .key_len = sizeof(name) - 1}
+
+struct flat_member {
+    const char *key;
+    size_t key_len;
+    enum flat_kind kind;
+    const char *text; /* a string's bytes, without quotes */
+    size_t len;
+};
+
+static bool is_json_space(char c)
+{
+    return c == ' ' || c == '\t' || c == '\n' || c == '\r';
+}
+
+static const char *skip_space(const char *p, const char *end)
+{
+    while (p < end && is_json_space(*p))
+        p++;
+    return p;
+}
+
+/* A string at 'p' (its opening quote); the byte after its closing quote,
+ * or NULL when it is not one the scan takes. */
+static const char *scan_string(const char *p, const char *end)
+{
+    if (p >= end || *p != '"')
+        return NULL;
+    for (p++; p < end; p++) {
+        unsigned char c = (unsigned char)*p;
+        if (c == '"')
+            return p + 1;
+        if (c < 0x20 || c > 0x7E || c == '\\')
+            return NULL;
+    }
+    return NULL;
+}
+
+static bool is_digit(char c)
+{
+    return c >= '0' && c <= '9';
+}
+
+/* A number of JSON's grammar at 'p'; the byte after it, or NULL. */
+static const char *scan_number(const char *p, const char *end)
+{
+    if (p < end && *p == '-')
+        p++;
+    if (p >= end || !is_digit(*p))
+        return NULL;
+    if (*p == '0')
+        p++;
+    else
+        while (p < end && is_digit(*p))
+            p++;
+    if (p < end && *p == '.') {
+        if (++p >= end || !is_digit(*p))
+            return NULL;
+        while (p < end && is_digit(*p))
+            p++;
+    }
+    if (p < end && (*p == 'e' || *p == 'E')) {
+        if (++p < end && (*p == '+' || *p == '-'))
+            p++;
+        if (p >= end || !is_digit(*p))
+            return NULL;
+        while (p < end && is_digit(*p))
+            p++;
+    }
+    return p;
+}
+
+/* Notes a member for the first of the keys 'm' it is. */
+static void note_member(struct flat_member *m, unsigned n, const char *key, size_t key_len,
+                        enum flat_kind kind, const char *text, size_t len)
+{
+    for (unsigned i = 0; i < n; i++)
+        if (m[i].kind == FLAT_ABSENT && m[i].key_len == key_len &&
+            memcmp(m[i].key, key, key_len) == 0) {
+            m[i].kind = kind;
+            m[i].text = text;
+            m[i].len = len;
+            return;
+        }
+}
+
+static bool scan_flat_object(const char *json, size_t size, struct flat_member *m, unsigned n)
+{
+    const char *p = json, *end = json + size;
+
+    for (unsigned i = 0; i < n; i++)
+        m[i].kind = FLAT_ABSENT;
+    p = skip_space(p, end);
+    if (p >= end || *p++ != '{')
+        return false;
+    p = skip_space(p, end);
+    if (p < end && *p == '}')
+        return skip_space(p + 1, end) == end;
+    for (;;) {
+        const char *key = p;
+        if (!(p = scan_string(p, end)))
+            return false;
+        size_t key_len = (size_t)(p - key) - 2;
+        p = skip_space(p, end);
+        if (p >= end || *p++ != ':')
+            return false;
+        p = skip_space(p, end);
+        const char *value = p;
+        enum flat_kind kind = p < end && *p == '"' ? FLAT_STRING : FLAT_NUMBER;
+        if (!(p = kind == FLAT_STRING ? scan_string(p, end) : scan_number(p, end)))
+            return false;
+        if (kind == FLAT_STRING)
+            note_member(m, n, key + 1, key_len, kind, value + 1, (size_t)(p - value) - 2);
+        else
+            note_member(m, n, key + 1, key_len, kind, value, (size_t)(p - value));
+        p = skip_space(p, end);
+        if (p < end && *p == ',') {
+            p = skip_space(p + 1, end);
+            continue;
+        }
+        if (p < end && *p == '}')
+            return skip_space(p + 1, end) == end;
+        return false;
+    }
+}
+
+/* The outcome an errorCode given as text says (as strtol reads it). */
+static void judge_code_text(struct cmd_result *r, const char *code)
+{
+    char *end = NULL;
+
+    r->error_code = strtol(code, &end, 10);
+    if (*end != '\0') {
+        r->outcome = CMD_ROBOT_ERROR;
+        r->error_code = -1;
+        snprintf(r->error_msg, sizeof(r->error_msg), "errorCode '%.60s' is not a number", code);
+    } else {
+        r->outcome = r->error_code == 0 ? CMD_DONE : CMD_ROBOT_ERROR;
+    }
+}
+
+/* A flat reply whose errorCode, if any, is text: read without cJSON. False
+ * when the reply is not one (cJSON reads it then). */
+static bool parse_flat_reply(const char *json, size_t size, struct cmd_result *r)
+{
+    struct flat_member m[2] = {FLAT_KEY("errorCode"), FLAT_KEY("errorMsg")};
+    char code[64];
+
+    if (!scan_flat_object(json, size, m, 2) || m[0].kind == FLAT_NUMBER ||
+        m[0].len >= sizeof(code))
+        return false;
+    memset(r, 0, sizeof(*r));
+    r->reply = json;
+    r->reply_size = size;
+    if (m[0].kind == FLAT_STRING && m[0].len > 0) {
+        memcpy(code, m[0].text, m[0].len);
+        code[m[0].len] = '\0';
+        judge_code_text(r, code);
+    } else {
+        r->outcome = CMD_ROBOT_ERROR;
+        r->error_code = -1;
+        snprintf(r->error_msg, sizeof(r->error_msg), "reply has no errorCode");
+    }
+    if (m[1].kind == FLAT_STRING && r->error_msg[0] == '\0') {
+        size_t len = m[1].len < sizeof(r->error_msg) - 1 ? m[1].len : sizeof(r->error_msg) - 1;
+        memcpy(r->error_msg, m[1].text, len);
+        r->error_msg[len] = '\0';
+    }
+    return true;
+}
+
 void cmd_parse_reply(const char *json, size_t size, struct cmd_result *r)
 {
-    cJSON *doc = cJSON_ParseWithLength(json, size);
+    if (parse_flat_reply(json, size, r))
+        return;
+    const cJSON *doc = json_arena_parse(&arena, json, size);
     const cJSON *code = cJSON_GetObjectItemCaseSensitive(doc, "errorCode");
     const cJSON *msg = cJSON_GetObjectItemCaseSensitive(doc, "errorMsg");
 
@@ -158,23 +355,19 @@ void cmd_parse_reply(const char *json, size_t size, struct cmd_result *r)
         r->error_code = -1;
         snprintf(r->error_msg, sizeof(r->error_msg), "reply is not a JSON object");
     } else if (cJSON_IsNumber(code) || (cJSON_IsString(code) && code->valuestring[0])) {
-        char *end = NULL;
         /* Real controllers send "0", "1", "2", "-1", "3"; some a number. */
         /* A number outside long's range would be undefined to convert. */
         bool huge = cJSON_IsNumber(code) &&
                     !(code->valuedouble > -2147483648.0 && code->valuedouble < 2147483648.0);
-        r->error_code = cJSON_IsNumber(code) ? (huge ? -1 : (long)code->valuedouble)
-                                             : strtol(code->valuestring, &end, 10);
-        if (huge) {
+        if (cJSON_IsString(code)) {
+            judge_code_text(r, code->valuestring);
+        } else if (huge) {
+            r->error_code = -1;
             r->outcome = CMD_ROBOT_ERROR;
             snprintf(r->error_msg, sizeof(r->error_msg), "errorCode %g is out of range",
                      code->valuedouble);
-        } else if (cJSON_IsString(code) && *end != '\0') {
-            r->outcome = CMD_ROBOT_ERROR;
-            r->error_code = -1;
-            snprintf(r->error_msg, sizeof(r->error_msg), "errorCode '%.60s' is not a number",
-                     code->valuestring);
         } else {
+            r->error_code = (long)code->valuedouble;
             r->outcome = r->error_code == 0 ? CMD_DONE : CMD_ROBOT_ERROR;
         }
     } else {
@@ -184,7 +377,7 @@ void cmd_parse_reply(const char *json, size_t size, struct cmd_result *r)
     }
     if (cJSON_IsString(msg) && r->error_msg[0] == '\0')
         snprintf(r->error_msg, sizeof(r->error_msg), "%s", msg->valuestring);
-    cJSON_Delete(doc);
+    json_arena_reset(&arena);
 }
 
 void cmd_queue_init(struct cmd_queue *q, const struct cmd_ops *ops,
@@ -244,12 +437,23 @@ static void fail_head_lost(struct cmd_queue *q, const char *why_sent,
  */
 static bool command_moves(const char *json, size_t size)
 {
-    cJSON *doc = cJSON_ParseWithLength(json, size);
+    struct flat_member m = FLAT_KEY("cmdName");
+    char text[64];
+
+    if (scan_flat_object(json, size, &m, 1) && (m.kind != FLAT_STRING || m.len < sizeof(text))) {
+        if (m.kind != FLAT_STRING)
+            return true;
+        memcpy(text, m.text, m.len);
+        text[m.len] = '\0';
+        const struct cmd_def *found = cmd_find(text);
+        return !found || (found->flags & (CMD_MOTION | CMD_STARTS_MOTION));
+    }
+    const cJSON *doc = json_arena_parse(&arena, json, size);
     const cJSON *name = cJSON_GetObjectItemCaseSensitive(doc, "cmdName");
     const struct cmd_def *def = cJSON_IsString(name) ? cmd_find(name->valuestring) : NULL;
     bool moves = !def || (def->flags & (CMD_MOTION | CMD_STARTS_MOTION));
 
-    cJSON_Delete(doc);
+    json_arena_reset(&arena);
     return moves;
 }
 
@@ -329,8 +533,24 @@ static bool only_checks_before(struct cmd_queue *q, unsigned n)
     return true;
 }
 
+static int submit_entry(struct cmd_queue *q, const char *json, size_t size, bool moves,
+                        cmd_done_cb done, void *user);
+
 int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
                      cmd_done_cb done, void *user)
+{
+    return submit_entry(q, json, size, command_moves(json, size), done, user);
+}
+
+int cmd_queue_submit_def(struct cmd_queue *q, const struct cmd_def *def, const char *json,
+                         size_t size, cmd_done_cb done, void *user)
+{
+    return submit_entry(q, json, size, def->flags & (CMD_MOTION | CMD_STARTS_MOTION), done,
+                        user);
+}
+
+static int submit_entry(struct cmd_queue *q, const char *json, size_t size, bool moves,
+                        cmd_done_cb done, void *user)
 {
     if (!q->connected)
         return -ENOTCONN;
@@ -342,7 +562,7 @@ int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
     memcpy(copy, json, size);
     struct cmd_entry *e = entry_at(q, q->count);
     *e = (struct cmd_entry){.json = copy, .size = size, .done = done, .user = user,
-                            .moves = command_moves(json, size)};
+                            .moves = moves};
     q->count++;
     /* Only an empty queue sends at once: a command submitted from a done
      * callback, while others wait, must not jump ahead of them. Behind a
@@ -560,4 +780,5 @@ unsigned cmd_queue_pending(const struct cmd_queue *q)
 void cmd_queue_free(struct cmd_queue *q)
 {
     fail_all(q, "outcome unknown: the gateway stopped", "not sent: the gateway is stopping");
+    json_arena_free(&arena);
 }

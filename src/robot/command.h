@@ -170,6 +170,11 @@ void cmd_queue_free(struct cmd_queue *q);
 int cmd_queue_submit(struct cmd_queue *q, const char *json, size_t size,
                      cmd_done_cb done, void *user);
 
+/* The same for a command built from the table entry 'def' (its cmdName is
+ * def->name): whether it moves is read from def, not from the text. */
+int cmd_queue_submit_def(struct cmd_queue *q, const struct cmd_def *def, const char *json,
+                         size_t size, cmd_done_cb done, void *user);
+
 /*
  * Accepts a safety action (pause_program, stop_program) and writes it at
  * once, even while another command waits for its reply: it goes right
