@@ -1184,15 +1184,16 @@ static void a_garbage_byte_before_our_request_costs_nothing(void **state)
     }
 }
 
-/* A noise byte 0-4 ms after our write's reply left the wire, then the
- * reply's echo 18-24 ms after the noise, at 9600 with local_echo = false
- * and the bound of [rtu] delivery_ms's default (16 ms; an echo that late
- * comes through an adapter's latency timer): the write is acted on once
- * (an echo glued to noise within the bound is never the master's). */
+/* A noise byte 8 ms before to 4 ms after our write's reply left the
+ * wire (while it is on the wire: a collision), then the reply's echo
+ * 18-24 ms after the noise, at 9600 with local_echo = false and the bound
+ * of [rtu] delivery_ms's default (16 ms; an echo that late comes through
+ * an adapter's latency timer): the write is acted on once (an echo glued
+ * to noise within the bound is never the master's). */
 static void a_noise_byte_never_makes_an_echo_a_request(void **state)
 {
     (void)state;
-    for (unsigned na = 0; na <= 4; na += 2)
+    for (int na = -8; na <= 4; na += 2)
         for (unsigned d = 18; d <= 24; d += 2) {
             struct rig r;
             uint8_t write[8], noise = 0x3C;
@@ -1204,12 +1205,13 @@ static void a_noise_byte_never_makes_an_echo_a_request(void **state)
             r.stop_at_reply = true;
             run_to(&r, r.now + 30 * MS);
             assert_int_equal(r.replies, 1);
-            uint64_t tn = r.l->tx_end_ns + na * MS;
+            uint64_t tn = r.l->tx_end_ns + (uint64_t)((int64_t)na * (int64_t)MS);
+            assert_true(tn >= r.now);
             deliver(&r, tn, &noise, 1);
             deliver(&r, tn + d * MS + n * r.l->cfg.char_ns, r.reply, r.reply_size);
             run_to(&r, r.now + 500 * MS);
             if (r.executed != 1)
-                fail_msg("noise %u ms after the reply, echo %u ms after it: %zu executions", na,
+                fail_msg("noise %+d ms from the reply's end, echo %u ms after it: %zu executions", na,
                          d, r.executed);
         }
 }
