@@ -1142,6 +1142,80 @@ static void a_master_without_t35_is_answered(void **state)
     }
 }
 
+/* One garbage byte 2-2.5 ms before each request of ours on a busy bus
+ * (a request for unit 18 and its response before it, gaps of t3.5 and a
+ * seventh), 20 cycles at 19200 and 115200: the silence after the byte is
+ * shorter than the port's delivery, so the line cannot be sure of it.
+ * Before, 0 of 20 answered at either speed (the byte and the request one
+ * chunk, dropped); now every one, and nothing else executed. */
+static void a_garbage_byte_before_our_request_costs_nothing(void **state)
+{
+    static const unsigned bauds[] = {19200, 115200};
+    (void)state;
+    for (size_t b = 0; b < 2; b++) {
+        struct rig r;
+        rig_init(&r, bauds[b], false, false);
+        start_synced(&r);
+        uint64_t c = r.l->cfg.char_ns, gap = r.l->cfg.t35_ns + r.l->cfg.t35_ns / 7;
+        uint64_t t = r.now + 50 * MS;
+        size_t got = 0;
+        for (unsigned i = 0; i < 20; i++) {
+            uint8_t req[8], rsp[16] = {18, 3, 4, 0, 1, 0, 2}, ours[8], garbage = 0xA5;
+            t += 8 * c;
+            deliver(&r, t, req, read_request(req, 18, 3, 0, 2));
+            size_t rsp_n = rtu_append_crc(rsp, 7);
+            t += gap + rsp_n * c;
+            deliver(&r, t, rsp, rsp_n);
+            t += gap + c;
+            deliver(&r, t, &garbage, 1);
+            size_t n = write_coil(ours, UNIT, 200, i & 1), before = r.executed;
+            t += 2 * MS + (i * 25 % 500) * US + n * c;
+            deliver(&r, t, ours, n);
+            run_to(&r, t + 100 * MS);
+            for (size_t e = before; e < r.executed && e < MAX_EXEC; e++)
+                if (memcmp(r.exec[e], ours, 8) != 0)
+                    fail_msg("%u baud: executed a frame that is not our write", bauds[b]);
+            got += r.executed > before;
+            t = r.now > r.l->tx_end_ns ? r.now : r.l->tx_end_ns;
+            t += r.l->cfg.t35_ns + 1 * MS;
+        }
+        if (got < 19)
+            fail_msg("%u baud: %zu of 20 answered", bauds[b], got);
+    }
+}
+
+/* A noise byte 8 ms before to 4 ms after our write's reply left the
+ * wire (while it is on the wire: a collision), then the reply's echo
+ * 18-24 ms after the noise, at 9600 with local_echo = false and the bound
+ * of [rtu] delivery_ms's default (16 ms; an echo that late comes through
+ * an adapter's latency timer): the write is acted on once (an echo glued
+ * to noise within the bound is never the master's). */
+static void a_noise_byte_never_makes_an_echo_a_request(void **state)
+{
+    (void)state;
+    for (int na = -8; na <= 4; na += 2)
+        for (unsigned d = 18; d <= 24; d += 2) {
+            struct rig r;
+            uint8_t write[8], noise = 0x3C;
+            rig_init(&r, 9600, false, false);
+            r.l->cfg.delivery_ns += 16 * MS;
+            start_synced(&r);
+            size_t n = write_coil(write, UNIT, 200, true);
+            deliver(&r, r.now + 20 * MS + n * r.l->cfg.char_ns, write, n);
+            r.stop_at_reply = true;
+            run_to(&r, r.now + 30 * MS);
+            assert_int_equal(r.replies, 1);
+            uint64_t tn = r.l->tx_end_ns + (uint64_t)((int64_t)na * (int64_t)MS);
+            assert_true(tn >= r.now);
+            deliver(&r, tn, &noise, 1);
+            deliver(&r, tn + d * MS + n * r.l->cfg.char_ns, r.reply, r.reply_size);
+            run_to(&r, r.now + 500 * MS);
+            if (r.executed != 1)
+                fail_msg("noise %+d ms from the reply's end, echo %u ms after it: %zu executions", na,
+                         d, r.executed);
+        }
+}
+
 /* The delivery bound at open (mb_rtu.c's set_up_delivery) on a pty, with
  * a sysfs tree of our own (the seam [rtu] has for tests): an FTDI
  * adapter's latency_timer of 16 is set to 1 and read back, and the line
@@ -1316,6 +1390,60 @@ static unsigned below(unsigned n)
 static bool chance(unsigned percent)
 {
     return below(100) < percent;
+}
+
+/*
+ * Through the FTDI model (62-byte packets, latency timer 16 ms, the line
+ * told the adapter's bound), 19200 baud, 40 poll cycles: the master reads
+ * 10-125 registers of units 18, 19 and 20, whose responses hold CRC-valid
+ * writes for our unit every 8-31 bytes, then our read 2 ms after the last
+ * response. Nothing that no master sent for us is executed, and our read
+ * is answered every cycle (with the bound of 4 characters + 1 ms, as the
+ * line had before, 11-17 of 40, nothing else executed).
+ */
+static void ftdi_poll_cycles_execute_only_ours(void **state)
+{
+    (void)state;
+    rng_state = 0x42B;
+    for (unsigned phase = 0; phase < 4; phase++) {
+        struct rig r;
+        struct usb_port p = {.adapter = &usb_adapters[0]};
+        unsigned answered = 0;
+        rig_init(&r, 19200, false, false);
+        r.l->cfg.delivery_ns += (uint64_t)p.adapter->latency_ms * MS;
+        start_synced(&r);
+        uint64_t c = r.l->cfg.char_ns, t35 = r.l->cfg.t35_ns, t = r.now + 50 * MS;
+        p.phase_ns = r.now + phase * 3700 * US;
+        for (unsigned cycle = 0; cycle < 40; cycle++) {
+            for (uint8_t unit = 18; unit <= 20; unit++) {
+                uint8_t req[8], rsp[RTU_MAX_ADU];
+                unsigned count = 10 + below(116);
+                t = usb_wire(&r, &p, req, read_request(req, unit, 3, 0, (uint16_t)count), t, c);
+                rsp[0] = unit, rsp[1] = 3, rsp[2] = (uint8_t)(2 * count);
+                for (unsigned i = 0; i < 2 * count; i++)
+                    rsp[3 + i] = (uint8_t)rnd();
+                for (size_t at = 3 + below(8); at + 8 <= 3 + 2 * count; at += 8 + below(24))
+                    write_coil(rsp + at, UNIT, (uint16_t)(100 + below(16)), true);
+                size_t n = rtu_append_crc(rsp, 3 + 2 * count);
+                t = usb_wire(&r, &p, rsp, n, t + t35 + below(3000) * US, c);
+                t += t35 + below(3000) * US;
+            }
+            uint8_t ours[8];
+            size_t before = r.executed;
+            read_request(ours, UNIT, 4, (uint16_t)cycle, 1);
+            t = usb_wire(&r, &p, ours, 8, t + 2 * MS, c);
+            usb_idle(&r, &p, t + 40 * MS);
+            run_to(&r, t + 60 * MS);
+            for (size_t i = before; i < r.executed && i < MAX_EXEC; i++)
+                if (r.exec_size[i] != 8 || memcmp(r.exec[i], ours, 8) != 0)
+                    fail_msg("timer phase %u, cycle %u: executed a frame nobody sent for us",
+                             phase, cycle);
+            answered += r.executed > before;
+            t = r.now + 20 * MS;
+        }
+        if (answered < 39)
+            fail_msg("timer phase %u: our read answered %u of 40", phase, answered);
+    }
 }
 
 struct bus {
@@ -2431,6 +2559,9 @@ int main(void)
         cmocka_unit_test(a_busy_bus_regains_its_place_after_noise),
         cmocka_unit_test(user_codes_of_another_unit_are_cut_by_length),
         cmocka_unit_test(a_master_without_t35_is_answered),
+        cmocka_unit_test(a_garbage_byte_before_our_request_costs_nothing),
+        cmocka_unit_test(a_noise_byte_never_makes_an_echo_a_request),
+        cmocka_unit_test(ftdi_poll_cycles_execute_only_ours),
         cmocka_unit_test(generated_buses_execute_exactly_our_whole_requests),
         cmocka_unit_test(field_buses_keep_safety_and_liveness),
         cmocka_unit_test(usb_buses_with_retrying_masters),

@@ -858,6 +858,48 @@ static void walk_chunk(const struct rtu_line *line, size_t from, enum rtu_conv c
     walk_from(line, from, final, w, false);
 }
 
+/*
+ * Noise before our request: fewer than RTU_MIN_ADU bytes at a frame
+ * boundary (a silence, or where the conversation says a frame starts)
+ * that are no frame, then a whole CRC-valid request of ours that ends the
+ * chunk, which was judged only once the line surely fell silent after it
+ * (t3.5, a port's piece and the delivery bound). Returns the noise's
+ * length, 0 if the chunk is not that. Bytes that few can neither be a
+ * frame nor hold one, and a frame that began there and went on past the
+ * request would have reached the chunk: so the request is no part of
+ * another frame, only a frame the master sent after a glitch (a line
+ * driver switching, a byte of a collision), whose silence before it a
+ * host cannot be sure of (it is shorter than the port's delivery).
+ */
+/* Can 'size' bytes have come one after another, with a pause of t1.5
+ * between the noise and the request, from the chunk's first arrival to
+ * its last read? Bytes read together (a frame that would have begun
+ * before the noise ended) are one run of something else. */
+static bool fits_after_noise(const struct rtu_line *line, size_t size)
+{
+    return line->last_rx_ns >=
+           line->chunk_after_ns + (uint64_t)size * line->cfg.char_ns + line->cfg.t15_ns;
+}
+
+static size_t noise_before_ours(const struct rtu_line *line, size_t at)
+{
+    size_t size = line->rx_used;
+
+    /* Our last frame, glued to noise that came within the delivery bound
+     * after it: our echo, never the master's (a retry costs a retry). */
+    bool echo_possible = line->tx_end_ns && line->chunk_after_ns < rtu_line_bound_end_ns(line);
+    for (size_t k = 1; k < RTU_MIN_ADU && at + k + RTU_MIN_ADU <= size; k++) {
+        const uint8_t *d = line->rx + at + k;
+        size_t rest = size - at - k, len = 0;
+        if (d[0] == line->cfg.unit_id && rtu_crc_ok(d, rest) &&
+            rtu_request_length(d, rest, &len) == RTU_LENGTH_EXACT && len == rest &&
+            !pause_inside(line, at + k, size) && fits_after_noise(line, k + rest) &&
+            !(echo_possible && rest == line->sent_size && memcmp(d, line->sent, rest) == 0))
+            return k;
+    }
+    return 0;
+}
+
 /* The walk from 'at' on; 'branched': inside take_either (a second frame
  * that reads two ways is dropped). */
 static void walk_from(const struct rtu_line *line, size_t at, bool final, struct walk *w,
@@ -980,6 +1022,16 @@ static void walk_from(const struct rtu_line *line, size_t at, bool final, struct
         }
         if (kind == FRAME_NONE && !paused)
             w->stats.crc_errors++;
+        size_t noise = 0;
+        if (kind == FRAME_NONE && final && silence && !branched &&
+            (noise = noise_before_ours(line, at)) != 0) {
+            /* A few bytes of noise, too short to be or hold a frame, then
+             * a whole request of ours to the chunk's end. */
+            take_frame(line, at + noise, FRAME_REQUEST, size - at - noise, w);
+            w->dropped = true;
+            w->missing = 0;
+            return;
+        }
         /* A frame begun and not whole: every byte after it may be its
          * late pieces (a silence waited past in it is the port's delay),
          * so nothing after it is searched for frames; it is waited for,

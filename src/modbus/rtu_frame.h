@@ -93,6 +93,16 @@
  * after a sure silence read by its own fields; and a port's piece that
  * happens to start at the hidden frame is no sure silence.
  *
+ * NOISE BEFORE A REQUEST. Where that drop would start at a frame boundary
+ * (a sure silence, or where the conversation says a frame starts), in a
+ * chunk judged once the line surely fell silent after it, and the chunk
+ * is 1-3 bytes and then a whole CRC-valid request of ours to its end,
+ * the request is executed: bytes that few can be no frame and hold none,
+ * and a frame that began at the boundary and went on would have reached
+ * the chunk. Not where the request would have begun before the noise
+ * ended (read together), nor where it equals our last frame and the
+ * noise came within the delivery bound after it (an echo).
+ *
  * OUR OWN TRANSMISSIONS. rtu_line_frame_out() and rtu_line_bytes_out()
  * tell the line what we send and when; from them it knows when our last
  * frame leaves the wire (tx_end: the bytes' wire time, none on a pty,
