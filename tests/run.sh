@@ -161,18 +161,22 @@ for build in $BUILDS; do
         if [ "$name" = robot_protection ] && [ "$build" != "${BUILDS%% *}" ]; then
             suite_args="test_handler_belongs_to_its_connection test_silent_gateway_pauses_the_program"
         fi
-        # The PLC model's generated runs: 200 with the first native build,
-        # 60 with the others (sanitizer, ARM under qemu-user).
+        # The PLC model's generated runs: 150 with the first native build,
+        # 40 with the others (sanitizer, ARM under qemu-user); its own
+        # default (200) and PLC_MODEL_RUNS for longer runs.
         plc_model_runs=${PLC_MODEL_RUNS:-}
-        if [ -z "$plc_model_runs" ] && [ "$build" != "${BUILDS%% *}" ]; then
-            plc_model_runs=60
+        if [ -z "$plc_model_runs" ]; then
+            plc_model_runs=150
+            [ "$build" != "${BUILDS%% *}" ] && plc_model_runs=40
         fi
         echo "== $t ($build)"
-        # The load test's full minute runs once, with the first native
-        # build; the sanitizer and ARM builds run it for 20 s.
+        # The load test: 40 s with the first native build (40,000 requests
+        # beside commands and the heartbeat), 10 s with the sanitizer and
+        # ARM builds; make test-load runs its full minute.
         load_seconds=${LOAD_SECONDS:-}
-        if [ -z "$load_seconds" ] && { [ "$build" != "${BUILDS%% *}" ] || [ -n "${JAKAGW_ARCH:-}" ]; }; then
-            load_seconds=20
+        if [ -z "$load_seconds" ]; then
+            load_seconds=40
+            { [ "$build" != "${BUILDS%% *}" ] || [ -n "${JAKAGW_ARCH:-}" ]; } && load_seconds=10
         fi
         # shellcheck disable=SC2086  # suite_args: test names
         # The status page's tests in Chromium run with the first build only.
