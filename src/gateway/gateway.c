@@ -893,19 +893,21 @@ static int start_writes(struct gateway *gw)
     return rc;
 }
 
-/* The self-description values, which never change while running. */
 /* A number for this start of the gateway (start_id): a PLC that reads
  * another one knows the gateway restarted and lost what it was written.
- * Drawn from the clock and the pid: two starts agree once in 65536. */
+ * Drawn from the clock and the pid: two starts agree once in 65536. The
+ * mix is 64 bits wide on every target (a 32-bit long would lose the
+ * seconds' high half, and shifting it by 32 is undefined). */
 static unsigned draw_start_id(void)
 {
     struct timespec ts;
     clock_gettime(CLOCK_REALTIME, &ts);
-    unsigned long mix = (unsigned long)ts.tv_sec * 1000003UL ^ (unsigned long)ts.tv_nsec ^
-                        (unsigned long)getpid() * 2654435761UL;
+    uint64_t mix = (uint64_t)ts.tv_sec * 1000003u ^ (uint64_t)ts.tv_nsec ^
+                   (uint64_t)getpid() * 2654435761u;
     return (unsigned)((mix ^ mix >> 16 ^ mix >> 32) & 0xFFFF);
 }
 
+/* The self-description values, which never change while running. */
 static void set_constant_values(struct gateway *gw)
 {
     double *v = gw->gw_values;
