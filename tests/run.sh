@@ -2,8 +2,10 @@
 # SPDX-License-Identifier: MIT
 # Runs every test against the plain build (build/) and the ASan+UBSan build
 # (build-san/): the cmocka unit tests, then the integration tests, which
-# start the real jakasim and jakagw on free loopback ports. Ends with one
-# line counting the test cases: "N passed, N failed".
+# start the real jakasim and jakagw on free loopback ports; each build's
+# tests are a lane, and the lanes run side by side (the first one's output
+# streams, the others' follow it). Ends with one line counting the test
+# cases: "N passed, N failed".
 #
 #   tests/run.sh                  everything
 #   tests/run.sh unit             unit tests only (VALGRIND=1: under valgrind)
@@ -51,7 +53,8 @@ alerts_beside=""
 # output follows those tests' (finish_beside). A suite still running beside
 # the others is stopped with the run.
 beside_labels=() beside_pids=() beside_logs=() beside_starts=()
-trap 'for p in "${beside_pids[@]}"; do kill "$p" 2>/dev/null; done
+lane_pids=()
+trap 'for p in "${beside_pids[@]}" "${lane_pids[@]}"; do kill "$p" 2>/dev/null; done
       rm -f "$log" "${beside_logs[@]}"' EXIT
 
 # Each suite's wall time, from the end of the one before it (or from the
@@ -106,8 +109,18 @@ record_summary() { # name exit-status file [start-seconds]
     record "$1" "$2" "${ok:-0}" "${bad:-0}" "${4:-}"
 }
 
+# The alert suite with the first native build goes beside the package and
+# service VM tests in a whole run (below).
+if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
+    alerts_beside=${BUILDS%% *}
+fi
 for build in $BUILDS; do
     [ -x "$build/jakagw" ] || { echo "missing $build/jakagw: run make first" >&2; exit 2; }
+done
+
+# One build's unit tests, then its integration suites.
+run_build() { # build
+    local build=$1 t name suite_args plc_model_runs load_seconds browser_tests status ok bad
     for t in "$build"/tests/test_*; do
         case "$t" in *.d) continue ;; esac
         echo "== $t"
@@ -123,7 +136,7 @@ for build in $BUILDS; do
         bad=$(sed -n 's/^\[  FAILED  \] \([0-9]*\) test.*/\1/p' "$log" | tail -1)
         record "$t" "$status" "${ok:-0}" "${bad:-0}"
     done
-    [ "$what" = unit ] && continue
+    [ "$what" = unit ] && return
     for t in tests/integration/test_*.py; do
         name=${t#tests/integration/test_}
         name=${name%.py}
@@ -148,10 +161,7 @@ for build in $BUILDS; do
         # replays; ARM builds do not run it.
         if [ "$name" = alerts ]; then
             [ -n "${JAKAGW_ARCH:-}" ] && continue
-            if [ "$build" = "${BUILDS%% *}" ] && [ "$what" = all ] && [ -z "$SUITES" ]; then
-                alerts_beside=$build
-                continue
-            fi
+            [ "$build" = "$alerts_beside" ] && continue
             [ "$build" != "${BUILDS%% *}" ] &&
                 suite_args="test_stall_is_the_gateways_own_fault test_never_seen_ages_have_no_sample_and_heartbeat_reads_back test_stale_streak_survives_reconnects_that_bring_documents test_recorded_series_replay_with_promtool"
         fi
@@ -188,7 +198,46 @@ for build in $BUILDS; do
         status=${PIPESTATUS[0]}
         record_summary "$t($build)" "$status" "$log"
     done
+}
+
+# The builds' lanes side by side: most suites wait on timers, links and
+# their processes far more than they compute, so the sanitizer build's
+# lane runs beside the first build's, whose output streams as it comes;
+# every other lane's output follows, whole, with its totals added.
+lane_state=() lane_out=() lane_pids=() lane_builds=()
+first=1
+for build in $BUILDS; do
+    if [ -n "$first" ]; then
+        first=
+        continue
+    fi
+    out=$(mktemp) st=$(mktemp)
+    ( log=$(mktemp)
+      passed=0 failed=0 failures="" times="" suite_start=$SECONDS
+      run_build "$build" >"$out" 2>&1
+      rm -f "$log"
+      { echo "$passed"; echo "$failed"; echo "$failures"; printf '%s' "$times"; } >"$st" ) &
+    lane_pids+=($!) lane_out+=("$out") lane_state+=("$st") lane_builds+=("$build")
+    echo "== the $build lane started beside ${BUILDS%% *}'s; its output follows"
 done
+run_build "${BUILDS%% *}"
+for i in "${!lane_pids[@]}"; do
+    wait "${lane_pids[$i]}"
+    cat "${lane_out[$i]}"
+    p="" f="" fl="" t=""
+    { read -r p; read -r f; read -r fl; t=$(cat); } <"${lane_state[$i]}"
+    if [ -z "$p" ]; then  # the lane itself died: one failure, named
+        failed=$((failed + 1))
+        failures="$failures ${lane_builds[$i]}(its lane died)"
+        continue
+    fi
+    passed=$((passed + p))
+    failed=$((failed + f))
+    failures="$failures$fl"
+    [ -n "$t" ] && times="$times$t"$'\n'
+    rm -f "${lane_out[$i]}" "${lane_state[$i]}"
+done
+suite_start=$SECONDS
 
 # The PLC library run as a PLC (make test-plc): once, with the first
 # native build; SUITES leaves it out unless it names plc.
