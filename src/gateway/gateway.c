@@ -557,7 +557,7 @@ static void on_command_answered(void *user, const struct cmd_def *def, const voi
     /* A stop ends the moves only once the robot accepted it. */
     if (def && strcmp(def->name, "stop_program") == 0)
         motion_stop_answered(&gw->motion, now, r->outcome == CMD_DONE);
-    motion_answered(&gw->motion, now, tag, r->outcome == CMD_DONE,
+    motion_answered(&gw->motion, now, tag, r->sent_at_ms, r->outcome == CMD_DONE,
                     r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN);
 }
 
