@@ -164,7 +164,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             send_move(&c, now);
             break;
         case 2:
-            motion_answered(&m, now, &tags[next(&c) % 3], next(&c) % 2, next(&c) % 2);
+            motion_answered(&m, now, &tags[next(&c) % 3], now - 10u * next(&c), next(&c) % 2,
+                            next(&c) % 2);
             break;
         case 3:
             motion_stop_sent(&m, now, "fuzz");

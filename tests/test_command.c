@@ -175,6 +175,39 @@ static void table_lookups(void **state)
     assert_string_equal(cmd_outcome_name((enum cmd_outcome)99), "?");
 }
 
+/* Each result says when its command was written (a move's time bound
+ * begins then): not when it was queued, not when its reply came; a
+ * command never written says 0. */
+static void results_say_when_written(void **state)
+{
+    (void)state;
+    struct job a = {.json = "{\"cmdName\":\"rapid_rate\",\"rate_value\":0.5}"};
+    struct job b = {.json = "{\"cmdName\":\"joint_move\",\"jointPosition\":[1,2,3,4,5,6]}"};
+    struct job c = {.json = "{\"cmdName\":\"power_on\"}"};
+
+    assert_int_equal(test_submit(&a), 0); /* written at 1000 */
+    link.now = 1010;
+    assert_int_equal(test_submit(&b), 0); /* queued at 1010, behind a */
+    link.now = 1400;
+    reply("{\"errorCode\":\"0\"}"); /* a's reply: b written at 1400 */
+    assert_int_equal(a.result.sent_at_ms, 1000);
+    link.now = 2000;
+    reply("{\"errorCode\":\"0\"}");
+    assert_int_equal(b.result.outcome, CMD_DONE);
+    assert_int_equal(b.result.sent_at_ms, 1400);
+    /* Never written: the link down before its turn. The one written
+     * before it, with no reply, says when. */
+    struct job d = {.json = "{\"cmdName\":\"enable_robot\"}"};
+    assert_int_equal(test_submit(&d), 0);
+    assert_int_equal(test_submit(&c), 0);
+    link.now = 2100;
+    cmd_queue_set_connected(&queue, false);
+    assert_int_equal(d.result.outcome, CMD_LINK_DOWN);
+    assert_int_equal(d.result.sent_at_ms, 2000);
+    assert_int_equal(c.result.outcome, CMD_NOT_SENT);
+    assert_int_equal(c.result.sent_at_ms, 0);
+}
+
 static void one_at_a_time_in_order(void **state)
 {
     (void)state;
@@ -1196,6 +1229,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(table_lookups),
         cmocka_unit_test_setup_teardown(one_at_a_time_in_order, setup, teardown),
+        cmocka_unit_test_setup_teardown(results_say_when_written, setup, teardown),
         cmocka_unit_test_setup_teardown(urgent_action_goes_out_at_once, setup, teardown),
         cmocka_unit_test_setup_teardown(urgent_action_takes_out_what_moves, setup, teardown),
         cmocka_unit_test_setup_teardown(replies_matched_by_order_not_name, setup, teardown),

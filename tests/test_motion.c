@@ -85,7 +85,7 @@ static void only_the_three_moves_count(void **state)
     motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[0,90,90,0,90,0],"
                         "\"jointPosition\":[45,90,90,0,90,0],\"speed\":20}", SLOT);
     assert_true(m.target_known && m.target[0] == 45);
-    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
     feed(T0 + 20, HOME, HOME_TCP, 1);
     feed(T0 + 40, HOME, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_MOVING);
@@ -107,7 +107,7 @@ static void arrived_only_after_the_status_shows_it(void **state)
     feed(T0 + 1, target, HOME_TCP, 1);
     feed(T0 + 2, target, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_MOVING);
-    motion_answered(&m, T0 + 3, SLOT, true, false);
+    motion_answered(&m, T0 + 3, SLOT, T0 + 3, true, false);
     /* The controller's lag: in position where it was. */
     feed(T0 + 20, HOME, HOME_TCP, 1);
     feed(T0 + 40, HOME, HOME_TCP, 1);
@@ -133,7 +133,7 @@ static void arrives_within_the_joint_tolerance_only(void **state)
     start_at_home();
     motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[10,90,90,0,90,0],"
                         "\"speed\":20}", SLOT);
-    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
     feed(T0 + 20, off, HOME_TCP, 1);
     feed(T0 + 40, off, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_MOVING);
@@ -154,13 +154,13 @@ static void relative_moves_aim_from_the_position_at_the_trigger(void **state)
                             "\"speed\":20,\"relFlag\":1}", SLOT);
     assert_true(m.target_known);
     assert_true(fabs(m.target[0] - 6) < 1e-9 && fabs(m.target[1] - 87) < 1e-9);
-    motion_answered(&m, T0 + 2, SLOT, false, false); /* refused: none held */
+    motion_answered(&m, T0 + 2, SLOT, T0 + 2, false, false); /* refused: none held */
     assert_int_equal(m.state, MOTION_STOPPED);
     /* moveL relative: the TCP at the trigger plus the offset. */
     feed(T0 + 3, q, tcp, 1);
     motion_sent(&m, T0 + 4, "{\"cmdName\":\"moveL\",\"cartPosition\":[0,0,50,0,0,0],"
                             "\"speed\":100,\"relFlag\":1}", OTHER);
-    motion_answered(&m, T0 + 5, OTHER, true, false);
+    motion_answered(&m, T0 + 5, OTHER, T0 + 5, true, false);
     feed(T0 + 20, q, tcp, 1);
     feed(T0 + 40, q, tcp, 1);
     assert_int_equal(m.state, MOTION_MOVING); /* still where it was: not there */
@@ -187,7 +187,7 @@ static void tcp_tolerances_and_equivalent_angles(void **state)
     start_at_home();
     motion_sent(&m, T0, "{\"cmdName\":\"end_move\",\"endPosition\":[400,0,300,180,0,90],"
                         "\"speed\":20}", SLOT);
-    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
     feed(T0 + 20, q, far, 1);
     feed(T0 + 40, q, far, 1);
     feed(T0 + 60, q, turned, 1);
@@ -207,7 +207,7 @@ static void ends_before_arriving(void **state)
     /* A stop. */
     start_at_home();
     motion_sent(&m, T0, move, SLOT);
-    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
     motion_stop_sent(&m, T0 + 50, "stop_program from a PLC");
     assert_int_equal(m.state, MOTION_MOVING); /* not before the robot took it */
     motion_stop_answered(&m, T0 + 51, true);
@@ -224,19 +224,19 @@ static void ends_before_arriving(void **state)
     /* The robot's refusal; an unknown outcome is not one. */
     start_at_home();
     motion_sent(&m, T0, move, SLOT);
-    motion_answered(&m, T0 + 1, SLOT, false, true);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, false, true);
     assert_int_equal(m.state, MOTION_MOVING);
     start_at_home();
     motion_sent(&m, T0, move, SLOT);
-    motion_answered(&m, T0 + 1, OTHER, false, false); /* another command's */
+    motion_answered(&m, T0 + 1, OTHER, T0 + 1, false, false); /* another command's */
     assert_int_equal(m.state, MOTION_MOVING);
-    motion_answered(&m, T0 + 1, SLOT, false, false);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, false, false);
     assert_int_equal(m.state, MOTION_STOPPED);
     /* The robot's own stops, as the status shows them. */
     for (int kind = 0; kind < 4; kind++) {
         start_at_home();
         motion_sent(&m, T0, move, SLOT);
-        motion_answered(&m, T0 + 1, SLOT, true, false);
+        motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
         struct motion_view v = doc_at(q, HOME_TCP);
         v.inpos = 0;
         if (kind == 0)
@@ -267,7 +267,7 @@ static void not_arrived_within_the_bound(void **state)
     motion_sent(&m, T0 + 1, "{\"cmdName\":\"joint_move\",\"jointPosition\":"
                             "[30,90,90,0,90,0],\"speed\":20}", SLOT);
     assert_int_equal(m.bound_ms, 5500);
-    motion_answered(&m, T0 + 10, SLOT, true, false);
+    motion_answered(&m, T0 + 10, SLOT, T0 + 10, true, false);
     assert_false(motion_check(&m, T0 + 10 + 5499));
     assert_int_equal(m.state, MOTION_MOVING);
     assert_true(motion_check(&m, T0 + 10 + 5500));
@@ -282,6 +282,64 @@ static void not_arrived_within_the_bound(void **state)
     assert_int_equal(motion_bound_ms(180, 0), MOTION_BOUND_MAX_MS); /* no speed: capped */
 }
 
+/* The bound begins when the move was written to the robot, which starts it
+ * on receipt: not when it was queued (it waited 400 ms behind a slow
+ * command in the gateway's queue), not when its reply came (600 ms after
+ * the write). */
+static void the_bound_begins_when_written(void **state)
+{
+    (void)state;
+    static const char *const move =
+        "{\"cmdName\":\"joint_move\",\"jointPosition\":[30,90,90,0,90,0],\"speed\":20}";
+    const uint64_t queued = T0, written = T0 + 400, replied = T0 + 1000;
+    const double short_of[6] = {29, 90, 90, 0, 90, 0};
+    start_at_home();
+    assert_true(motion_sent(&m, queued, move, SLOT));
+    assert_int_equal(m.bound_ms, 3250); /* 1.5 s * 1.5 + 1 s */
+    assert_false(motion_check(&m, written + 3250)); /* no reply yet: its timeout decides */
+    motion_answered(&m, replied, SLOT, written, true, false);
+    /* The arm stopped 1 deg short, still. */
+    feed(replied + 20, short_of, HOME_TCP, 1);
+    feed(replied + 40, short_of, HOME_TCP, 1);
+    assert_false(motion_check(&m, queued + 3250 + 399));
+    assert_false(motion_check(&m, written + 3250 - 1));
+    assert_int_equal(m.state, MOTION_MOVING);
+    assert_true(motion_check(&m, written + 3250)); /* from the reply: 600 ms later */
+    assert_int_equal(m.state, MOTION_TIMED_OUT);
+    assert_string_equal(m.why, "not arrived within 3250 ms");
+    /* Written time unknown (0) or after the reply (another clock): the
+     * reply's time. */
+    start_at_home();
+    motion_sent(&m, queued, move, SLOT);
+    motion_answered(&m, replied, SLOT, 0, true, false);
+    feed(replied + 20, short_of, HOME_TCP, 1);
+    feed(replied + 40, short_of, HOME_TCP, 1);
+    assert_false(motion_check(&m, replied + 3250 - 1));
+    assert_true(motion_check(&m, replied + 3250));
+    start_at_home();
+    motion_sent(&m, queued, move, SLOT);
+    motion_answered(&m, replied, SLOT, replied + 5000, true, false);
+    feed(replied + 20, short_of, HOME_TCP, 1);
+    feed(replied + 40, short_of, HOME_TCP, 1);
+    assert_false(motion_check(&m, replied + 3250 - 1));
+    assert_true(motion_check(&m, replied + 3250));
+    /* A queued move behind one that arrived: from that arrival when the
+     * write came before it. */
+    start_at_home();
+    motion_sent(&m, queued, "{\"cmdName\":\"joint_move\",\"jointPosition\":"
+                            "[10,90,90,0,90,0],\"speed\":20}", SLOT);
+    motion_sent(&m, queued + 1, move, OTHER);
+    motion_answered(&m, queued + 2, SLOT, queued + 1, true, false);
+    motion_answered(&m, queued + 3, OTHER, queued + 2, true, false);
+    const double first[6] = {10, 90, 90, 0, 90, 0};
+    feed(T0 + 900, first, HOME_TCP, 0); /* passing the first target at 900 ms */
+    feed(T0 + 920, short_of, HOME_TCP, 1);
+    feed(T0 + 940, short_of, HOME_TCP, 1);
+    /* The second: 20 deg from the first's target, 1 s * 1.5 + 1 s. */
+    assert_false(motion_check(&m, T0 + 900 + 2500 - 1));
+    assert_true(motion_check(&m, T0 + 900 + 2500));
+}
+
 static void a_new_move_replaces_the_last(void **state)
 {
     (void)state;
@@ -289,10 +347,10 @@ static void a_new_move_replaces_the_last(void **state)
     start_at_home();
     motion_sent(&m, T0, "{\"cmdName\":\"joint_move\",\"jointPosition\":[10,90,90,0,90,0],"
                         "\"speed\":20}", SLOT);
-    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
     motion_sent(&m, T0 + 5, "{\"cmdName\":\"joint_move\",\"jointPosition\":[20,90,90,0,90,0],"
                             "\"speed\":20}", SLOT);
-    motion_answered(&m, T0 + 6, SLOT, true, false);
+    motion_answered(&m, T0 + 6, SLOT, T0 + 6, true, false);
     feed(T0 + 600, first, HOME_TCP, 1);
     feed(T0 + 620, first, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_MOVING); /* the first's target is not the second's */
@@ -382,7 +440,7 @@ static void generated_moves_arrive_only_when_shown(void **state)
             if (!reply_at && property_next(4) == 0) {
                 accepted = property_next(8) != 0;
                 reply_at = t;
-                motion_answered(&m, t, SLOT, accepted, false);
+                motion_answered(&m, t, SLOT, t, accepted, false);
                 continue;
             }
             /* A document: at the target (exactly, within or outside the
@@ -452,8 +510,8 @@ static void queued_moves_arrive_in_order(void **state)
                         "\"speed\":60}", SLOT);
     motion_sent(&m, T0 + 1, "{\"cmdName\":\"joint_move\",\"jointPosition\":[0,90,90,0,90,0],"
                             "\"speed\":60}", OTHER);
-    motion_answered(&m, T0 + 2, SLOT, true, false);
-    motion_answered(&m, T0 + 3, OTHER, true, false);
+    motion_answered(&m, T0 + 2, SLOT, T0 + 2, true, false);
+    motion_answered(&m, T0 + 3, OTHER, T0 + 3, true, false);
     /* The arm has not left: it is at the second's target, still. */
     feed(T0 + 20, HOME, HOME_TCP, 1);
     feed(T0 + 40, HOME, HOME_TCP, 1);
@@ -479,9 +537,9 @@ static void queued_moves_arrive_in_order(void **state)
                         "\"speed\":60}", SLOT);
     motion_sent(&m, T0 + 1, "{\"cmdName\":\"joint_move\",\"jointPosition\":[9,90,90,0,90,0],"
                             "\"speed\":60}", OTHER);
-    motion_answered(&m, T0 + 2, OTHER, false, false);
+    motion_answered(&m, T0 + 2, OTHER, T0 + 2, false, false);
     assert_int_equal(m.state, MOTION_MOVING);
-    motion_answered(&m, T0 + 3, SLOT, true, false);
+    motion_answered(&m, T0 + 3, SLOT, T0 + 3, true, false);
     at_j1(5, q);
     feed(T0 + 20, q, HOME_TCP, 1);
     feed(T0 + 40, q, HOME_TCP, 1);
@@ -499,7 +557,7 @@ static void ends_in_the_state_the_arm_is_in(void **state)
     double q[6];
     start_at_home();
     motion_sent(&m, T0, move, SLOT);
-    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
     motion_stop_sent(&m, T0 + 10, "stop_program from a PLC");
     motion_stop_answered(&m, T0 + 11, false);
     at_j1(10, q);
@@ -513,14 +571,14 @@ static void ends_in_the_state_the_arm_is_in(void **state)
     /* The reply lost: it may still arrive. */
     start_at_home();
     motion_sent(&m, T0, move, SLOT);
-    motion_answered(&m, T0 + 1, SLOT, false, true);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, false, true);
     feed(T0 + 20, q, HOME_TCP, 1);
     feed(T0 + 40, q, HOME_TCP, 1);
     assert_int_equal(m.state, MOTION_ARRIVED);
     /* The override lowered to 10 % after the send: 30 deg at 2 deg/s. */
     start_at_home();
     motion_sent(&m, T0, move, SLOT);
-    motion_answered(&m, T0 + 1, SLOT, true, false);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
     assert_int_equal(m.bound_ms, 3250);
     struct motion_view v = doc_at(HOME, HOME_TCP);
     v.rapid_rate = 0.1;
@@ -546,7 +604,7 @@ static void ends_in_the_state_the_arm_is_in(void **state)
     /* The command link lost: 4 at once, with why. */
     start_at_home();
     motion_sent(&m, T0, move, SLOT);
-    motion_answered(&m, T0 + 1, SLOT, false, true);
+    motion_answered(&m, T0 + 1, SLOT, T0 + 1, false, true);
     motion_link_lost(&m, T0 + 2, "the command link was lost");
     assert_int_equal(m.state, MOTION_TIMED_OUT);
     assert_string_equal(m.why, "the command link was lost");
@@ -562,6 +620,7 @@ int main(void)
         cmocka_unit_test(tcp_tolerances_and_equivalent_angles),
         cmocka_unit_test(ends_before_arriving),
         cmocka_unit_test(not_arrived_within_the_bound),
+        cmocka_unit_test(the_bound_begins_when_written),
         cmocka_unit_test(a_new_move_replaces_the_last),
         cmocka_unit_test(what_the_arm_does),
         cmocka_unit_test(generated_moves_arrive_only_when_shown),

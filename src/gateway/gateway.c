@@ -228,6 +228,14 @@ static void on_link_check_reply(struct command_port *cp, const char *query,
     plc_commands_link_check_reply(&gw->commands, query, r);
 }
 
+/* A move of ours may be running: the command link is checked more often
+ * meanwhile (command_port.h). */
+static bool move_running(struct command_port *cp)
+{
+    const struct gateway *gw = cp->user;
+    return gw->motion.state == MOTION_MOVING;
+}
+
 bool gateway_status_fresh(const struct gateway *gw)
 {
     return gw->last_document_ms != 0 &&
@@ -549,7 +557,7 @@ static void on_command_answered(void *user, const struct cmd_def *def, const voi
     /* A stop ends the moves only once the robot accepted it. */
     if (def && strcmp(def->name, "stop_program") == 0)
         motion_stop_answered(&gw->motion, now, r->outcome == CMD_DONE);
-    motion_answered(&gw->motion, now, tag, r->outcome == CMD_DONE,
+    motion_answered(&gw->motion, now, tag, r->sent_at_ms, r->outcome == CMD_DONE,
                     r->outcome == CMD_TIMEOUT || r->outcome == CMD_LINK_DOWN);
 }
 
@@ -727,6 +735,7 @@ static int start_links(struct gateway *gw)
         .on_state = on_command_state,
         .on_answering = on_command_answering,
         .on_check_reply = on_link_check_reply,
+        .move_running = move_running,
         .user = gw,
     };
     rc = command_port_init(gw->loop, &gw->command, &lc, cfg->reply_timeout_ms,

@@ -264,8 +264,8 @@ bool motion_sent(struct motion *m, uint64_t now_ms, const char *json, const void
     return true;
 }
 
-void motion_answered(struct motion *m, uint64_t now_ms, const void *tag, bool accepted,
-                     bool unknown)
+void motion_answered(struct motion *m, uint64_t now_ms, const void *tag, uint64_t written_ms,
+                     bool accepted, bool unknown)
 {
     unsigned i = 0;
     while (i < m->held_count &&
@@ -276,6 +276,7 @@ void motion_answered(struct motion *m, uint64_t now_ms, const void *tag, bool ac
     if (accepted || unknown) {
         m->held[i].reply = accepted ? MOTION_REPLY_ACCEPTED : MOTION_REPLY_LOST;
         m->held[i].answered_ms = now_ms;
+        m->held[i].written_ms = written_ms != 0 && written_ms <= now_ms ? written_ms : now_ms;
         return;
     }
     /* Refused, or never sent: the robot does not hold it. */
@@ -426,8 +427,10 @@ bool motion_check(struct motion *m, uint64_t now_ms)
 {
     if (m->state != MOTION_MOVING)
         return false;
-    /* The first move not reached: from its reply, or the arrival of the
-     * one before it if later; at the rapid rate the status shows now. */
+    /* The first move not reached: from when it was written (the robot
+     * starts a move on receipt, manual 4.7: a slow reply or a wait in the
+     * gateway's queue gives it no more time), or the arrival of the one
+     * before it if later; at the rapid rate the status shows now. */
     uint64_t from = 0;
     const struct motion_move *head = NULL;
     for (unsigned i = 0; i < m->held_count && !head; i++) {
@@ -439,11 +442,10 @@ bool motion_check(struct motion *m, uint64_t now_ms)
     }
     if (!head)
         return false;
-    uint64_t began = head->reply == MOTION_REPLY_AWAITED ? head->sent_ms : head->answered_ms;
-    if (began > from)
-        from = began;
     if (head->reply == MOTION_REPLY_AWAITED)
         return false; /* its reply's own timeout decides */
+    if (head->written_ms > from)
+        from = head->written_ms;
     uint64_t bound = motion_bound_ms(head->travel, head->speed * rate_now(m));
     if (now_ms < from + bound || arm_moving(m))
         return false;

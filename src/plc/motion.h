@@ -34,8 +34,9 @@
  * - MOTION_TIMED_OUT when a move held has not reached its target within
  *   its bound (motion_bound_ms): its travel at its speed times the rapid
  *   rate the status shows now, times MOTION_BOUND_FACTOR, plus
- *   MOTION_BOUND_MARGIN_MS, counted from its reply, or from the arrival
- *   of the move before it if later. Never while the status shows the arm
+ *   MOTION_BOUND_MARGIN_MS, counted from when it was written to the robot
+ *   (not when it was queued, nor when its reply came), or from the
+ *   arrival of the move before it if later. Never while the status shows the arm
  *   moving; and a late arrival still turns it into MOTION_ARRIVED.
  * A move sent after the last one ended starts a new list. Other motion
  * commands (jog, movc, servo_j, the compliance settings) are not followed:
@@ -108,7 +109,9 @@ struct motion_move {
     double travel;       /* deg (joints) or mm / deg (TCP), for the bound */
     double speed;        /* deg/s or mm/s, at rapid rate 1 */
     enum motion_reply { MOTION_REPLY_AWAITED, MOTION_REPLY_ACCEPTED, MOTION_REPLY_LOST } reply;
-    uint64_t sent_ms, answered_ms;
+    uint64_t sent_ms;    /* handed to the command queue */
+    uint64_t written_ms; /* written to the robot (known with its reply) */
+    uint64_t answered_ms;
     bool reached;        /* its target shown, after the move before it */
     uint64_t reached_ms;
 };
@@ -152,9 +155,12 @@ bool motion_sent(struct motion *m, uint64_t now_ms, const char *json, const void
  * and may still arrive), or refused or never sent (the move is not held:
  * when no move is left, MOTION_STOPPED). The oldest move of 'tag' awaiting
  * its reply is the one answered; another command's reply changes nothing.
+ * 'written_ms' is when the command was written to the robot (0 or later
+ * than 'now_ms': taken as 'now_ms'): the robot starts a move on receipt,
+ * so its time bound begins then.
  */
-void motion_answered(struct motion *m, uint64_t now_ms, const void *tag, bool accepted,
-                     bool unknown);
+void motion_answered(struct motion *m, uint64_t now_ms, const void *tag, uint64_t written_ms,
+                     bool accepted, bool unknown);
 
 /* A stop went out (stop_program, for the PLC or the policy; 'why' says
  * whose): the moves held end when it is accepted and the arm is still. */
@@ -176,7 +182,7 @@ void motion_document(struct motion *m, uint64_t now_ms, const struct motion_view
  * MOTION_TIMED_OUT. Returns true when the state changed. */
 bool motion_check(struct motion *m, uint64_t now_ms);
 
-/* The move's bound, ms from its reply: travel / speed * factor + margin. */
+/* The move's bound, ms from its write: travel / speed * factor + margin. */
 uint64_t motion_bound_ms(double travel, double speed);
 
 /* The largest joint change between the last two documents, in degrees

@@ -393,16 +393,19 @@ static struct cmd_entry *entry_at(struct cmd_queue *q, unsigned i)
     return &q->entries[(q->head + i) % CMD_QUEUE_CAPACITY];
 }
 
-/* Removes the head entry and reports 'r' to its owner. */
+/* Removes the head entry and reports 'r' to its owner, with when it was
+ * written. */
 static void finish_head(struct cmd_queue *q, const struct cmd_result *r)
 {
     struct cmd_entry e = *entry_at(q, 0);
+    struct cmd_result told = *r;
 
+    told.sent_at_ms = e.sent ? e.sent_at_ms : 0;
     q->head = (q->head + 1) % CMD_QUEUE_CAPACITY;
     q->count--;
     q->in_flight = false;
     free(e.json);
-    e.done(e.user, r);
+    e.done(e.user, &told);
 }
 
 static void fail_head(struct cmd_queue *q, enum cmd_outcome outcome, const char *why)

@@ -98,6 +98,10 @@ struct cmd_result {
     char error_msg[128]; /* the robot's errorMsg, or the gateway's reason */
     const char *reply;   /* the whole reply (valid during the callback), or NULL */
     size_t reply_size;
+    /* When it was written to the robot (ops.now_ms), 0: never written. A
+     * command the robot starts on receipt (a move) began then, not when
+     * its reply came nor when it was queued. */
+    uint64_t sent_at_ms;
 };
 
 typedef void (*cmd_done_cb)(void *user, const struct cmd_result *result);

@@ -53,14 +53,26 @@ static void on_sent(void *io)
 
 static void on_check_timer(uv_timer_t *t);
 
-/* Idle from now: the link is checked link_check_ms from now unless
+/* How long the link may be idle before it is checked: shorter while a
+ * move runs, so that a cut under a moving arm is found within the link's
+ * bound, not the move's. */
+static uint32_t idle_period_ms(struct command_port *cp)
+{
+    if (cp->hooks.move_running && cp->hooks.move_running(cp)) {
+        uint32_t period = cp->link_check_ms / COMMAND_PORT_MOVING_CHECKS;
+        return period > 0 ? period : 1;
+    }
+    return cp->link_check_ms;
+}
+
+/* Idle from now: the link is checked after the idle period unless
  * something arrives or is sent before. */
 static void arm_check(struct command_port *cp)
 {
     if (cp->link_check_ms == 0 || !cp->queue.connected)
         uv_timer_stop(&cp->check_timer);
     else
-        uv_timer_start(&cp->check_timer, on_check_timer, cp->link_check_ms, 0);
+        uv_timer_start(&cp->check_timer, on_check_timer, idle_period_ms(cp), 0);
 }
 
 void command_port_set_link_check(struct command_port *cp, uint32_t link_check_ms)

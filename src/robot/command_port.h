@@ -19,6 +19,15 @@
  * restarted (abortively) and reads down. With the defaults (1000, 2000) a silently
  * dead idle link reads down within link_check_ms + 1000 ms = 2 s.
  *
+ * While a move of ours runs (hooks.move_running says so), the idle link is
+ * checked COMMAND_PORT_MOVING_CHECKS times as often, so that a link gone
+ * silent under a moving arm is found within link_check_ms /
+ * COMMAND_PORT_MOVING_CHECKS + min(reply_timeout_ms, link_check_ms): 1.25 s
+ * with the defaults, where the moves' own time bounds run to many seconds.
+ * The reply's bound stays as it is: a loaded controller is not taken for a
+ * dead one any sooner. The period is chosen each time an idle period
+ * starts (after each reply), so it follows the move without a call.
+ *
  * The link reads "answering" (command_port_answering) once a reply has
  * come on the connection: a controller that accepts connections while its
  * command server hangs never reads as up.
@@ -37,6 +46,8 @@
 #include "robot_link.h"
 
 #define COMMAND_PORT_CHECK_QUERY "get_robot_state"
+/* How many times as often the idle link is checked while a move runs. */
+#define COMMAND_PORT_MOVING_CHECKS 4
 
 struct command_port;
 
@@ -48,6 +59,9 @@ struct command_port_hooks {
     /* A link check was answered: 'r' holds the reply (may be NULL). */
     void (*on_check_reply)(struct command_port *cp, const char *query,
                            const struct cmd_result *r);
+    /* Whether a move the gateway sent may be running now (may be NULL:
+     * never). Asked whenever an idle period starts. */
+    bool (*move_running)(struct command_port *cp);
     void *user;
 };
 

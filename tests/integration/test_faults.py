@@ -12,6 +12,9 @@ bound it checks with what it measured:
   (connect_timeout_ms) after the cable is back;
 - the idle command port pulled: command_link_up (discrete input 1) reads 0
   within 3 s with the default configuration;
+- the command port pulled while a joint_move runs: the motion state
+  (IR 5600) reads 4 and command_link_up 0 within 1.25 s with the default
+  configuration;
 - a command written into a silently dead command link: the PLC reads a
   failure, and the robot (jakasim's log of the commands it received) never
   gets it, not even once the cable is back;
@@ -579,6 +582,50 @@ def test_policy_pause_lost_with_the_command_link_is_sent_again():
         stopped(sim, gw)
 
 
+def test_command_port_pulled_mid_move():
+    """The defaults of link_check_ms and reply_timeout_ms: a joint_move
+    runs (60 deg at 20 deg/s) when the command port is pulled silently,
+    just after a link check was answered (the worst moment: a whole check
+    period ahead). The motion state (IR 5600) leaves 1, as 4 with the
+    log's why, and command_link_up reads 0 within the link bound while a
+    move runs, 1.25 s (docs/commands.md), not after the move's bound
+    (5.5 s)."""
+    import test_motion
+    sim, gw = started(test_motion.config(), ["--period-ms", "20"])
+    try:
+        plc = test_motion.Plc(gw.modbus_port)
+        plc.ready()
+        bound = 1.25  # link_check_ms / 4 + min(reply_timeout_ms, link_check_ms)
+        check(plc.joint_move([60, 90, 90, 0, 90, 0]) == 0, "joint_move refused")
+        wait_until(lambda: plc.joints()[0] > 3, 5, "the move to show")
+        check(plc.state()[0] == test_motion.MOVING, "motion state %d, not 1" % plc.state()[0])
+        # A check sent is counted at once and answered within a few ms on
+        # loopback: the pull comes one poll after the count moved.
+        checks = plc.u32(ir("link_checks"))
+        wait_until(lambda: plc.feed() or plc.u32(ir("link_checks")) != checks, 5,
+                   "a link check", interval=0.005)
+        plc.state()
+        fault = netfault.pull(sim.command_port)
+        try:
+            took = timed(lambda: plc.state()[0] != test_motion.MOVING, 10,
+                         "IR 5600 to leave 1", fault.since)
+            state, joint = plc.state()[0], plc.joints()[0]
+            down = timed(lambda: plc.di(COMMAND_LINK_UP)[0] == 0, 10,
+                         "command_link_up to read 0", fault.since)
+        finally:
+            fault.restore()
+        print("  command port pulled mid-move (joint 1 at %.1f deg): IR 5600 %d after %.0f ms, "
+              "command_link_up 0 after %.0f ms (bound %.0f ms)"
+              % (joint, state, 1000 * took, 1000 * down, 1000 * bound), flush=True)
+        check(state == test_motion.TIMED_OUT, "IR 5600 reads %d, not 4" % state)
+        check(joint < 59.9, "the move had ended (joint 1 at %.1f deg)" % joint)
+        check(took <= bound + SLACK_S, "IR 5600 left 1 after %.0f ms" % (1000 * took))
+        check(log_lines(gw, "the command link was lost"), "no log line saying why")
+        plc.close()
+    finally:
+        stopped(sim, gw)
+
+
 # ---- resets ----
 
 def test_reset_mid_stream():
@@ -813,7 +860,7 @@ TESTS = [test_status_port_silent_pull, test_idle_command_port_silent_pull,
          test_command_into_dead_link_never_delivered,
          test_robot_pauses_itself_when_both_links_are_pulled, test_plc_connection_silent_pull,
          test_policy_pause_lost_with_the_command_link_is_sent_again,
-         test_reset_mid_stream, test_random_loss_robot_ports]
+         test_command_port_pulled_mid_move, test_reset_mid_stream, test_random_loss_robot_ports]
 
 if __name__ == "__main__":
     netfault.main(TESTS, extra=[measure_false_trips])

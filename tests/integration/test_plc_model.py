@@ -34,6 +34,16 @@ longer reads 2 or 5) and checks, on every run:
   is new, every other command at most as often as the PLC wrote it);
 - every move the robot received carries a target the PLC wrote.
 
+Three faults come at a chosen moment instead, each in a cell of its own,
+side by side (test_plc_model_faults_at_chosen_moments): motion enable
+dropped while a joint_move waits in the gateway's queue behind a setpoint
+the robot answers late (the move's own result 8, nothing moves, the move
+triggered again after the reset arrives); the gateway's queue full (a
+move refused 06 with its own result 7 "busy", the stop done and at the
+robot ahead of the queue); a stop the robot refuses while a move runs
+(the motion state stays 1 while the arm goes on, the second stop ends
+it: 3 once the arm stands still).
+
 Several cells (a jakasim, a relay and a jakagw each) run side by side, one
 PLC thread each. PLC_MODEL_RUNS (default 200; tests/run.sh gives the
 sanitizer build fewer), PLC_MODEL_SEED (printed; repeats the schedule of
@@ -443,7 +453,7 @@ class StepFailed(Exception):
 # ---- a cell: jakasim, the relay, jakagw, the PLC, the robot's side ----
 
 class Cell:
-    def __init__(self, index, rng, figures, events):
+    def __init__(self, index, rng, figures, events, sim_args=()):
         self.index = index
         self.rng = rng
         self.figures = figures
@@ -451,7 +461,7 @@ class Cell:
         self.stop_ms = rng.choice(STOP_TIMES_MS)
         self.stop_bound_s = STOP_BOUND_S + self.stop_ms / 1000
         self.sim = Sim("--log-commands", "--period-ms", str(PERIOD_MS),
-                       "--stop-time-ms", str(self.stop_ms))
+                       "--stop-time-ms", str(self.stop_ms), *sim_args)
         self.relay = Relay(self.sim.command_port)
         self.gw = Gateway(Ports(self.sim.status_port, self.relay.port), CONFIG)
         self.log = RobotLog(self.sim)
@@ -1025,7 +1035,191 @@ def test_plc_model_under_generated_faults():
     check(done == runs, "%d of %d runs" % (done, runs))
 
 
-TESTS = [test_plc_model_under_generated_faults]
+# ---- faults at a chosen moment, one cell each, side by side ----
+
+RAPID_RATE = hr("rapid_rate")
+NOT_SENT, REFUSED, ROBOT_ERROR = 8, 7, 3
+STOPPED = 3  # the motion state
+
+
+def result_of(cell, name):
+    base = ir("result_%s_state" % name)
+    return cell.plc.ir(base)[0], text(cell.plc, base + 3)
+
+
+def joint_registers(cell, target):
+    cell.written_targets.append(("joint", False, [f32(t) for t in target]))
+    return f32_registers(target + [JOINT_SPEED, 100.0]) + [0]
+
+
+def arm_travel(cell, since):
+    """The most any joint moved, in degrees, in the robot's own documents
+    from 'since' on."""
+    docs = cell.watch.snapshot(since)
+    if not docs:
+        return 0.0
+    return max(abs(a - b) for d in docs for a, b in zip(d[1], docs[0][1]))
+
+
+def case_fault_with_a_move_in_the_queue(cell):
+    """A joint_move waits in the gateway's queue behind a setpoint the
+    robot answers 600 ms late when motion enable drops: the PLC reads the
+    move's own result 8, "not sent: a safety action took its place"; the
+    robot receives no joint_move and the arm does not move; the guide's
+    reset, then the same move triggered again, arrives."""
+    plc = cell.plc
+    name = "joint_move"
+    count_at, trigger = ir("result_%s_count" % name), TRIGGERS[name]
+    target = new_joint_target(cell, False)
+    mark = cell.mark()
+    plc.scan()
+    check(plc.write_reg(RAPID_RATE, 1000) == 0, "rapid_rate refused")
+    check(plc.write_regs(JOINT_TARGET, joint_registers(cell, target)) == 0,
+          "joint_move's target refused")
+    before = plc.ir(count_at)[0]
+    cell.plc_writes[name] += 1
+    check(plc.write_coil(trigger, 1) == 0, "joint_move's trigger refused")
+    cell.fault, cell.fault_time = "motion_enable", time.monotonic()
+    check(plc.write_coil(MOTION_ENABLE, 0) == 0, "motion enable 0 refused")
+    state = plc.wait_for(lambda: plc.ir(ir("result_%s_state" % name))[0],
+                         lambda v: v != PENDING, 3, "joint_move's result")
+    plc.write_coil(trigger, 0)
+    _, why = result_of(cell, name)
+    count = plc.ir(count_at)[0]
+    plc.wait(lambda: cell.log.since(mark, "rapid_rate"), 3, "the slow setpoint answered")
+    travel = arm_travel(cell, cell.fault_time)
+    received = [n for n, _ in cell.log.entries[mark:]]
+    report = ("move in the queue at a fault: result %d '%s', count +%d; the robot received %s; "
+              "the arm moved %.3f deg" % (state, why, (count - before) & 0xFFFF, received, travel))
+    check(state == NOT_SENT and why == "not sent: a safety action took its place", report)
+    check((count - before) & 0xFFFF == 1, report)
+    check("joint_move" not in received and "stop_program" in received, report)
+    check(travel < 0.01, report)
+    recover(cell)
+    startup(cell)
+    motion_before = plc.ir(MOTION_COUNT)[0]
+    command(cell, name, (JOINT_TARGET, joint_registers(cell, target)))
+    move_done(cell, motion_before, target, None, "joint")
+    check_robot_side(cell)
+    return report + "; triggered again after the reset: arrived"
+
+
+def case_full_queue(cell):
+    """Setpoints the robot answers 300 ms late fill the gateway's queue: a
+    joint_move trigger then is refused busy (06), its count moved by one
+    and its own result 7 "busy: the command queue is full"; the PLC's
+    stop_program is not refused, reads done, and reaches the robot ahead
+    of the queued setpoints; no joint_move reaches the robot."""
+    plc = cell.plc
+    mark = cell.mark()
+    codes = []
+    for i in range(CMD_QUEUE_FILL):
+        plc.scan()
+        codes.append(plc.write_reg(RAPID_RATE, 300 + i))
+        if codes[-1]:
+            break
+    check(codes[-1] == 6, "the queue never filled: %d setpoints accepted" % len(codes))
+    target = new_joint_target(cell, False)
+    try:
+        command(cell, "joint_move", (JOINT_TARGET, joint_registers(cell, target)))
+        raise Violation("joint_move accepted with the queue full")
+    except StepFailed as e:
+        check("refused with 06" in str(e), "joint_move with the queue full: %s" % e)
+    move_state, move_why = result_of(cell, "joint_move")
+    check(move_state == REFUSED and move_why == "busy: the command queue is full",
+          "joint_move's own result %d '%s'" % (move_state, move_why))
+    command(cell, "stop_program")
+    received = [n for n, _ in cell.log.entries[mark:]]
+    ahead = received.index("stop_program")
+    report = ("full queue: %d setpoints accepted, then 06; joint_move 06, result %d '%s'; "
+              "stop_program done, at the robot behind %d setpoints"
+              % (len(codes) - 1, move_state, move_why, ahead))
+    check(ahead <= 2, report)
+    check("joint_move" not in received, report)
+    check_robot_side(cell)
+    return report
+
+
+def case_refused_stop(cell):
+    """The robot refuses the PLC's first stop_program (jakasim
+    --fail-command stop_program --fail-times 1) while a joint_move runs:
+    the stop's result reads 3, the motion state stays 1 while the arm goes
+    on; the guide's second stop is accepted, and the motion state reads 3
+    once the arm stands still, within the cell's stopping time."""
+    plc = cell.plc
+    target = [h + (50.0 if i == 0 else 0.0) for i, h in enumerate(HOME)]
+    motion_before = plc.ir(MOTION_COUNT)[0]
+    command(cell, "joint_move", (JOINT_TARGET, joint_registers(cell, target)))
+    plc.wait(lambda: abs(cell.watch.joints()[0] - HOME[0]) > 3, 3, "the move under way")
+    try:
+        command(cell, "stop_program")
+        raise Violation("the first stop_program read done: jakasim refuses it")
+    except StepFailed as e:
+        check("state %d" % ROBOT_ERROR in str(e), "the refused stop: %s" % e)
+    at_refusal = cell.watch.joints()[0]
+    plc.wait(lambda: abs(cell.watch.joints()[0] - at_refusal) > 2, 2,
+             "the arm going on after the refused stop")
+    state_after_refusal = plc.ir(MOTION_STATE)[0]
+    check(state_after_refusal == MOVING, "motion state %d after a refused stop, the arm moving"
+          % state_after_refusal)
+    stop_at = time.monotonic()
+    command(cell, "stop_program")
+    state = plc.wait_for(lambda: plc.ir(MOTION_STATE)[0], lambda v: v != MOVING,
+                         cell.stop_bound_s + 1, "the motion state to leave 1")
+    stopped = cell.watch.stopped_since(stop_at, time.monotonic() + 0.1)
+    joint = cell.watch.joints()[0]
+    report = ("refused stop at joint 1 %.1f deg: motion state 1 while the arm went on; the "
+              "second stop done, motion state %d with joint 1 at %.1f of %.0f deg, the arm "
+              "still %.0f ms after it (braking %d ms)"
+              % (at_refusal, state, joint, target[0],
+                 1000 * ((stopped or time.monotonic()) - stop_at), cell.stop_ms))
+    check(state == STOPPED and (plc.ir(MOTION_COUNT)[0] - motion_before) & 0xFFFF == 1, report)
+    check(abs(joint - target[0]) > 1, report)
+    check(stopped is not None and stopped - stop_at <= cell.stop_bound_s, report)
+    check_robot_side(cell)
+    return report
+
+
+# More setpoints than the gateway's queue holds (CMD_QUEUE_CAPACITY 64).
+CMD_QUEUE_FILL = 80
+CASES = ((case_fault_with_a_move_in_the_queue, ("--reply-delay", "rapid_rate:600")),
+         (case_full_queue, ("--reply-delay", "rapid_rate:300")),
+         (case_refused_stop, ("--fail-command", "stop_program", "--fail-times", "1")))
+
+
+def test_plc_model_faults_at_chosen_moments():
+    """The three cases side by side, a cell each: a fault while a move
+    waits in the gateway's queue, a full queue, a stop the robot refuses,
+    each as the guide's recipes meet it."""
+    seed = int(os.environ.get("PLC_MODEL_SEED", str(random.randrange(1 << 30))))
+    reports, errors = {}, []
+
+    def run_case(index, case, sim_args):
+        cell = None
+        try:
+            cell = Cell(index, random.Random(seed * 100 + index), collections.defaultdict(list),
+                        collections.Counter(), sim_args)
+            cell.plc = Plc(cell)
+            startup(cell)
+            reports[case.__name__] = case(cell)
+        except Exception as e:  # reported below
+            trace = " / ".join(cell.trace[-6:]) if cell else ""
+            errors.append("%s: %s: %s %s" % (case.__name__, type(e).__name__, e, trace))
+        finally:
+            if cell:
+                cell.close()
+    threads = [threading.Thread(target=run_case, args=(i, case, args))
+               for i, (case, args) in enumerate(CASES)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for name, report in sorted(reports.items()):
+        print("  %s" % report, flush=True)
+    check(not errors, "seed %d:\n  %s" % (seed, "\n  ".join(errors)))
+
+
+TESTS = [test_plc_model_faults_at_chosen_moments, test_plc_model_under_generated_faults]
 
 if __name__ == "__main__":
     run(TESTS)

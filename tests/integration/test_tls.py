@@ -24,7 +24,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(__file__))
 from harness import (Gateway, ModbusPlc, Sim, TestFailure, check, free_port, log_lines,  # noqa: E402
-                     mbap, open_fds, port_open, raw_client, read_input_registers, recv_adu,
+                     map_rows, mbap, open_fds, port_open, raw_client, read_input_registers, recv_adu,
                      rss_kb, run, sim_commands, sim_events, wait_until)
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
@@ -210,6 +210,59 @@ def test_roles_decide_writes():
         check(m.plain().pulse(COIL_CABINET_DO_1 + 1) == 0, "plain writes as before")
         check(m.counter(IR_HANDSHAKES_OK) >= 4, "handshakes counted")
         op.close()
+
+
+def test_plain_client_never_acts_with_a_tls_owners_rights():
+    """owner = host, where every connection from the owner's address
+    shares its write side: a TLS client feeds the heartbeat and owns the
+    writes; a second TLS connection from the same host may write what its
+    role allows (not the heartbeat); a plain port-502 client from the same
+    host gets exception 01 for the heartbeat, a motion target, a motion
+    trigger and an output, and nothing it wrote reaches the robot (the TLS
+    connection's next command is the robot's next one)."""
+    rate = [int(r["address"]) for r in map_rows()
+            if r["table"] == "holding_register" and r["name"] == "rapid_rate"][0]
+    owner_ir = [int(r["address"]) for r in map_rows()
+                if r["table"] == "input_register" and r["name"] == "write_owner"][0]
+
+    def host_owner(config):
+        return config.replace("single_owner = false",
+                              "single_owner = true\nowner = host\ntime_limit_ms = 10000")
+    with Mbaps("[commands]\nmotion = true\n", edit=host_owner) as m:
+        wait_until(lambda: m.plain().ir(IR_ROBOT_HANDLE)[0] == 2, 10 * SLOW, "the robot's handler")
+        owner = TlsPlc(m.tls_port, "operator")
+        check(owner.reg(HR_HEARTBEAT, 1) == 0, "the TLS owner's heartbeat refused")
+        check(owner.text(owner_ir, 24).startswith("127.0.0.1:"), "write_owner reads %r"
+              % owner.text(owner_ir, 24))
+        other = TlsPlc(m.tls_port, "operator")
+        check(other.reg(HR_HEARTBEAT, 2) == 1, "a second TLS connection fed the heartbeat")
+        check(other.reg(rate, 501) == 0, "the owner's host over TLS: its setpoint refused")
+        wait_until(lambda: sim_commands(m.sim, "rapid_rate"), 5 * SLOW, "rapid_rate at the robot")
+        before = len(sim_commands(m.sim))
+        plain = m.plain()
+        # Joints 10, 90, 90, 0, 90, 0 at 20 deg/s, acceleration 100, absolute.
+        target = list(struct.unpack(">16H", struct.pack(">8f", 10, 90, 90, 0, 90, 0, 20, 100))) + [0]
+        refused = {"heartbeat (HR 0)": plain.reg(HR_HEARTBEAT, 3),
+                   "joint_move's target (HR 300)": plain.regs(300, target),
+                   "joint_move (coil 112)": plain.coil(COIL_JOINT_MOVE, 1),
+                   "an output (coil 200)": plain.coil(COIL_CABINET_DO_1, 1),
+                   "the rapid rate": plain.reg(rate, 502)}
+        # The TLS connection's next command: the queue is in order, so
+        # anything the plain writes had sent would reach the robot first.
+        check(other.reg(rate, 503) == 0, "the TLS connection's setpoint refused")
+        wait_until(lambda: [c for c in sim_commands(m.sim, "rapid_rate")
+                            if round(1000 * c.get("rate_value", 0)) == 503], 5 * SLOW,
+                   "the TLS connection's rapid_rate at the robot")
+        after = [c.get("cmdName") for c in sim_commands(m.sim)[before:]]
+        print("  plain client on the TLS owner's host: %s; the robot then received %s"
+              % (", ".join("%s %02X" % (w, ex) for w, ex in refused.items()), after))
+        for what, ex in refused.items():
+            check(ex == 1, "the plain client wrote %s: exception %02X, not 01" % (what, ex))
+        check(after == ["rapid_rate"], "the robot received %s" % after)
+        check(plain.hr(HR_HEARTBEAT) == [1], "the heartbeat reads %s" % plain.hr(HR_HEARTBEAT))
+        check(log_lines(m.gw, "not the write owner"), "no log line names the refusal")
+        for c in (owner, other, plain):
+            c.close()
 
 
 def no_modbus_answer(port, name, max_version=None):
@@ -869,6 +922,7 @@ def test_check_config_names_the_key():
 
 if __name__ == "__main__":
     tests = [test_security_doc_word_for_word, test_roles_decide_writes,
+             test_plain_client_never_acts_with_a_tls_owners_rights,
              test_refused_handshakes_answer_nothing, test_old_versions_and_plaintext_refused,
              test_renegotiation_refused, test_gateway_closes_end_with_close_notify,
              test_session_lines_rate_limited, test_handshake_flood_does_not_starve_pollers,
