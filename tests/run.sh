@@ -54,7 +54,8 @@ alerts_beside=""
 # the others is stopped with the run.
 beside_labels=() beside_pids=() beside_logs=() beside_starts=()
 lane_pids=()
-trap 'for p in "${beside_pids[@]}" "${lane_pids[@]}"; do kill "$p" 2>/dev/null; done
+package_pid=""
+trap 'for p in "${beside_pids[@]}" "${lane_pids[@]}" $package_pid; do kill "$p" 2>/dev/null; done
       rm -f "$log" "${beside_logs[@]}"' EXIT
 
 # Each suite's wall time, from the end of the one before it (or from the
@@ -200,6 +201,36 @@ run_build() { # build
     done
 }
 
+# The package test (make deb, lintian, apt into a fresh root) and then the
+# service VM's image (the previous release's package, mmdebstrap, from the
+# package just built) build and install rather than wait: in a whole native
+# run they start now, beside the lanes, at nice 10; the VMs boot after the
+# lanes, the service VM from that image (its own build of the image finds
+# it made; when this one failed, that one says why). Their output follows
+# the CAN and netem VMs'.
+package_pid=""
+if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
+    package_log=$(mktemp) package_state=$(mktemp) package_start=$SECONDS
+    ( build=${BUILDS%% *}
+      case $build in /*) ;; *) build=$PWD/$build ;; esac
+      mark=$(mktemp) t0=$SECONDS
+      nice -n 10 "$PYTHON" tests/package/test_package.py "$build" >"$package_log" 2>&1
+      echo $? >"$package_state"
+      echo $((SECONDS - t0)) >"$package_state.took"
+      deb=$(ls -t "$build"/deb/jakagw_*.deb 2>/dev/null | head -n 1)
+      if [ -n "$deb" ] && [ "$deb" -nt "$mark" ]; then
+          echo "$deb" >>"$package_state"
+          t0=$SECONDS
+          nice -n 10 "$PYTHON" scripts/make-service-image.py "$build/service-vm" "$deb" \
+              >/dev/null 2>"$package_log.image" ||
+              echo "made no image: the service VM test makes it again and says why" >>"$package_log.image"
+          echo "$((SECONDS - t0)) s beside the lanes" >>"$package_log.image"
+      fi
+      rm -f "$mark" ) &
+    package_pid=$!
+    echo "== tests/package/test_package.py and the service VM's image started beside the lanes; the output follows the VMs'"
+fi
+
 # The builds' lanes side by side: most suites wait on timers, links and
 # their processes far more than they compute, so the sanitizer build's
 # lane runs beside the first build's, whose output streams as it comes;
@@ -291,27 +322,41 @@ if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; t
         "$PYTHON" tests/integration/test_alerts.py
     [ -n "$plc_beside" ] && JAKAGW_BIN_DIR="$plc_beside" \
         start_beside "tests/plc/test_plc.py($plc_beside)" "$PYTHON" tests/plc/test_plc.py
-    echo "== tests/package/test_package.py ($build)"
-    package_mark=$(mktemp)
-    "$PYTHON" tests/package/test_package.py "$build" 2>&1 | tee "$log"
-    status=${PIPESTATUS[0]}
-    record_summary "tests/package/test_package.py" "$status" "$log"
+    deb=""
+    if [ -n "$package_pid" ]; then
+        wait "$package_pid"
+        package_pid=""
+        echo "== tests/package/test_package.py ($build, beside the lanes)"
+        cat "$package_log"
+        sed 's/^/  service image: /' "$package_log.image" 2>/dev/null
+        status="" deb=""
+        { read -r status; read -r deb; } <"$package_state"
+        took=$(cat "$package_state.took" 2>/dev/null)
+        record_summary "tests/package/test_package.py(beside the lanes)" "${status:-1}" "$package_log" \
+            "$((SECONDS - ${took:-$((SECONDS - package_start))}))"
+        rm -f "$package_log" "$package_log.image" "$package_state" "$package_state.took"
+    else
+        echo "== tests/package/test_package.py ($build)"
+        package_mark=$(mktemp)
+        "$PYTHON" tests/package/test_package.py "$build" 2>&1 | tee "$log"
+        status=${PIPESTATUS[0]}
+        record_summary "tests/package/test_package.py" "$status" "$log"
+        deb=$(ls -t "$build"/deb/jakagw_*.deb 2>/dev/null | head -n 1)
+        [ -n "$deb" ] && [ "$deb" -nt "$package_mark" ] || deb=""
+        rm -f "$package_mark"
+    fi
 
     # The installed package under systemd in a VM (also make test-service):
     # once, with the first native build, on the package the package test
     # has just built (when it did; the VM test runs make deb otherwise).
     if [ -z "${JAKAGW_ARCH:-}" ]; then
         echo "== tests/service/test_service_vm.py ($build)"
-        deb=$(ls -t "$build"/deb/jakagw_*.deb 2>/dev/null | head -n 1)
-        if [ -n "$deb" ] && [ "$deb" -nt "$package_mark" ]; then
-            export JAKAGW_SERVICE_DEB=$deb
-        fi
+        [ -n "$deb" ] && export JAKAGW_SERVICE_DEB=$deb
         "$PYTHON" tests/service/test_service_vm.py "$build" 2>&1 | tee "$log"
         status=${PIPESTATUS[0]}
         unset JAKAGW_SERVICE_DEB
         record_summary "tests/service/test_service_vm.py" "$status" "$log"
     fi
-    rm -f "$package_mark"
     finish_beside
 fi
 
