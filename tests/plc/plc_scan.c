@@ -1640,13 +1640,74 @@ static void vendor_hmi(int port)
         "within %.0f ms (2 rounds)", worst_out, worst_rate);
 }
 
+/* ---- a PLC restarted mid-handshake ---- */
+
+static void set_program_name(const char *name)
+{
+    size_t n = strlen(name);
+    memcpy(P.PROG.PROGRAMNAME.value.body, name, n);
+    P.PROG.PROGRAMNAME.value.len = n;
+}
+
+/* The cell's JAKA_Program loads "prog_A": its client writes the trigger,
+ * and the PLC restarts before it has read the result (the trigger stays
+ * 1 at the gateway): its connections closed, every variable at its
+ * initial value, the client taking what it wrote as 0 (vendor_client.c).
+ * Once JAKA_Link is Valid the new program loads "prog_B": the gateway
+ * refuses it (trigger still 1) and the block ends Error 16#0202, never
+ * Done (the robot has prog_A); it writes the trigger 0, and the retry
+ * loads prog_B. What the robot received is checked by the driver. */
+static void vendor_plc_restart(void)
+{
+    int trigger = K(JAKA_CO_CMD_LOAD_PROGRAM);
+
+    bind_image(P.COILS.value.table, P.INPUTS.value.table, P.INREGS.value.table, P.HOLDREGS.value.table);
+    start_up();
+    set_program_name("prog_A");
+    P.PROG.COMMAND.value = 1;
+    P.PROG.EXECUTE.value = 1;
+    SCAN_UNTIL(vc_coil_written(trigger) == 1, 3000, "prog_A's load: the trigger written");
+    if (failed)
+        return;
+    vc_close();
+    config_init__();
+    bind_image(P.COILS.value.table, P.INPUTS.value.table, P.INREGS.value.table, P.HOLDREGS.value.table);
+    double valid = SCAN_UNTIL(P.LINK.VALID.value, 20000, "JAKA_Link Valid after the PLC's restart");
+    set_program_name("prog_B");
+    P.PROG.COMMAND.value = 1;
+    P.PROG.EXECUTE.value = 1;
+    long long t0 = clock_us();
+    while (!failed && !P.PROG.ERROR.value) {
+        if (P.PROG.DONE.value) {
+            fail("prog_B's load with the trigger left at 1: Done %.0f ms after Execute (the "
+                 "gateway refuses it: trigger still 1)", (clock_us() - t0) / 1000.0);
+            break;
+        }
+        if (clock_us() - t0 > 8000000) {
+            fail("prog_B's load with the trigger left at 1: neither Done nor Error within 8 s");
+            break;
+        }
+        scan();
+    }
+    double refused = (clock_us() - t0) / 1000.0;
+    if (!failed && P.PROG.ERRORID.value != 0x0202)
+        fail("prog_B's load with the trigger left at 1: ErrorID 0x%04X, expected 0x0202 (trigger "
+             "still 1)", P.PROG.ERRORID.value);
+    P.PROG.EXECUTE.value = 0;
+    scan();
+    double again = RUN_BLOCK(PROG, 8000, "prog_B's load again");
+    fig(", the PLC restarted with prog_A's trigger at 1; Valid %.0f ms later; prog_B's load Error "
+        "16#0202 after %.0f ms, its retry Done in %.0f ms", valid, refused, again);
+}
+
 /*
  * plc_scan vendor REQUESTS PORT SIM_PID PERIOD_MS WHAT SECONDS [GO_FILE]
  * WHAT: "cell" (the example's sequence, then 3 pick-and-place cycles),
  * "link" (JAKA_Link Valid all the time for SECONDS), "restart" (a cycle,
  * "PAUSED" on stdout, wait for GO_FILE (the gateway restarted meanwhile),
  * then 3 cycles more without a PLC restart), "hmi" (the cell's output and
- * override, changed by an HMI between the PLC's requests: vendor_hmi).
+ * override, changed by an HMI between the PLC's requests: vendor_hmi),
+ * "plc_restart" (the PLC restarted mid-handshake: vendor_plc_restart).
  */
 static int run_vendor(char **argv, int argc)
 {
@@ -1661,6 +1722,8 @@ static int run_vendor(char **argv, int argc)
     long long t0 = now_us();
     if (strcmp(what, "hmi") == 0) {
         vendor_hmi(atoi(argv[3]));
+    } else if (strcmp(what, "plc_restart") == 0) {
+        vendor_plc_restart();
     } else if (strcmp(what, "link") == 0) {
         bind_image(PP.COILS.value.table, PP.INPUTS.value.table, PP.INREGS.value.table,
                    PP.HOLDREGS.value.table);
@@ -1741,6 +1804,6 @@ int main(int argc, char **argv)
         return run_case(argv[2], argv[3], argc > 4 ? argv[4] : NULL,
                         argc > 5 && strcmp(argv[5], "split") == 0);
     fprintf(stderr, "usage: plc_scan unit | plc_scan case NAME PORT [SIM_PID [split]] | "
-                    "plc_scan vendor REQUESTS PORT SIM_PID PERIOD_MS cell|link|restart|hmi SECONDS [GO_FILE]\n");
+                    "plc_scan vendor REQUESTS PORT SIM_PID PERIOD_MS cell|link|restart|hmi|plc_restart SECONDS [GO_FILE]\n");
     return 2;
 }

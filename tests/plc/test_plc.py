@@ -284,15 +284,24 @@ RESTART_CASE = ("twincat", 10, "restart", 60)
 # write (owner = host).
 HMI_CASES = [(vendor, 10, "hmi", 30) for vendor in ("siemens", "twincat", "rockwell")]
 HMI_CONFIG = GATEWAY_CONFIG + "owner = host\n"
+# The PLC restarted mid-handshake (plc_scan.c, vendor_plc_restart): its
+# load of prog_A written, then the restarted program's load of prog_B is
+# refused (16#0202) and its retry runs. Siemens' client writes a coil
+# when it changed: the restarted PLC's 1 meets the 1 left at the gateway
+# (a client writing its coils every cycle writes the 0 first).
+PLC_RESTART_CASE = ("siemens", 10, "plc_restart", 30)
 # What the cell asks of the robot: set_digital_output per gripper change
 # at most twice; each move once.
-GRIPPER_CHANGES = {"cell": 1 + 2 * 3, "restart": 2 * 4, "link": 0, "hmi": 2 * 3}
+GRIPPER_CHANGES = {"cell": 1 + 2 * 3, "restart": 2 * 4, "link": 0, "hmi": 2 * 3, "plc_restart": 0}
 # The robot commands each case asks for, exactly. "hmi", per round: the
 # PLC's output, the HMI's, the PLC's again (its other level first, which
 # the robot reports already: nothing sent); the PLC's override, the HMI's,
 # one per mille off, the PLC's again.
 COMMANDS = {"cell": {"joint_move": 1 + 2 * 3, "moveL": 3}, "restart": {"joint_move": 2 * 4, "moveL": 4},
-            "link": {}, "hmi": {"set_digital_output": 2 * 3, "rapid_rate": 2 * 4}}
+            "link": {}, "hmi": {"set_digital_output": 2 * 3, "rapid_rate": 2 * 4},
+            "plc_restart": {"load_program": 2}}
+# The programs loaded, in order, where a case names them.
+PROGRAMS = {"plc_restart": ["prog_A", "prog_B"]}
 
 gateway_lock = threading.Lock()
 
@@ -354,9 +363,14 @@ def vendor_case(exe, vendor, lines, period, what, seconds, out):
                 got = sum(1 for c in sent if c.get("cmdName") == command)
                 if got != n:
                     bad.append("%d %s at the robot, the cell asked %d" % (got, command, n))
+            loaded = [c.get("programName") for c in sent if c.get("cmdName") == "load_program"]
+            if what in PROGRAMS and loaded != PROGRAMS[what]:
+                bad.append("the robot loaded %s, the cell asked %s" % (loaded, PROGRAMS[what]))
             if bad:
                 ok = False
                 text += "; " + ", ".join(bad)
+            elif what in PROGRAMS:
+                text += "; the robot loaded %s" % ", ".join(loaded)
             else:
                 text += "; the robot received %d set_digital_output for %d changes" % (
                     outputs, GRIPPER_CHANGES[what])
@@ -385,7 +399,7 @@ def vendor_cases(exe, only):
         for period in PERIODS_MS:
             runs.append((vendor, lines, period, "cell", CELL_SECONDS))
     build = dict(VENDORS)
-    for vendor, period, what, seconds in [LINK_CASE, RESTART_CASE] + HMI_CASES:
+    for vendor, period, what, seconds in [LINK_CASE, RESTART_CASE, PLC_RESTART_CASE] + HMI_CASES:
         runs.append((vendor, build[vendor](), period, what, seconds))
     if only and "vendor" not in only:
         runs = [r for r in runs if "vendor_" + r[3] in only]
