@@ -12,14 +12,17 @@
 #include "gw_tls.h"
 #include "log.h"
 #include "regmap.h"
+#include "unit_exec.h"
 
 #include <errno.h>
+#include <fcntl.h>
 #include <getopt.h>
 #include <signal.h>
 #include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <systemd/sd-daemon.h>
 #include <uv.h>
@@ -59,6 +62,10 @@ static void usage(FILE *out)
             "      --check-start        with the flags the service runs with: exit 0 if\n"
             "                           it would start, 1 if no robot is named, 255 if\n"
             "                           it cannot start (the reason on stderr)\n"
+            "      --start-condition UNIT  then COMMAND...: the units' start condition,\n"
+            "                           --check-start with the command line systemd runs\n"
+            "                           UNIT with (COMMAND if systemd does not say): exit\n"
+            "                           1 if no robot is named, else 0\n"
             "      --print-map FORMAT   print the register map as csv, md or st, exit\n"
             "      --print-config-keys  print every configuration key, its default and\n"
             "                           whether a reload (SIGHUP) applies it, exit\n"
@@ -459,6 +466,101 @@ static int check_start(const struct gw_config *cfg, bool file_read)
     return 0;
 }
 
+/* Whether 'path' is this very program (the same file, by any name). */
+static bool is_this_program(const char *path)
+{
+    struct stat a, b;
+    return stat(path, &a) == 0 && stat("/proc/self/exe", &b) == 0 && a.st_dev == b.st_dev &&
+           a.st_ino == b.st_ino;
+}
+
+/* The check of --check-start on 'argv' in this process, its output
+ * discarded: 0 it would start, 1 no robot named, 255 it cannot start. */
+static int check_quietly(int argc, char **argv, struct gw_config *cfg, bool *file_read)
+{
+    bool check_only = false, print_dbc_only = false, print_keys = false;
+    const char *print_format = NULL;
+    int out = dup(STDOUT_FILENO), err = dup(STDERR_FILENO);
+    int null = open("/dev/null", O_WRONLY | O_CLOEXEC);
+    int rc;
+
+    if (out < 0 || err < 0 || null < 0 || dup2(null, STDOUT_FILENO) < 0 ||
+        dup2(null, STDERR_FILENO) < 0) {
+        rc = 0; /* nothing checked: the start goes on, ExecStart= decides */
+    } else {
+        rc = parse_flags(argc, argv, cfg, &check_only, &print_format, file_read,
+                         &print_dbc_only, &print_keys)
+                 ? EXIT_CHECK_CANNOT_START
+                 : cfg->robot_named ? 0 : EXIT_CHECK_NO_ROBOT;
+        fflush(stdout);
+        fflush(stderr);
+    }
+    if (out >= 0) {
+        dup2(out, STDOUT_FILENO);
+        close(out);
+    }
+    if (err >= 0) {
+        dup2(err, STDERR_FILENO);
+        close(err);
+    }
+    if (null >= 0)
+        close(null);
+    return rc;
+}
+
+/*
+ * --start-condition UNIT COMMAND...: the units' ExecCondition= (through
+ * jakagw-condition, as root). The command line checked is the one systemd
+ * runs UNIT with (unit_exec.h: the first ExecStart=, drop-ins included,
+ * word for word), or COMMAND (the package's own ExecStart=) when systemd
+ * does not say; with the gateway's own parser, in this process. The
+ * answer, as ExecCondition= reads it: 1 (a skip, the reason on stderr,
+ * which the journal keeps) when no robot is named; else 0, also where the
+ * service cannot start (a bad value, a missing file, a bad flag):
+ * ExecStart= then fails with the same reason and exit status 2, which the
+ * units never restart, and the unit shows in 'systemctl --failed' (a
+ * condition's own failure would be restarted every RestartSec= by
+ * Restart=always, never 'failed'). A unit that runs another program is
+ * not checked: it starts as configured.
+ */
+static int start_condition(int argc, char **argv)
+{
+    const char *unit = argc > 2 ? argv[2] : "";
+    char **words = NULL, **command = argv + 3, why[300];
+    int count = argc > 3 ? argc - 3 : 0, rc = 0;
+
+    if (unit_exec_start(unit, &words, why, sizeof(why)) == 0) {
+        command = words;
+        for (count = 0; words[count]; count++)
+            ;
+    } else {
+        log_plain("jakagw-condition: systemd did not say how %s runs (%s): checked with the "
+                  "package's command line", unit, why);
+    }
+    if (count == 0 || !is_this_program(command[0])) {
+        log_plain("jakagw-condition: %s runs '%s', not this jakagw: the check cannot apply its "
+                  "flags; it starts as configured", unit, count ? command[0] : "");
+    } else {
+        char **check = calloc((size_t)count + 2, sizeof(*check));
+        struct gw_config cfg;
+        bool file_read = false;
+        if (!check) {
+            log_plain("jakagw-condition: out of memory: the start goes on unchecked");
+        } else {
+            memcpy(check, command, (size_t)count * sizeof(*check));
+            check[count] = "--check-start";
+            rc = check_quietly(count + 1, check, &cfg, &file_read);
+            if (rc == EXIT_CHECK_NO_ROBOT)
+                check_start(&cfg, file_read); /* says why, on stderr */
+            else
+                rc = 0;
+            free(check);
+        }
+    }
+    unit_exec_free(words);
+    return rc;
+}
+
 int main(int argc, char **argv)
 {
     struct service svc;
@@ -471,6 +573,8 @@ int main(int argc, char **argv)
     bool print_keys = false;
     char status[160];
 
+    if (argc >= 2 && strcmp(argv[1], "--start-condition") == 0)
+        return start_condition(argc, argv);
     if (parse_flags(argc, argv, &cfg, &check_only, &print_format, &file_read,
                     &print_dbc_only, &print_keys)) {
         if (wants_check_start(argc, argv)) {

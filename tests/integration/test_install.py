@@ -81,6 +81,45 @@ def test_units_restart_forever_and_reload():
             check(line in text.splitlines(), "%s lacks %s" % (unit, line))
 
 
+def test_start_condition_without_systemd():
+    """The units' start condition (jakagw-condition, as make install fills
+    it) where systemd does not answer for the unit (none runs here, and the
+    unit does not exist): checked with the package's command line, by the
+    gateway's parser; 1 (a skip, the reason on stderr) only when no robot
+    is named, 0 otherwise, a bad value included (ExecStart= fails it); a
+    command line of another program is not checked."""
+    with tempfile.TemporaryDirectory() as d:
+        filled_units(d, os.path.abspath(BIN))
+        jakagw = os.path.join(os.path.abspath(BIN), "jakagw")
+        files = {"none": "[robot]\n;host = 192.0.2.10\n", "named": "[robot]\nhost = 127.0.0.1\n",
+                 "bad": "[robot]\nhost = 127.0.0.1\n[modbus]\nport = 99999\n"}
+        for name, text in files.items():
+            with open(os.path.join(d, name + ".conf"), "w") as f:
+                f.write(text)
+        unit = "jakagw-no-such-unit.service"
+        cases = [
+            ([jakagw, "-c", os.path.join(d, "none.conf")], 1, "names no robot"),
+            ([jakagw, "-c", os.path.join(d, "none.conf"), "--robot-host", "127.0.0.1"], 0, None),
+            ([jakagw, "-c", os.path.join(d, "named.conf")], 0, None),
+            ([jakagw, "-c", os.path.join(d, "bad.conf")], 0, None),
+            ([jakagw, "-c", os.path.join(d, "none.conf"), "--no-such-flag"], 0, None),
+            (["/bin/true", "-c", os.path.join(d, "none.conf")], 0, "not this jakagw"),
+        ]
+        for command, want, said in cases:
+            r = subprocess.run([os.path.join(d, "jakagw-condition"), unit] + command,
+                               capture_output=True, text=True, timeout=30)
+            check(r.returncode == want, "%s: exit %d, expected %d: %s"
+                  % (command[1:], r.returncode, want, r.stderr))
+            check("systemd did not say how %s runs" % unit in r.stderr,
+                  "%s: no line says the package's command line was checked: %s" % (command, r.stderr))
+            check(not r.stdout, "%s: printed %r" % (command, r.stdout))
+            lines = [l for l in r.stderr.splitlines() if "did not say" not in l]
+            if said:
+                check(any(said in l for l in lines), "%s: %r not said: %s" % (command, said, r.stderr))
+            else:
+                check(not lines, "%s: said %s (ExecStart= says it)" % (command, lines))
+
+
 def sanitizer_pass():
     """make install builds what it installs: in the sanitizer build's pass it
     would rebuild stale objects without the sanitizers, so it runs in the
@@ -183,5 +222,5 @@ def test_man_pages_render_without_warnings():
 
 if __name__ == "__main__":
     run([test_units_verify, test_units_exposure, test_units_restart_forever_and_reload,
-         test_make_install_usr, test_make_install_local_keeps_the_configuration,
+         test_start_condition_without_systemd, test_make_install_usr, test_make_install_local_keeps_the_configuration,
          test_man_pages_are_current, test_man_pages_render_without_warnings])

@@ -1530,12 +1530,184 @@ static void vendor_reset(void)
     scan();
 }
 
+/* ---- an HMI beside the PLC ---- */
+
+/* An operator panel on the PLC's host: a Modbus client of its own (its own
+ * connection), writing between the PLC's scans, as a panel writes whenever
+ * its operator touches it. The gateway runs with owner = host for it. */
+static modbus_t *hmi;
+
+static bool hmi_connect(int port)
+{
+    hmi = modbus_new_tcp("127.0.0.1", port);
+    if (!hmi)
+        return false;
+    modbus_set_response_timeout(hmi, 1, 0);
+    if (modbus_connect(hmi) != 0) {
+        modbus_free(hmi);
+        hmi = NULL;
+        return false;
+    }
+    return true;
+}
+
+static void hmi_close(void)
+{
+    if (!hmi)
+        return;
+    modbus_close(hmi);
+    modbus_free(hmi);
+    hmi = NULL;
+}
+
+/* The HMI writes output 'index' (1-16); the PLC scans until its image
+ * shows the robot reporting it. */
+static void hmi_sets_output(int index, int value)
+{
+    if (failed)
+        return;
+    if (modbus_write_bit(hmi, K(JAKA_CO_CABINET_DO_1) + index - 1, value) != 1) {
+        fail("the HMI's write of output %d: %s", index, modbus_strerror(errno));
+        return;
+    }
+    SCAN_UNTIL(DI(K(JAKA_DI_DOUT_1) + index - 1) == value, 5000, "the HMI's output level at the robot");
+}
+
+static void hmi_sets_override(int permille)
+{
+    if (failed)
+        return;
+    if (modbus_write_register(hmi, K(JAKA_HR_RAPID_RATE), permille) != 1) {
+        fail("the HMI's write of the override: %s", modbus_strerror(errno));
+        return;
+    }
+    SCAN_UNTIL(IR(K(JAKA_IR_RAPIDRATE_PERMILLE)) == permille, 5000, "the HMI's override at the robot");
+}
+
+/* What the HMI reads back on its own connection: not the PLC's image. */
+static int hmi_reads_output(int index)
+{
+    uint8_t bit = 2;
+    if (modbus_read_input_bits(hmi, K(JAKA_DI_DOUT_1) + index - 1, 1, &bit) != 1)
+        return -1;
+    return bit;
+}
+
+static int hmi_reads_override(void)
+{
+    uint16_t v;
+    if (modbus_read_input_registers(hmi, K(JAKA_IR_RAPIDRATE_PERMILLE), 1, &v) != 1)
+        return -1;
+    return v;
+}
+
+/* The PLC sets output 1 and the override; the HMI changes both; the PLC
+ * asks again for the value its image already holds: written, Done, and
+ * the robot has it. Two rounds, output 1 then 0, override 50 % then 30 %. */
+static void vendor_hmi(int port)
+{
+    static const struct {
+        int level, permille;
+    } rounds[] = {{1, 500}, {0, 300}};
+    double worst_out = 0, worst_rate = 0;
+
+    bind_image(P.COILS.value.table, P.INPUTS.value.table, P.INREGS.value.table, P.HOLDREGS.value.table);
+    if (!hmi_connect(port)) {
+        fail("the HMI cannot connect: %s", modbus_strerror(errno));
+        return;
+    }
+    start_up();
+    for (size_t i = 0; i < sizeof(rounds) / sizeof(rounds[0]) && !failed; i++) {
+        int level = rounds[i].level, permille = rounds[i].permille;
+        P.DIGOUT.INDEX.value = 1;
+        P.DIGOUT.VALUE.value = level;
+        RUN_BLOCK(DIGOUT, 8000, "the PLC's output 1");
+        hmi_sets_output(1, !level);
+        double t = RUN_BLOCK(DIGOUT, 8000, "the PLC's output 1 again, after the HMI's change");
+        if (!failed && hmi_reads_output(1) != level)
+            fail("output 1 Done for %d, the robot reports %d", level, hmi_reads_output(1));
+        worst_out = t > worst_out ? t : worst_out;
+        P.OVERRIDE.FACTOR.value = permille / 1000.0f;
+        RUN_BLOCK(OVERRIDE, 8000, "the PLC's override");
+        hmi_sets_override(700);
+        t = RUN_BLOCK(OVERRIDE, 8000, "the PLC's override again, after the HMI's change");
+        if (!failed && hmi_reads_override() != permille)
+            fail("override Done for %d per mille, the robot reports %d", permille, hmi_reads_override());
+        worst_rate = t > worst_rate ? t : worst_rate;
+    }
+    hmi_close();
+    fig(", after each HMI change the PLC's same value Done: output within %.0f ms, override "
+        "within %.0f ms (2 rounds)", worst_out, worst_rate);
+}
+
+/* ---- a PLC restarted mid-handshake ---- */
+
+static void set_program_name(const char *name)
+{
+    size_t n = strlen(name);
+    memcpy(P.PROG.PROGRAMNAME.value.body, name, n);
+    P.PROG.PROGRAMNAME.value.len = n;
+}
+
+/* The cell's JAKA_Program loads "prog_A": its client writes the trigger,
+ * and the PLC restarts before it has read the result (the trigger stays
+ * 1 at the gateway): its connections closed, every variable at its
+ * initial value, the client taking what it wrote as 0 (vendor_client.c).
+ * Once JAKA_Link is Valid the new program loads "prog_B": the gateway
+ * refuses it (trigger still 1) and the block ends Error 16#0202, never
+ * Done (the robot has prog_A); it writes the trigger 0, and the retry
+ * loads prog_B. What the robot received is checked by the driver. */
+static void vendor_plc_restart(void)
+{
+    int trigger = K(JAKA_CO_CMD_LOAD_PROGRAM);
+
+    bind_image(P.COILS.value.table, P.INPUTS.value.table, P.INREGS.value.table, P.HOLDREGS.value.table);
+    start_up();
+    set_program_name("prog_A");
+    P.PROG.COMMAND.value = 1;
+    P.PROG.EXECUTE.value = 1;
+    SCAN_UNTIL(vc_coil_written(trigger) == 1, 3000, "prog_A's load: the trigger written");
+    if (failed)
+        return;
+    vc_close();
+    config_init__();
+    bind_image(P.COILS.value.table, P.INPUTS.value.table, P.INREGS.value.table, P.HOLDREGS.value.table);
+    double valid = SCAN_UNTIL(P.LINK.VALID.value, 20000, "JAKA_Link Valid after the PLC's restart");
+    set_program_name("prog_B");
+    P.PROG.COMMAND.value = 1;
+    P.PROG.EXECUTE.value = 1;
+    long long t0 = clock_us();
+    while (!failed && !P.PROG.ERROR.value) {
+        if (P.PROG.DONE.value) {
+            fail("prog_B's load with the trigger left at 1: Done %.0f ms after Execute (the "
+                 "gateway refuses it: trigger still 1)", (clock_us() - t0) / 1000.0);
+            break;
+        }
+        if (clock_us() - t0 > 8000000) {
+            fail("prog_B's load with the trigger left at 1: neither Done nor Error within 8 s");
+            break;
+        }
+        scan();
+    }
+    double refused = (clock_us() - t0) / 1000.0;
+    if (!failed && P.PROG.ERRORID.value != 0x0202)
+        fail("prog_B's load with the trigger left at 1: ErrorID 0x%04X, expected 0x0202 (trigger "
+             "still 1)", P.PROG.ERRORID.value);
+    P.PROG.EXECUTE.value = 0;
+    scan();
+    double again = RUN_BLOCK(PROG, 8000, "prog_B's load again");
+    fig(", the PLC restarted with prog_A's trigger at 1; Valid %.0f ms later; prog_B's load Error "
+        "16#0202 after %.0f ms, its retry Done in %.0f ms", valid, refused, again);
+}
+
 /*
  * plc_scan vendor REQUESTS PORT SIM_PID PERIOD_MS WHAT SECONDS [GO_FILE]
  * WHAT: "cell" (the example's sequence, then 3 pick-and-place cycles),
  * "link" (JAKA_Link Valid all the time for SECONDS), "restart" (a cycle,
  * "PAUSED" on stdout, wait for GO_FILE (the gateway restarted meanwhile),
- * then 3 cycles more without a PLC restart).
+ * then 3 cycles more without a PLC restart), "hmi" (the cell's output and
+ * override, changed by an HMI between the PLC's requests: vendor_hmi),
+ * "plc_restart" (the PLC restarted mid-handshake: vendor_plc_restart).
  */
 static int run_vendor(char **argv, int argc)
 {
@@ -1548,7 +1720,11 @@ static int run_vendor(char **argv, int argc)
     vendor_mode = true;
     config_init__();
     long long t0 = now_us();
-    if (strcmp(what, "link") == 0) {
+    if (strcmp(what, "hmi") == 0) {
+        vendor_hmi(atoi(argv[3]));
+    } else if (strcmp(what, "plc_restart") == 0) {
+        vendor_plc_restart();
+    } else if (strcmp(what, "link") == 0) {
         bind_image(PP.COILS.value.table, PP.INPUTS.value.table, PP.INREGS.value.table,
                    PP.HOLDREGS.value.table);
         double t = SCAN_UNTIL(PP.LINK.VALID.value, 20000, "JAKA_Link Valid");
@@ -1628,6 +1804,6 @@ int main(int argc, char **argv)
         return run_case(argv[2], argv[3], argc > 4 ? argv[4] : NULL,
                         argc > 5 && strcmp(argv[5], "split") == 0);
     fprintf(stderr, "usage: plc_scan unit | plc_scan case NAME PORT [SIM_PID [split]] | "
-                    "plc_scan vendor REQUESTS PORT SIM_PID PERIOD_MS cell|link|restart SECONDS [GO_FILE]\n");
+                    "plc_scan vendor REQUESTS PORT SIM_PID PERIOD_MS cell|link|restart|hmi|plc_restart SECONDS [GO_FILE]\n");
     return 2;
 }

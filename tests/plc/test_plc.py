@@ -277,25 +277,45 @@ CELL_SECONDS = 60
 # A one-request-at-a-time client: 13 reads of 46 ms: each range every 600 ms.
 LINK_CASE = ("siemens", 46, "link", 60)
 RESTART_CASE = ("twincat", 10, "restart", 60)
+# An HMI on the PLC's host changes an output and the override between the
+# PLC's requests (plc_scan.c, vendor_hmi), in each set-up that writes its
+# outputs on change (CODESYS's channel writes them every 10 ms: an HMI's
+# change there lasts one cycle). The gateway lets the host's connections
+# write (owner = host).
+HMI_CASES = [(vendor, 10, "hmi", 30) for vendor in ("siemens", "twincat", "rockwell")]
+HMI_CONFIG = GATEWAY_CONFIG + "owner = host\n"
+# The PLC restarted mid-handshake (plc_scan.c, vendor_plc_restart): its
+# load of prog_A written, then the restarted program's load of prog_B is
+# refused (16#0202) and its retry runs. Siemens' client writes a coil
+# when it changed: the restarted PLC's 1 meets the 1 left at the gateway
+# (a client writing its coils every cycle writes the 0 first).
+PLC_RESTART_CASE = ("siemens", 10, "plc_restart", 30)
 # What the cell asks of the robot: set_digital_output per gripper change
 # at most twice; each move once.
-GRIPPER_CHANGES = {"cell": 1 + 2 * 3, "restart": 2 * 4, "link": 0}
-MOVES = {"cell": {"joint_move": 1 + 2 * 3, "moveL": 3}, "restart": {"joint_move": 2 * 4, "moveL": 4},
-         "link": {}}
+GRIPPER_CHANGES = {"cell": 1 + 2 * 3, "restart": 2 * 4, "link": 0, "hmi": 2 * 3, "plc_restart": 0}
+# The robot commands each case asks for, exactly. "hmi", per round: the
+# PLC's output, the HMI's, the PLC's again (its other level first, which
+# the robot reports already: nothing sent); the PLC's override, the HMI's,
+# one per mille off, the PLC's again.
+COMMANDS = {"cell": {"joint_move": 1 + 2 * 3, "moveL": 3}, "restart": {"joint_move": 2 * 4, "moveL": 4},
+            "link": {}, "hmi": {"set_digital_output": 2 * 3, "rapid_rate": 2 * 4},
+            "plc_restart": {"load_program": 2}}
+# The programs loaded, in order, where a case names them.
+PROGRAMS = {"plc_restart": ["prog_A", "prog_B"]}
 
 gateway_lock = threading.Lock()
 
 
-def new_gateway(sim, port=None):
+def new_gateway(sim, port=None, config=GATEWAY_CONFIG):
     """A jakagw in front of 'sim'; on 'port' (a restart) if given."""
     import harness
     with gateway_lock:
         if port is None:
-            return Gateway(sim, GATEWAY_CONFIG)
+            return Gateway(sim, config)
         free = harness.free_port
         harness.free_port = lambda: port
         try:
-            return Gateway(sim, GATEWAY_CONFIG)
+            return Gateway(sim, config)
         finally:
             harness.free_port = free
 
@@ -307,7 +327,7 @@ def vendor_case(exe, vendor, lines, period, what, seconds, out):
     sim = Sim("--log-commands")
     gw = None
     try:
-        gw = new_gateway(sim)
+        gw = new_gateway(sim, config=HMI_CONFIG if what == "hmi" else GATEWAY_CONFIG)
         with tempfile.TemporaryDirectory(prefix="plc-vendor-") as tmp:
             requests = os.path.join(tmp, "requests")
             go = os.path.join(tmp, "go")
@@ -339,13 +359,18 @@ def vendor_case(exe, vendor, lines, period, what, seconds, out):
             bad = []
             if outputs > 2 * GRIPPER_CHANGES[what]:
                 bad.append("%d set_digital_output for %d gripper changes" % (outputs, GRIPPER_CHANGES[what]))
-            for move, n in MOVES[what].items():
-                got = sum(1 for c in sent if c.get("cmdName") == move)
+            for command, n in COMMANDS[what].items():
+                got = sum(1 for c in sent if c.get("cmdName") == command)
                 if got != n:
-                    bad.append("%d %s at the robot, the cell asked %d" % (got, move, n))
+                    bad.append("%d %s at the robot, the cell asked %d" % (got, command, n))
+            loaded = [c.get("programName") for c in sent if c.get("cmdName") == "load_program"]
+            if what in PROGRAMS and loaded != PROGRAMS[what]:
+                bad.append("the robot loaded %s, the cell asked %s" % (loaded, PROGRAMS[what]))
             if bad:
                 ok = False
                 text += "; " + ", ".join(bad)
+            elif what in PROGRAMS:
+                text += "; the robot loaded %s" % ", ".join(loaded)
             else:
                 text += "; the robot received %d set_digital_output for %d changes" % (
                     outputs, GRIPPER_CHANGES[what])
@@ -363,18 +388,21 @@ def vendor_case(exe, vendor, lines, period, what, seconds, out):
         sim.stop()
 
 
-def vendor_cases(exe):
+def vendor_cases(exe, only):
     """Every vendor's set-up at every task period, side by side (one
     jakasim, jakagw and PLC process each), with the one-request-at-a-time
-    link case and a gateway restart."""
+    link case, a gateway restart and the HMI cases. 'only': "vendor" runs
+    them all, "vendor_WHAT" the cases of one kind (vendor_hmi)."""
     runs = []
     for vendor, requests in VENDORS:
         lines = requests()
         for period in PERIODS_MS:
             runs.append((vendor, lines, period, "cell", CELL_SECONDS))
     build = dict(VENDORS)
-    for vendor, period, what, seconds in (LINK_CASE, RESTART_CASE):
+    for vendor, period, what, seconds in [LINK_CASE, RESTART_CASE, PLC_RESTART_CASE] + HMI_CASES:
         runs.append((vendor, build[vendor](), period, what, seconds))
+    if only and "vendor" not in only:
+        runs = [r for r in runs if "vendor_" + r[3] in only]
     out = []
     threads = [threading.Thread(target=vendor_case, args=(exe,) + r + (out,)) for r in runs]
     for t in threads:
@@ -468,10 +496,11 @@ def main():
     if u.returncode != 0 and "FAIL" not in u.stdout:
         line(False, "unit", ": exit %d %s" % (u.returncode, u.stderr[-1500:]))
     contract = contract_in_place()
-    only = os.environ.get("PLC_CASES")  # e.g. "vendor" or "moves,example"
+    only = os.environ.get("PLC_CASES")  # e.g. "vendor", "vendor_hmi" or "moves,example"
     t_vendor = time.monotonic()
-    if contract and (not only or "vendor" in only.split(",")):
-        vendor_cases(exe)
+    wanted = only.split(",") if only else []
+    if contract and (not only or any(w.startswith("vendor") for w in wanted)):
+        vendor_cases(exe, wanted)
     t_vendor = time.monotonic() - t_vendor
     for name, needs, _ in CASES:
         if not only or name in only.split(","):

@@ -465,6 +465,16 @@ void vc_run_requests(long long now_us)
     vc.last_run_us = now_us;
 }
 
+int vc_coil_written(int address)
+{
+    for (int i = 0; i < vc.n_req; i++) {
+        const struct request *r = &vc.req[i];
+        if (r->table == T_CO && address >= r->first && address < r->first + r->count)
+            return r->data[address - r->first] ? 1 : 0;
+    }
+    return -1;
+}
+
 void vc_close(void)
 {
     for (int i = 0; i < MAX_INSTANCES; i++)

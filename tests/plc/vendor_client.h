@@ -49,6 +49,10 @@ void vc_publish_inputs(void);
 /* After the program: the requests due this scan, as the vendor's client
  * sends them. 'now_us': monotonic. */
 void vc_run_requests(long long now_us);
+/* The level the client last wrote to coil 'address' (0 or 1; 0 as well
+ * for what it takes as 0 after a connection was made), or -1 when none of
+ * its requests writes that coil. */
+int vc_coil_written(int address);
 void vc_close(void);
 const struct vc_stats *vc_stats(void);
 const char *vc_vendor(void);
