@@ -133,6 +133,14 @@ CONFIG = ("[robot]\nreconnect_min_ms = 50\nreconnect_max_ms = 200\n"
           "[network_exception]\ntime_limit_ms = %d\nmotion_enable = true\n"
           "robot_time_limit_ms = %d\n" % (LIMIT_MS, ROBOT_LIMIT_MS))
 
+# The chosen-moment cases inject their own faults: a heartbeat that lapses
+# for a moment on a loaded machine must not add one (the policy's stop
+# would take the refusal jakasim holds for the PLC's first stop).
+CHOSEN_LIMIT_MS = 1000
+CHOSEN_CONFIG = CONFIG.replace("time_limit_ms = %d\n" % LIMIT_MS,
+                               "time_limit_ms = %d\n" % CHOSEN_LIMIT_MS)
+assert CHOSEN_CONFIG != CONFIG
+
 FAULTS = ("none", "heartbeat", "motion_enable", "reconnect", "plc_restart", "estop",
           "command_link", "early_reset", "second_program")
 # Faults the gateway itself must answer by stopping the arm.
@@ -459,7 +467,7 @@ class StepFailed(Exception):
 # ---- a cell: jakasim, the relay, jakagw, the PLC, the robot's side ----
 
 class Cell:
-    def __init__(self, index, rng, figures, events, sim_args=()):
+    def __init__(self, index, rng, figures, events, sim_args=(), config=CONFIG):
         self.index = index
         self.rng = rng
         self.figures = figures
@@ -469,7 +477,7 @@ class Cell:
         self.sim = Sim("--log-commands", "--period-ms", str(PERIOD_MS),
                        "--stop-time-ms", str(self.stop_ms), *sim_args)
         self.relay = Relay(self.sim.command_port)
-        self.gw = Gateway(Ports(self.sim.status_port, self.relay.port), CONFIG)
+        self.gw = Gateway(Ports(self.sim.status_port, self.relay.port), config)
         self.log = RobotLog(self.sim)
         self.watch = StatusWatch(self.sim.status_port)
         self.plc = None
@@ -1215,7 +1223,7 @@ def test_plc_model_faults_at_chosen_moments():
         cell = None
         try:
             cell = Cell(index, random.Random(seed * 100 + index), collections.defaultdict(list),
-                        collections.Counter(), sim_args)
+                        collections.Counter(), sim_args, CHOSEN_CONFIG)
             cell.plc = Plc(cell)
             startup(cell)
             reports[case.__name__] = case(cell)

@@ -336,17 +336,31 @@ def test_frame_handed_over_in_pieces_is_answered():
     with rig(rights="heartbeat", baud="1200", parity="none") as r:
         m = r.master()
         try:
+            # A trial counts only when this process handed the second piece
+            # over in time: past the first piece's wire time (67 ms) and
+            # t3.5, the gap is a real pause, which a loaded machine can make
+            # of the 50 ms sleep; such a trial is made again (at most 10).
+            late = 0
             for value in range(1, 6):
                 pdu = struct.pack(">BHHBH", 16, 0, 1, 2, value)
                 whole = frame(UNIT, pdu)
-                m.send(whole[:8])
-                time.sleep(6 * 10 / 1200)
-                m.send(whole[8:])
-                rsp = m.reply(timeout=1.0)
-                check(rsp == frame(UNIT, pdu[:5]), "write %d: %r" % (value, rsp))
+                while True:
+                    m.send(whole[:8])
+                    t0 = time.monotonic()
+                    time.sleep(6 * 10 / 1200)
+                    m.send(whole[8:])
+                    gap = time.monotonic() - t0
+                    rsp = m.reply(timeout=1.0)
+                    if gap < 0.08 or late >= 10:
+                        break
+                    late += 1
+                check(rsp == frame(UNIT, pdu[:5]), "write %d: %r (second piece %.0f ms after "
+                      "the first)" % (value, rsp, gap * 1000))
             check(r.plc.hr(0)[0] == 5, "the last value written")
-            check(r.plc.u32(IR_CRC_ERRORS) == 0 and r.plc.u32(IR_GAP_DISCARDS) == 0,
-                  "nothing dropped")
+            dropped = r.plc.u32(IR_CRC_ERRORS) + r.plc.u32(IR_GAP_DISCARDS)
+            check(dropped <= 2 * late, "%d dropped, %d trial(s) handed over late" % (dropped, late))
+            if late:
+                print("  %d trial(s) handed over late by this process, made again" % late)
             # A byte of noise (it begins a frame for this unit), then a
             # silence the line can be sure of (t3.5 beyond the frame's own
             # 67 ms of wire and the port's delivery, 34 ms), a frame: the

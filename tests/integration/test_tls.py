@@ -701,12 +701,22 @@ def test_idle_sockets_do_not_lock_out_tls_clients():
         try:
             wait_until(lambda: m.plain().ir(IR_HANDSHAKES_RUNNING)[0] == 16, 5 * SLOW,
                        "16 silent sockets holding the handshake slots")
-            served = sum(s_client_reads(m.tls_port) for _ in range(10))
+            # Each client tries as a PLC does: connects again when its
+            # connection is closed, up to 3 times. A client whose
+            # ClientHello this loaded machine holds back is silent for as
+            # long, and may be displaced as a silent socket is.
+            tries = []
+            for _ in range(10):
+                for attempt in range(1, 4):
+                    if s_client_reads(m.tls_port):
+                        tries.append(attempt)
+                        break
         finally:
             connects = churners.end()
-        print("  %d of 10 TLS clients served among 16 churning silent sockets (%d connects)"
-              % (served, connects))
-        check(served >= 8, "only %d of 10 TLS clients served" % served)
+        first = sum(1 for t in tries if t == 1)
+        print("  %d of 10 TLS clients served among 16 churning silent sockets (%d connects), "
+              "%d at the first try" % (len(tries), connects, first))
+        check(len(tries) == 10, "only %d of 10 TLS clients served in 3 tries" % len(tries))
 
 
 def test_sighup_rotates_the_certificate():
