@@ -389,23 +389,60 @@ static double callgrind_total(const char *path)
     return total;
 }
 
+/* The functions where each server handles a Modbus request and the
+ * robot's reply; everything they call counts. */
+#define COUNTED_FUNCTIONS 2
+static const char *const counted_functions[SERVERS][COUNTED_FUNCTIONS] = {
+    [JAKAGW] = {"on_client_read", "on_reply"},
+    [FLOOR] = {"serve", "drop_reply"},
+};
+
+/* Whether callgrind's output names 'function' as a function or a callee
+ * ("fn=(id) name" or "cfn=(id) name" where the name first appears,
+ * "fn=name" uncompressed): --toggle-collect matches a symbol's name
+ * exactly, so a function inlined or cloned under another name
+ * ("serve.constprop.0") is never counted, and says nothing. */
+static bool callgrind_saw(const char *path, const char *function)
+{
+    char line[512];
+    bool seen = false;
+    size_t len = strlen(function);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        die("%s: %s", path, strerror(errno));
+    while (!seen && fgets(line, sizeof(line), f)) {
+        const char *fn = line[0] == 'c' ? line + 1 : line;
+        if (strncmp(fn, "fn=", 3) != 0)
+            continue;
+        const char *name = fn + 3;
+        if (*name == '(') {
+            name = strchr(name, ')');
+            if (!name)
+                continue;
+            name += name[1] == ' ' ? 2 : 1;
+        }
+        seen = strncmp(name, function, len) == 0 && (name[len] == '\n' || name[len] == '\0');
+    }
+    fclose(f);
+    return seen;
+}
+
 /* Instructions per cycle of one kind: with_command or not. */
 static double count_instructions(enum server which, const struct paths *p, bool with_command)
 {
     char out[PATH_MAX + 32], arg[PATH_MAX + 64];
+    char toggles[COUNTED_FUNCTIONS][96];
     snprintf(out, sizeof(out), "%s/callgrind.%s.%d", bench_tmp_dir, server_names[which],
              with_command);
     snprintf(arg, sizeof(arg), "--callgrind-out-file=%s", out);
-    /* The functions where a request and the robot's reply are handled;
-     * everything they call counts. */
-    char *jakagw_wrapper[] = {"/usr/bin/valgrind", "--tool=callgrind", arg,
-                              "--collect-atstart=no",
-                              "--toggle-collect=on_client_read",
-                              "--toggle-collect=on_reply", NULL};
-    char *floor_wrapper[] = {"/usr/bin/valgrind", "--tool=callgrind", arg,
-                             "--collect-atstart=no", "--toggle-collect=serve",
-                             "--toggle-collect=drop_reply", NULL};
-    start_server(which, p, which == JAKAGW ? jakagw_wrapper : floor_wrapper);
+    char *wrapper[5 + COUNTED_FUNCTIONS] = {"/usr/bin/valgrind", "--tool=callgrind", arg,
+                                            "--collect-atstart=no"};
+    for (int i = 0; i < COUNTED_FUNCTIONS; i++) {
+        snprintf(toggles[i], sizeof(toggles[i]), "--toggle-collect=%s",
+                 counted_functions[which][i]);
+        wrapper[4 + i] = toggles[i];
+    }
+    start_server(which, p, wrapper);
     for (int i = 0; i < COUNT_CYCLES; i++) {
         if (with_command)
             sample(which, false);
@@ -413,6 +450,12 @@ static double count_instructions(enum server which, const struct paths *p, bool 
             idle_cycle(which);
     }
     stop_server(which);
+    /* A cycle with the command runs each of them (one without, no reply). */
+    for (int i = 0; with_command && i < COUNTED_FUNCTIONS; i++)
+        if (!callgrind_saw(out, counted_functions[which][i]))
+            die("%s: callgrind never counted in %s() (inlined, or cloned under another "
+                "name?): its figure would be wrong", server_names[which],
+                counted_functions[which][i]);
     return callgrind_total(out) / COUNT_CYCLES;
 }
 
