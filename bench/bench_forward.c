@@ -33,7 +33,6 @@
  */
 #include "bench_proc.h"
 
-#include <poll.h>
 #include <pthread.h>
 #include <stdatomic.h>
 
@@ -62,95 +61,14 @@ struct server_io {
 static uint16_t trigger_address, trigger_state;
 static struct server_io servers[SERVERS];
 
-static double now_us(void)
-{
-    return now_s() * 1e6;
-}
-
-static void send_all(int fd, const void *data, size_t size)
-{
-    const char *p = data;
-    while (size > 0) {
-        ssize_t n = send(fd, p, size, MSG_NOSIGNAL);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("send: %s", strerror(errno));
-        p += n;
-        size -= (size_t)n;
-    }
-}
-
-static void recv_exact(int fd, void *data, size_t size)
-{
-    char *p = data;
-    while (size > 0) {
-        ssize_t n = recv(fd, p, size, 0);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("recv: %s", n == 0 ? "closed" : strerror(errno));
-        p += n;
-        size -= (size_t)n;
-    }
-}
-
-/* Reads one JSON object (the server writes one and waits for its reply);
- * returns when its last byte arrived, or -1 after timeout_ms. */
-static double read_object(int fd, int timeout_ms, char *out, size_t out_size)
-{
-    char buf[4096];
-    size_t size = 0;
-    int depth = 0;
-    bool in_string = false, escaped = false, started = false;
-
-    for (;;) {
-        struct pollfd p = {.fd = fd, .events = POLLIN};
-        if (poll(&p, 1, timeout_ms) != 1)
-            return -1;
-        ssize_t n = recv(fd, buf + size, sizeof(buf) - 1 - size, 0);
-        double t = now_us();
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("recv (robot side): %s", n == 0 ? "closed" : strerror(errno));
-        for (size_t i = size; i < size + (size_t)n; i++) {
-            char c = buf[i];
-            if (in_string) {
-                if (escaped)
-                    escaped = false;
-                else if (c == '\\')
-                    escaped = true;
-                else if (c == '"')
-                    in_string = false;
-            } else if (c == '"') {
-                in_string = true;
-            } else if (c == '{') {
-                depth++;
-                started = true;
-            } else if (c == '}') {
-                depth--;
-            }
-        }
-        size += (size_t)n;
-        buf[size] = '\0';
-        if (started && depth == 0) {
-            if (out)
-                snprintf(out, out_size, "%s", buf);
-            return t;
-        }
-        if (size >= sizeof(buf) - 1)
-            die("a command of more than %zu bytes", sizeof(buf));
-    }
-}
-
 static const char ok_reply[] = "{\"cmdName\":\"power_on\",\"errorCode\":\"0\",\"errorMsg\":\"\"}";
 
 /* Answers what a server sends on connect until it has been quiet a while. */
 static void answer_until_quiet(int fd, int quiet_ms)
 {
+    struct object_reader r;
     double end = now_s() + 10; /* the link check asks again and again */
-    while (now_s() < end && read_object(fd, quiet_ms, NULL, 0) >= 0)
+    while (now_s() < end && read_object(fd, &r, quiet_ms) >= 0)
         send_all(fd, ok_reply, sizeof(ok_reply) - 1);
 }
 
@@ -158,10 +76,10 @@ static void answer_until_quiet(int fd, int quiet_ms)
  * Anything else jakagw asks meanwhile (its link check) is answered. */
 static double read_command(int fd)
 {
-    char text[4096];
+    struct object_reader r;
     for (;;) {
-        double t = read_object(fd, 10000, text, sizeof(text));
-        if (t < 0 || strstr(text, "\"power_on\""))
+        double t = read_object(fd, &r, 10000);
+        if (t < 0 || strstr(r.buf, "\"power_on\""))
             return t;
         send_all(fd, ok_reply, sizeof(ok_reply) - 1);
     }
@@ -169,20 +87,12 @@ static double read_command(int fd)
 
 static void modbus_send(struct server_io *s, uint8_t fc, uint16_t address, uint16_t value)
 {
-    uint8_t req[12] = {(uint8_t)(s->tid >> 8), (uint8_t)s->tid, 0, 0, 0, 6, 1, fc,
-                       (uint8_t)(address >> 8), (uint8_t)address, (uint8_t)(value >> 8),
-                       (uint8_t)value};
-    s->tid++;
-    send_all(s->plc, req, sizeof(req));
+    modbus_tcp_send(s->plc, s->tid++, fc, address, value);
 }
 
 static void modbus_answer(struct server_io *s, uint8_t fc, uint8_t *rsp, size_t size)
 {
-    recv_exact(s->plc, rsp, 9);
-    if (rsp[7] != fc)
-        die("%s answered function %u with exception %u", server_names[s - servers], fc,
-            rsp[8]);
-    recv_exact(s->plc, rsp + 9, size - 9);
+    modbus_tcp_answer(s->plc, fc, rsp, size, server_names[s - servers]);
 }
 
 static void write_coil(struct server_io *s, bool on)
@@ -295,15 +205,10 @@ static void idle_cycle(enum server which)
 
 /* ---- starting the servers ---- */
 
-static int accept_within(int listener, double seconds, const char *what)
+/* The server's connection to one of the robot's ports. */
+static int accept_server(int listener, double seconds, const char *what)
 {
-    struct pollfd p = {.fd = listener, .events = POLLIN};
-    if (poll(&p, 1, (int)(seconds * 1000)) != 1)
-        die("%s did not connect", what);
-    int fd = accept(listener, NULL, NULL);
-    if (fd < 0)
-        die("accept: %s", strerror(errno));
-    set_timeouts(fd);
+    int fd = accept_within(listener, seconds, what);
     /* Room for a backlog of documents while the server is stopped. */
     int size = 4 << 20;
     setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &size, sizeof(size));
@@ -343,8 +248,8 @@ static void start_server(enum server which, const struct paths *p, char *const *
     }
     s->pid = spawn(server_names[which], argv, -1);
     double wait = wrapper ? 60 : 10;
-    s->status = accept_within(status_listener, wait, server_names[which]);
-    s->robot = accept_within(command_listener, wait, server_names[which]);
+    s->status = accept_server(status_listener, wait, server_names[which]);
+    s->robot = accept_server(command_listener, wait, server_names[which]);
     close(status_listener);
     close(command_listener);
     if (which == JAKAGW)
@@ -628,6 +533,6 @@ int main(int argc, char **argv)
                c[JAKAGW][1] - c[JAKAGW][0], c[FLOOR][1] - c[FLOOR][0],
                (c[JAKAGW][1] - c[JAKAGW][0]) / (c[FLOOR][1] - c[FLOOR][0]));
     }
-    stop_children();
+    bench_end();
     return 0;
 }
