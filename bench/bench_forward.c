@@ -19,6 +19,18 @@
  *              both status ports every millisecond by a thread
  *   backlog    the server stopped (SIGSTOP), 50 documents (--backlog) written to its
  *              status port, then the FC05 sent; timed from SIGCONT
+ *   paced      as idle, but a pair of samples every millisecond
+ *   scraped    paced, and jakagw's /metrics fetched every 100 ms by a
+ *              thread (about 100 scrapes fall among the samples; paced
+ *              without it, and the floor, which has no HTTP, are the
+ *              controls: a sleep between samples costs both servers a
+ *              wake-up)
+ *
+ * and, the other way, how old the status a PLC reads is: one document
+ * written to the status port (two variants in turn, their "len" one
+ * apart), then FC04 polled until it shows it (jakagw: status_sequence,
+ * one more per document parsed; the floor: the newest document's "len"),
+ * timed from the document's last byte sent to the answer that shows it.
  *
  * Where valgrind and strace are installed, also: the instructions each
  * server runs per forwarded command (callgrind, user space, toggled on
@@ -48,6 +60,10 @@ static const char *const server_names[SERVERS] = {"jakagw", "floor"};
 
 static char document[16384];
 static size_t document_size;
+/* The document again, one byte longer ("len" + 1, a space more), so that
+ * each of two documents in turn changes what the floor serves. */
+static char document_alt[16384 + 8];
+static size_t document_alt_size;
 
 struct server_io {
     pid_t pid;
@@ -56,6 +72,8 @@ struct server_io {
     int plc;
     uint16_t tid;
     uint16_t modbus_port;
+    uint16_t http_port; /* jakagw's /metrics, 0: none */
+    bool alt_next;      /* the status kind: which document goes next */
 };
 
 static uint16_t trigger_address, trigger_state;
@@ -153,8 +171,62 @@ static void *stream_main(void *arg)
     return NULL;
 }
 
-enum kind { K_IDLE, K_STREAM, K_BACKLOG, K_COUNT };
-static const char *const kind_names[K_COUNT] = {"idle", "1 kHz status", "backlog"};
+/* ---- /metrics at 10 Hz, a thread scraping jakagw ---- */
+
+static atomic_bool scraping;
+static atomic_bool scrape_stop;
+static atomic_uint scrapes;
+static pthread_t scrape_thread;
+
+/* One GET /metrics on a new connection; the whole answer read. */
+static void scrape_once(uint16_t port)
+{
+    static const char request[] = "GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                                  "Connection: close\r\n\r\n";
+    char buf[16384];
+    size_t got = 0;
+    int fd = connect_loopback(port);
+    send_all(fd, request, sizeof(request) - 1);
+    for (;;) {
+        ssize_t n = recv(fd, buf, sizeof(buf), 0);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0)
+            die("/metrics: %s", strerror(errno));
+        if (n == 0)
+            break;
+        if (got == 0 && strncmp(buf, "HTTP/1.1 200", 12) != 0)
+            die("/metrics answered %.12s", buf);
+        got += (size_t)n;
+    }
+    close(fd);
+    if (got == 0)
+        die("/metrics: no answer");
+    atomic_fetch_add(&scrapes, 1);
+}
+
+static void *scrape_main(void *arg)
+{
+    (void)arg;
+    struct timespec next;
+    clock_gettime(CLOCK_MONOTONIC, &next);
+    while (!atomic_load(&scrape_stop)) {
+        if (atomic_load(&scraping))
+            scrape_once(servers[JAKAGW].http_port);
+        next.tv_nsec += 100000000;
+        if (next.tv_nsec >= 1000000000) {
+            next.tv_nsec -= 1000000000;
+            next.tv_sec++;
+        }
+        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR)
+            ;
+    }
+    return NULL;
+}
+
+enum kind { K_IDLE, K_PACED, K_SCRAPE, K_STREAM, K_BACKLOG, K_STATUS, K_COUNT };
+static const char *const kind_names[K_COUNT] = {
+    "idle", "paced 1 ms", "paced, /metrics 10 Hz", "1 kHz status", "backlog", "status -> FC04"};
 
 /* Counting (instructions, system calls): the reply is given time to be
  * taken before the result is polled, so that every cycle polls once, and
@@ -195,6 +267,29 @@ static double sample(enum server which, bool backlog)
     return t1 - t0;
 }
 
+/* One status document written, FC04 polled until it shows it:
+ * microseconds from its last byte sent to the answer that shows it. */
+static double status_sample(enum server which)
+{
+    struct server_io *s = &servers[which];
+    /* jakagw: status_sequence (input register 13); the floor serves the
+     * newest document's "len" at any address. */
+    uint16_t address = 13;
+    uint16_t before = read_input(s, address);
+    s->alt_next = !s->alt_next;
+    send_all(s->status, s->alt_next ? document_alt : document,
+             s->alt_next ? document_alt_size : document_size);
+    double t0 = now_us();
+    for (double deadline = now_s() + 10; now_s() < deadline;) {
+        uint16_t now = read_input(s, address);
+        double t1 = now_us();
+        if (now != before)
+            return t1 - t0;
+    }
+    die("%s never showed a new document", server_names[which]);
+    return -1;
+}
+
 /* A cycle of the same requests without a command: the trigger stays 0. */
 static void idle_cycle(enum server which)
 {
@@ -218,6 +313,7 @@ static int accept_server(int listener, double seconds, const char *what)
 struct paths {
     const char *jakagw, *floor;
     char conf[PATH_MAX + 16];
+    uint16_t http_port; /* 0: no HTTP */
 };
 
 /* Starts 'which' (with 'wrapper' in front, e.g. valgrind; NULL: none). */
@@ -257,6 +353,7 @@ static void start_server(enum server which, const struct paths *p, char *const *
     wait_listening(s->modbus_port, s->pid, server_names[which]);
     s->plc = connect_loopback(s->modbus_port);
     s->tid = 1;
+    s->http_port = which == JAKAGW ? p->http_port : 0;
 }
 
 static void stop_server(enum server which)
@@ -424,6 +521,17 @@ static void load_document(const char *path)
     fclose(f);
     while (document_size && (document[document_size - 1] == '\n'))
         document_size--;
+    document[document_size] = '\0';
+    /* '{"len": N,' then the rest: the same with N + 1 and a space more. */
+    const char *comma = strchr(document, ',');
+    unsigned len;
+    if (sscanf(document, "{\"len\": %u,", &len) != 1 || !comma || len != document_size)
+        die("%s: not a status document that starts with its len", path);
+    int n = snprintf(document_alt, sizeof(document_alt), "{\"len\": %u, %s", len + 1,
+                     comma + 1);
+    if (n < 0 || (size_t)n != document_size + 1)
+        die("%s: the document's variant is %d bytes", path, n);
+    document_alt_size = (size_t)n;
 }
 
 int main(int argc, char **argv)
@@ -457,7 +565,12 @@ int main(int argc, char **argv)
     trigger_address = regmap_find_path(&map, REGMAP_SRC_CMD, "power_on")->address;
     trigger_state = regmap_find_path(&map, REGMAP_SRC_PATH, "result.power_on.state")->address;
     regmap_free(&map);
-    write_jakagw_config(p.conf, sizeof(p.conf), 4, "");
+    /* HTTP on for the latency runs (scraped in one kind), off for the
+     * counts. */
+    char http[64];
+    p.http_port = free_port();
+    snprintf(http, sizeof(http), "[http]\nenabled = true\nport = %u\n", p.http_port);
+    write_jakagw_config(p.conf, sizeof(p.conf), 4, http);
 
     for (int s = 0; s < SERVERS; s++)
         start_server((enum server)s, &p, NULL);
@@ -466,6 +579,7 @@ int main(int argc, char **argv)
             sample((enum server)s, false);
 
     pthread_create(&stream_thread, NULL, stream_main, NULL);
+    pthread_create(&scrape_thread, NULL, scrape_main, NULL);
     double *t[SERVERS];
     for (int s = 0; s < SERVERS; s++)
         t[s] = calloc(samples, sizeof(double));
@@ -475,10 +589,15 @@ int main(int argc, char **argv)
     for (int k = 0; k < K_COUNT; k++) {
         unsigned n = k == K_BACKLOG ? BACKLOG_SAMPLES : samples;
         atomic_store(&streaming, k == K_STREAM);
+        atomic_store(&scraping, k == K_SCRAPE);
         for (unsigned r = 0; r < (k == K_BACKLOG ? 1 : rounds); r++) {
-            for (unsigned i = 0; i < n; i++)
+            for (unsigned i = 0; i < n; i++) {
                 for (int s = 0; s < SERVERS; s++)
-                    t[s][i] = sample((enum server)s, k == K_BACKLOG);
+                    t[s][i] = k == K_STATUS ? status_sample((enum server)s)
+                                            : sample((enum server)s, k == K_BACKLOG);
+                if (k == K_PACED || k == K_SCRAPE)
+                    sleep_s(0.001);
+            }
             for (int s = 0; s < SERVERS; s++) {
                 p50[k][s][r] = percentile(t[s], n, 0.5);
                 p99[k][s][r] = percentile(t[s], n, 0.99);
@@ -489,24 +608,31 @@ int main(int argc, char **argv)
     atomic_store(&streaming, false);
     atomic_store(&stream_stop, true);
     pthread_join(stream_thread, NULL);
+    atomic_store(&scraping, false);
+    atomic_store(&scrape_stop, true);
+    pthread_join(scrape_thread, NULL);
 
     printf("Command latency, FC05 sent -> the command's last byte at the robot (loopback), "
            "jakagw beside a floor forwarder, samples interleaved\n");
     for (int k = 0; k < K_COUNT; k++) {
         unsigned r = k == K_BACKLOG ? 1 : rounds;
         double a50 = median(p50[k][JAKAGW], r), f50 = median(p50[k][FLOOR], r);
+        if (k == K_STATUS)
+            printf("Status, a document's last byte sent to the status port -> the first FC04 "
+                   "answer that shows it (polled back to back), at idle\n");
         if (k == K_BACKLOG) {
             printf("  %-7s of %3u median of %u: jakagw %8.1f us  floor %7.1f us  ratio %5.2f "
                    "(timed from SIGCONT)\n",
                    kind_names[k], backlog_documents, BACKLOG_SAMPLES, a50, f50, a50 / f50);
             continue;
         }
-        printf("  %-15s p50 jakagw %7.1f us floor %6.1f us (%4.2fx)  p99 jakagw %8.1f us "
+        printf("  %-21s p50 jakagw %7.1f us floor %6.1f us (%4.2fx)  p99 jakagw %8.1f us "
                "floor %7.1f us  max %8.1f / %7.1f us  (%u rounds of %u)\n",
                kind_names[k], a50, f50, a50 / f50, median(p99[k][JAKAGW], r),
                median(p99[k][FLOOR], r), median(max[k][JAKAGW], r), median(max[k][FLOOR], r),
                r, samples);
     }
+    printf("  (/metrics scraped %u times, jakagw only)\n", atomic_load(&scrapes));
     fflush(stdout);
     counting = true;
     if (counts && have_program("strace")) {
@@ -521,6 +647,8 @@ int main(int argc, char **argv)
     }
     for (int s = 0; s < SERVERS; s++)
         stop_server((enum server)s);
+    write_jakagw_config(p.conf, sizeof(p.conf), 4, "");
+    p.http_port = 0;
     count_wait_s = 0.03;
     if (counts && have_program("valgrind")) {
         double c[SERVERS][2];
