@@ -163,6 +163,18 @@ static atomic_bool streaming;
 static atomic_bool stream_stop;
 static pthread_t stream_thread;
 
+/* Sleeps until 'next' + 'period_ns' (a thread's fixed rate), 'next' moved on. */
+static void sleep_period(struct timespec *next, long period_ns)
+{
+    next->tv_nsec += period_ns;
+    while (next->tv_nsec >= 1000000000) {
+        next->tv_nsec -= 1000000000;
+        next->tv_sec++;
+    }
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, next, NULL) == EINTR)
+        ;
+}
+
 static void *stream_main(void *arg)
 {
     (void)arg;
@@ -172,13 +184,7 @@ static void *stream_main(void *arg)
         if (atomic_load(&streaming))
             for (int s = 0; s < SERVERS; s++)
                 send_all(servers[s].status, document, document_size);
-        next.tv_nsec += 1000000;
-        if (next.tv_nsec >= 1000000000) {
-            next.tv_nsec -= 1000000000;
-            next.tv_sec++;
-        }
-        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR)
-            ;
+        sleep_period(&next, 1000000);
     }
     return NULL;
 }
@@ -225,13 +231,7 @@ static void *scrape_main(void *arg)
     while (!atomic_load(&scrape_stop)) {
         if (atomic_load(&scraping))
             scrape_once(servers[JAKAGW].http_port);
-        next.tv_nsec += 100000000;
-        if (next.tv_nsec >= 1000000000) {
-            next.tv_nsec -= 1000000000;
-            next.tv_sec++;
-        }
-        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR)
-            ;
+        sleep_period(&next, 100000000);
     }
     return NULL;
 }
