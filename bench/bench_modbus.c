@@ -453,6 +453,13 @@ struct ingest {
  * A second jakagw whose status port is ours: the document is written back
  * to back as fast as jakagw takes it (the socket's buffer paces us), and
  * RSS is read at checkpoints. Commands still go to jakasim.
+ *
+ * Every other document has its "rapidrate" changed (its first digit): the
+ * status link keeps only the newest of several documents waiting and
+ * drops the others unparsed, unless one changes a member the events log
+ * or the motion tracker follows (status.h, STATUS_MARK_MEMBERS). So each
+ * document fed is parsed, as each was before that rule, and counted in
+ * documents_parsed.
  */
 static void measure_ingest(struct servers *s, const char *doc, size_t size, uint32_t documents,
                            struct ingest *out)
@@ -461,14 +468,23 @@ static void measure_ingest(struct servers *s, const char *doc, size_t size, uint
     int listener = listen_loopback(&status_port);
     pid_t pid = start_jakagw(s, "jakagw-feed", status_port, modbus_port);
     struct pollfd p = {.fd = listener, .events = POLLIN};
-    static char batch[64 * 9000];
-    unsigned per_batch = (unsigned)(sizeof(batch) / size);
+    static char batch[65 * 9000];
+    /* One document more than a batch sends: a batch starts at the
+     * document or at its variant, as the last one sent asks. */
+    unsigned per_batch = (unsigned)(sizeof(batch) / size) - 1;
     uint32_t step = documents / RSS_CHECKPOINTS, sent = 0;
+    const char *rate = strstr(doc, "\"rapidrate\": ");
+    size_t digit = rate ? (size_t)(rate - doc) + strlen("\"rapidrate\": ") : 0;
 
-    if (per_batch == 0 || step == 0)
+    if (per_batch == 0 || per_batch > 64 || step == 0)
         die("documents too large or too few");
-    for (unsigned i = 0; i < per_batch; i++)
+    if (!rate || digit >= size || doc[digit] < '0' || doc[digit] > '9')
+        die("the fed document has no numeric \"rapidrate\" to vary");
+    for (unsigned i = 0; i <= per_batch; i++) {
         memcpy(batch + i * size, doc, size);
+        if (i % 2)
+            batch[i * size + digit] = doc[digit] == '1' ? '2' : '1';
+    }
     if (poll(&p, 1, BENCH_IO_TIMEOUT_S * 1000) != 1)
         die("jakagw-feed did not connect to the status port");
     int feed = accept(listener, NULL, NULL);
@@ -487,7 +503,7 @@ static void measure_ingest(struct servers *s, const char *doc, size_t size, uint
         uint32_t target = cp == RSS_CHECKPOINTS ? documents : cp * step;
         while (sent < target) {
             unsigned n = target - sent < per_batch ? target - sent : per_batch;
-            send_all(feed, batch, n * size);
+            send_all(feed, batch + (sent % 2) * size, n * size);
             sent += n;
         }
         wait_documents(&poller, base, target, 60);
