@@ -165,9 +165,11 @@ $(BUILD)/bench/floor_forwarder: bench/floor_forwarder.c
 # instructions counted by callgrind (valgrind, from make deps) and in time,
 # with the ten functions that cost the most; a command from a Modbus write
 # to the robot's socket through the whole gateway, and beside a floor
-# forwarder of its own at idle, with 1 kHz status and after a backlog of
-# 50 documents, with system calls and instructions per command
-# (bench_forward, about 3 minutes); Modbus reads through jakagw (jakasim streaming at 125 Hz) against a plain libmodbus slave, with
+# forwarder of its own at idle, paced with and without /metrics scraped at
+# 10 Hz, with 1 kHz status and after a backlog of 50 documents, with system
+# calls and instructions per command, and the status's age at the PLC (a
+# document sent to the first FC04 that shows it) (bench_forward, about 3
+# minutes); Modbus reads through jakagw (jakasim streaming at 125 Hz) against a plain libmodbus slave, with
 # server CPU, the stream's cost and memory. About 5 minutes: the memory
 # figure feeds a million documents (BENCH_MODBUS_FLAGS="--documents N" for
 # fewer). Then Modbus/TCP Security against plain Modbus TCP in one jakagw:

@@ -19,17 +19,9 @@
  * and the figures printed are the medians over the rounds (ratios: the
  * median of the per-round ratios to the reference).
  */
-#include <errno.h>
-#include <netinet/in.h>
-#include <netinet/tcp.h>
-#include <poll.h>
+#include "bench_proc.h"
+
 #include <pthread.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
-#include <sys/socket.h>
-#include <time.h>
-#include <unistd.h>
 
 #include <uv.h>
 
@@ -49,174 +41,6 @@ static const char *const kind_names[K_COUNT][2] = {
     {"setpoint", "FC06 rapid_rate -> rapid_rate"},
     {"trigger", "FC05 power_on -> power_on"},
 };
-
-static double now_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec * 1e6 + ts.tv_nsec / 1e3;
-}
-
-static int cmp_double(const void *a, const void *b)
-{
-    double x = *(const double *)a, y = *(const double *)b;
-    return x < y ? -1 : x > y;
-}
-
-static double percentile(double *v, unsigned n, double p)
-{
-    qsort(v, n, sizeof(v[0]), cmp_double);
-    unsigned i = (unsigned)(p * (n - 1) + 0.5);
-    return v[i];
-}
-
-static double median(double *v, unsigned n)
-{
-    return percentile(v, n, 0.5);
-}
-
-static void die(const char *what)
-{
-    fprintf(stderr, "bench_commands: %s: %s\n", what, strerror(errno));
-    exit(1);
-}
-
-static void no_delay(int fd)
-{
-    int one = 1;
-    if (setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one)) < 0)
-        die("TCP_NODELAY");
-}
-
-/* A loopback listener on a free port. */
-static int listen_loopback(uint16_t *port)
-{
-    struct sockaddr_in sa = {.sin_family = AF_INET,
-                             .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    socklen_t len = sizeof(sa);
-    int fd = socket(AF_INET, SOCK_STREAM, 0);
-
-    if (fd < 0 || bind(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0 || listen(fd, 8) < 0 ||
-        getsockname(fd, (struct sockaddr *)&sa, &len) < 0)
-        die("listen");
-    *port = ntohs(sa.sin_port);
-    return fd;
-}
-
-static int connect_loopback(uint16_t port)
-{
-    struct sockaddr_in sa = {.sin_family = AF_INET, .sin_port = htons(port),
-                             .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
-    int fd = socket(AF_INET, SOCK_STREAM, 0);
-    if (fd < 0 || connect(fd, (struct sockaddr *)&sa, sizeof(sa)) < 0)
-        die("connect");
-    no_delay(fd);
-    return fd;
-}
-
-static int accept_within(int listener, int timeout_ms)
-{
-    struct pollfd p = {.fd = listener, .events = POLLIN};
-    if (poll(&p, 1, timeout_ms) != 1) {
-        fprintf(stderr, "bench_commands: the gateway did not connect\n");
-        exit(1);
-    }
-    int fd = accept(listener, NULL, NULL);
-    if (fd < 0)
-        die("accept");
-    no_delay(fd);
-    return fd;
-}
-
-static void send_all(int fd, const void *data, size_t size)
-{
-    const char *p = data;
-    while (size > 0) {
-        ssize_t n = send(fd, p, size, MSG_NOSIGNAL);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("send");
-        p += n;
-        size -= (size_t)n;
-    }
-}
-
-static void recv_exact(int fd, void *data, size_t size)
-{
-    char *p = data;
-    while (size > 0) {
-        ssize_t n = recv(fd, p, size, 0);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0) {
-            if (n == 0)
-                errno = ECONNRESET;
-            die("recv");
-        }
-        p += n;
-        size -= (size_t)n;
-    }
-}
-
-/*
- * Reads one JSON object (whole reads: the peer writes objects one at a
- * time and waits for the answer) and returns when its last byte arrived.
- */
-struct object_reader {
-    char buf[4096];
-    size_t size;
-};
-
-static double read_object(int fd, struct object_reader *r, int timeout_ms)
-{
-    int depth = 0;
-    bool in_string = false, escaped = false, started = false;
-
-    r->size = 0;
-    for (;;) {
-        if (timeout_ms >= 0) {
-            struct pollfd p = {.fd = fd, .events = POLLIN};
-            if (poll(&p, 1, timeout_ms) != 1)
-                return -1;
-        }
-        ssize_t n = recv(fd, r->buf + r->size, sizeof(r->buf) - 1 - r->size, 0);
-        double t = now_us();
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0) {
-            if (n == 0)
-                errno = ECONNRESET;
-            die("recv (robot side)");
-        }
-        for (size_t i = r->size; i < r->size + (size_t)n; i++) {
-            char c = r->buf[i];
-            if (in_string) {
-                if (escaped)
-                    escaped = false;
-                else if (c == '\\')
-                    escaped = true;
-                else if (c == '"')
-                    in_string = false;
-            } else if (c == '"') {
-                in_string = true;
-            } else if (c == '{') {
-                depth++;
-                started = true;
-            } else if (c == '}') {
-                depth--;
-            }
-        }
-        r->size += (size_t)n;
-        r->buf[r->size] = '\0';
-        if (started && depth == 0)
-            return t;
-        if (r->size >= sizeof(r->buf) - 1) {
-            fprintf(stderr, "bench_commands: object too large\n");
-            exit(1);
-        }
-    }
-}
 
 static const char ok_reply[] = "{\"cmdName\":\"\",\"errorCode\":\"0\",\"errorMsg\":\"\"}";
 
@@ -286,39 +110,20 @@ struct plc {
 static void modbus_request(struct plc *p, uint8_t fc, uint16_t address, uint16_t value,
                            uint8_t *rsp, size_t rsp_size)
 {
-    uint8_t req[12] = {(uint8_t)(p->tid >> 8), (uint8_t)p->tid, 0, 0, 0, 6, 1, fc,
-                       (uint8_t)(address >> 8), (uint8_t)address, (uint8_t)(value >> 8),
-                       (uint8_t)value};
-    p->tid++;
-    send_all(p->fd, req, sizeof(req));
-    recv_exact(p->fd, rsp, 9);
-    if (rsp[7] != fc) {
-        fprintf(stderr, "bench_commands: function %u at %u answered with exception %u\n",
-                fc, address, rsp[8]);
-        exit(1);
-    }
-    recv_exact(p->fd, rsp + 9, rsp_size - 9);
+    modbus_tcp_send(p->fd, p->tid++, fc, address, value);
+    modbus_tcp_answer(p->fd, fc, rsp, rsp_size, "the gateway");
 }
 
 /* Sends a write without waiting for its answer. */
 static void modbus_send_write(struct plc *p, uint8_t fc, uint16_t address, uint16_t value)
 {
-    uint8_t req[12] = {(uint8_t)(p->tid >> 8), (uint8_t)p->tid, 0, 0, 0, 6, 1, fc,
-                       (uint8_t)(address >> 8), (uint8_t)address, (uint8_t)(value >> 8),
-                       (uint8_t)value};
-    p->tid++;
-    send_all(p->fd, req, sizeof(req));
+    modbus_tcp_send(p->fd, p->tid++, fc, address, value);
 }
 
 static void modbus_write_answer(struct plc *p, uint8_t fc)
 {
     uint8_t rsp[12];
-    recv_exact(p->fd, rsp, 9);
-    if (rsp[7] != fc) {
-        fprintf(stderr, "bench_commands: write answered with exception %u\n", rsp[8]);
-        exit(1);
-    }
-    recv_exact(p->fd, rsp + 9, 3);
+    modbus_tcp_answer(p->fd, fc, rsp, sizeof(rsp), "the gateway");
 }
 
 static uint16_t read_input_register(struct plc *p, uint16_t address)
@@ -334,8 +139,7 @@ static void wait_done(struct plc *p, uint16_t state_address)
     for (int i = 0; i < 100000; i++)
         if (read_input_register(p, state_address) == CMD_DONE)
             return;
-    fprintf(stderr, "bench_commands: the command never completed\n");
-    exit(1);
+    die("the command never completed");
 }
 
 struct bench {
@@ -368,10 +172,8 @@ static double sample(struct bench *b, enum kind k)
         t0 = now_us();
         modbus_send_write(&b->plc, 6, b->rate_address, b->rate_value);
         t1 = read_object(b->robot, &r, 5000);
-        if (t1 < 0) {
-            fprintf(stderr, "bench_commands: no command from the gateway\n");
-            exit(1);
-        }
+        if (t1 < 0)
+            die("no command from the gateway");
         modbus_write_answer(&b->plc, 6);
         send_all(b->robot, ok_reply, sizeof(ok_reply) - 1);
         wait_done(&b->plc, b->rate_state);
@@ -382,10 +184,8 @@ static double sample(struct bench *b, enum kind k)
         t0 = now_us();
         modbus_send_write(&b->plc, 5, b->trigger_address, 0xFF00);
         t1 = read_object(b->robot, &r, 5000);
-        if (t1 < 0) {
-            fprintf(stderr, "bench_commands: no command from the gateway\n");
-            exit(1);
-        }
+        if (t1 < 0)
+            die("no command from the gateway");
         modbus_write_answer(&b->plc, 5);
         send_all(b->robot, ok_reply, sizeof(ok_reply) - 1);
         wait_done(&b->plc, b->trigger_state);
@@ -403,7 +203,7 @@ static void socket_pair_tcp(int *tx, int *rx)
     uint16_t port;
     int l = listen_loopback(&port);
     *tx = connect_loopback(port);
-    *rx = accept_within(l, 1000);
+    *rx = accept_within(l, 1, "the reference's socket");
     close(l);
 }
 
@@ -411,10 +211,8 @@ static const struct regmap_row *find_row(const struct regmap *map, enum regmap_s
                                          const char *path)
 {
     const struct regmap_row *row = regmap_find_path(map, src, path);
-    if (!row) {
-        fprintf(stderr, "bench_commands: the register map has no row %s\n", path);
-        exit(1);
-    }
+    if (!row)
+        die("the register map has no row %s", path);
     return row;
 }
 
@@ -426,9 +224,10 @@ int main(void)
     char why[256];
     uint16_t status_port, command_port, modbus_port;
 
+    bench_begin("bench_commands");
     log_set_level(LOG_LEVEL_ERR);
     if (regmap_init(&map))
-        return 1;
+        die("regmap_init");
     b.rate_address = find_row(&map, REGMAP_SRC_CMD, "rapid_rate.rate_value")->address;
     b.rate_state = find_row(&map, REGMAP_SRC_PATH, "result.rapid_rate.state")->address;
     b.trigger_address = find_row(&map, REGMAP_SRC_CMD, "power_on")->address;
@@ -448,26 +247,22 @@ int main(void)
     /* The status port stays silent: do not count that as a fault. */
     rc = rc ? rc : config_set(&g.cfg, "robot", "status_timeout_ms", "600000", why, sizeof(why));
     rc = rc ? rc : config_set(&g.cfg, "modbus", "idle_timeout_ms", "0", why, sizeof(why));
-    if (rc) {
-        fprintf(stderr, "bench_commands: configuration: %s\n", why);
-        return 1;
-    }
+    if (rc)
+        die("configuration: %s", why);
     g.cfg.modbus_listen_fd = modbus_listener;
     pthread_mutex_init(&g.lock, NULL);
     pthread_cond_init(&g.started_cond, NULL);
-    if (pthread_create(&g.thread, NULL, run_gateway, &g))
-        die("pthread_create");
+    if ((rc = pthread_create(&g.thread, NULL, run_gateway, &g)) != 0)
+        die("pthread_create: %s", strerror(rc));
     pthread_mutex_lock(&g.lock);
     while (!g.started)
         pthread_cond_wait(&g.started_cond, &g.lock);
     pthread_mutex_unlock(&g.lock);
-    if (g.start_rc) {
-        fprintf(stderr, "bench_commands: gateway_start: %s\n", strerror(-g.start_rc));
-        return 1;
-    }
+    if (g.start_rc)
+        die("gateway_start: %s", strerror(-g.start_rc));
 
-    int status_fd = accept_within(status_listener, 5000);
-    b.robot = accept_within(command_listener, 5000);
+    int status_fd = accept_within(status_listener, 5, "the gateway's status link");
+    b.robot = accept_within(command_listener, 5, "the gateway's command link");
     /* What the gateway sends on connect: its handler, the information. */
     unsigned greeting = answer_until_quiet(b.robot, 300);
     b.plc.fd = connect_loopback(modbus_port);
@@ -520,5 +315,6 @@ int main(void)
     close(status_fd);
     close(status_listener);
     close(command_listener);
+    bench_end();
     return 0;
 }

@@ -19,6 +19,18 @@
  *              both status ports every millisecond by a thread
  *   backlog    the server stopped (SIGSTOP), 50 documents (--backlog) written to its
  *              status port, then the FC05 sent; timed from SIGCONT
+ *   paced      as idle, but a pair of samples every millisecond
+ *   scraped    paced, and jakagw's /metrics fetched every 100 ms by a
+ *              thread (about 100 scrapes fall among the samples; paced
+ *              without it, and the floor, which has no HTTP, are the
+ *              controls: a sleep between samples costs both servers a
+ *              wake-up)
+ *
+ * and, the other way, how old the status a PLC reads is: one document
+ * written to the status port (two variants in turn, their "len" one
+ * apart), then FC04 polled until it shows it (jakagw: status_sequence,
+ * one more per document parsed; the floor: the newest document's "len"),
+ * timed from the document's last byte sent to the answer that shows it.
  *
  * Where valgrind and strace are installed, also: the instructions each
  * server runs per forwarded command (callgrind, user space, toggled on
@@ -49,6 +61,10 @@ static const char *const server_names[SERVERS] = {"jakagw", "floor"};
 
 static char document[16384];
 static size_t document_size;
+/* The document again, one byte longer ("len" + 1, a space more), so that
+ * each of two documents in turn changes what the floor serves. */
+static char document_alt[16384 + 8];
+static size_t document_alt_size;
 
 struct server_io {
     pid_t pid;
@@ -57,100 +73,32 @@ struct server_io {
     int plc;
     uint16_t tid;
     uint16_t modbus_port;
+    uint16_t http_port; /* jakagw's /metrics, 0: none */
+    bool alt_next;      /* the status kind: which document goes next */
 };
 
 static uint16_t trigger_address, trigger_state;
 static struct server_io servers[SERVERS];
-
-static double now_us(void)
-{
-    return now_s() * 1e6;
-}
-
-static void send_all(int fd, const void *data, size_t size)
-{
-    const char *p = data;
-    while (size > 0) {
-        ssize_t n = send(fd, p, size, MSG_NOSIGNAL);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("send: %s", strerror(errno));
-        p += n;
-        size -= (size_t)n;
-    }
-}
-
-static void recv_exact(int fd, void *data, size_t size)
-{
-    char *p = data;
-    while (size > 0) {
-        ssize_t n = recv(fd, p, size, 0);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("recv: %s", n == 0 ? "closed" : strerror(errno));
-        p += n;
-        size -= (size_t)n;
-    }
-}
-
-/* Reads one JSON object (the server writes one and waits for its reply);
- * returns when its last byte arrived, or -1 after timeout_ms. */
-static double read_object(int fd, int timeout_ms, char *out, size_t out_size)
-{
-    char buf[4096];
-    size_t size = 0;
-    int depth = 0;
-    bool in_string = false, escaped = false, started = false;
-
-    for (;;) {
-        struct pollfd p = {.fd = fd, .events = POLLIN};
-        if (poll(&p, 1, timeout_ms) != 1)
-            return -1;
-        ssize_t n = recv(fd, buf + size, sizeof(buf) - 1 - size, 0);
-        double t = now_us();
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("recv (robot side): %s", n == 0 ? "closed" : strerror(errno));
-        for (size_t i = size; i < size + (size_t)n; i++) {
-            char c = buf[i];
-            if (in_string) {
-                if (escaped)
-                    escaped = false;
-                else if (c == '\\')
-                    escaped = true;
-                else if (c == '"')
-                    in_string = false;
-            } else if (c == '"') {
-                in_string = true;
-            } else if (c == '{') {
-                depth++;
-                started = true;
-            } else if (c == '}') {
-                depth--;
-            }
-        }
-        size += (size_t)n;
-        buf[size] = '\0';
-        if (started && depth == 0) {
-            if (out)
-                snprintf(out, out_size, "%s", buf);
-            return t;
-        }
-        if (size >= sizeof(buf) - 1)
-            die("a command of more than %zu bytes", sizeof(buf));
-    }
-}
 
 static const char ok_reply[] = "{\"cmdName\":\"power_on\",\"errorCode\":\"0\",\"errorMsg\":\"\"}";
 
 /* Answers what a server sends on connect until it has been quiet a while. */
 static void answer_until_quiet(int fd, int quiet_ms)
 {
+    struct object_reader r;
     double end = now_s() + 10; /* the link check asks again and again */
-    while (now_s() < end && read_object(fd, quiet_ms, NULL, 0) >= 0)
+    while (now_s() < end && read_object(fd, &r, quiet_ms) >= 0)
+        send_all(fd, ok_reply, sizeof(ok_reply) - 1);
+}
+
+/* Answers what jakagw asks the robot while no command is under way (its
+ * link check, after a while without a command: unanswered within a
+ * second, it closes the link). */
+static void answer_link_checks(int fd)
+{
+    struct object_reader r;
+    struct pollfd p = {.fd = fd, .events = POLLIN};
+    while (poll(&p, 1, 0) == 1 && read_object(fd, &r, 0) >= 0)
         send_all(fd, ok_reply, sizeof(ok_reply) - 1);
 }
 
@@ -158,10 +106,10 @@ static void answer_until_quiet(int fd, int quiet_ms)
  * Anything else jakagw asks meanwhile (its link check) is answered. */
 static double read_command(int fd)
 {
-    char text[4096];
+    struct object_reader r;
     for (;;) {
-        double t = read_object(fd, 10000, text, sizeof(text));
-        if (t < 0 || strstr(text, "\"power_on\""))
+        double t = read_object(fd, &r, 10000);
+        if (t < 0 || strstr(r.buf, "\"power_on\""))
             return t;
         send_all(fd, ok_reply, sizeof(ok_reply) - 1);
     }
@@ -169,20 +117,12 @@ static double read_command(int fd)
 
 static void modbus_send(struct server_io *s, uint8_t fc, uint16_t address, uint16_t value)
 {
-    uint8_t req[12] = {(uint8_t)(s->tid >> 8), (uint8_t)s->tid, 0, 0, 0, 6, 1, fc,
-                       (uint8_t)(address >> 8), (uint8_t)address, (uint8_t)(value >> 8),
-                       (uint8_t)value};
-    s->tid++;
-    send_all(s->plc, req, sizeof(req));
+    modbus_tcp_send(s->plc, s->tid++, fc, address, value);
 }
 
 static void modbus_answer(struct server_io *s, uint8_t fc, uint8_t *rsp, size_t size)
 {
-    recv_exact(s->plc, rsp, 9);
-    if (rsp[7] != fc)
-        die("%s answered function %u with exception %u", server_names[s - servers], fc,
-            rsp[8]);
-    recv_exact(s->plc, rsp + 9, size - 9);
+    modbus_tcp_answer(s->plc, fc, rsp, size, server_names[s - servers]);
 }
 
 static void write_coil(struct server_io *s, bool on)
@@ -223,6 +163,18 @@ static atomic_bool streaming;
 static atomic_bool stream_stop;
 static pthread_t stream_thread;
 
+/* Sleeps until 'next' + 'period_ns' (a thread's fixed rate), 'next' moved on. */
+static void sleep_period(struct timespec *next, long period_ns)
+{
+    next->tv_nsec += period_ns;
+    while (next->tv_nsec >= 1000000000) {
+        next->tv_nsec -= 1000000000;
+        next->tv_sec++;
+    }
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, next, NULL) == EINTR)
+        ;
+}
+
 static void *stream_main(void *arg)
 {
     (void)arg;
@@ -232,19 +184,63 @@ static void *stream_main(void *arg)
         if (atomic_load(&streaming))
             for (int s = 0; s < SERVERS; s++)
                 send_all(servers[s].status, document, document_size);
-        next.tv_nsec += 1000000;
-        if (next.tv_nsec >= 1000000000) {
-            next.tv_nsec -= 1000000000;
-            next.tv_sec++;
-        }
-        while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR)
-            ;
+        sleep_period(&next, 1000000);
     }
     return NULL;
 }
 
-enum kind { K_IDLE, K_STREAM, K_BACKLOG, K_COUNT };
-static const char *const kind_names[K_COUNT] = {"idle", "1 kHz status", "backlog"};
+/* ---- /metrics at 10 Hz, a thread scraping jakagw ---- */
+
+static atomic_bool scraping;
+static atomic_bool scrape_stop;
+static atomic_uint scrapes;
+static pthread_t scrape_thread;
+
+/* One GET /metrics on a new connection; the whole answer read. */
+static void scrape_once(uint16_t port)
+{
+    static const char request[] = "GET /metrics HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                                  "Connection: close\r\n\r\n";
+    char buf[16384];
+    size_t got = 0;
+    int fd = connect_loopback(port);
+    send_all(fd, request, sizeof(request) - 1);
+    for (;;) {
+        ssize_t n = recv(fd, buf, sizeof(buf), 0);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0)
+            die("/metrics: %s", strerror(errno));
+        if (n == 0)
+            break;
+        if (got == 0 && strncmp(buf, "HTTP/1.1 200", 12) != 0)
+            die("/metrics answered %.12s", buf);
+        got += (size_t)n;
+    }
+    close(fd);
+    if (got == 0)
+        die("/metrics: no answer");
+    atomic_fetch_add(&scrapes, 1);
+}
+
+static void *scrape_main(void *arg)
+{
+    (void)arg;
+    struct timespec next;
+    clock_gettime(CLOCK_MONOTONIC, &next);
+    while (!atomic_load(&scrape_stop)) {
+        if (atomic_load(&scraping))
+            scrape_once(servers[JAKAGW].http_port);
+        sleep_period(&next, 100000000);
+    }
+    return NULL;
+}
+
+/* In the order they run: the last one sends commands, so that jakagw's
+ * command link is busy when the counts begin (no link check due). */
+enum kind { K_IDLE, K_PACED, K_SCRAPE, K_STATUS, K_STREAM, K_BACKLOG, K_COUNT };
+static const char *const kind_names[K_COUNT] = {
+    "idle", "paced 1 ms", "paced, /metrics 10 Hz", "status -> FC04", "1 kHz status", "backlog"};
 
 /* Counting (instructions, system calls): the reply is given time to be
  * taken before the result is polled, so that every cycle polls once, and
@@ -285,6 +281,30 @@ static double sample(enum server which, bool backlog)
     return t1 - t0;
 }
 
+/* One status document written, FC04 polled until it shows it:
+ * microseconds from its last byte sent to the answer that shows it. */
+static double status_sample(enum server which)
+{
+    struct server_io *s = &servers[which];
+    /* jakagw: status_sequence (input register 13); the floor serves the
+     * newest document's "len" at any address. */
+    uint16_t address = 13;
+    answer_link_checks(s->robot);
+    uint16_t before = read_input(s, address);
+    s->alt_next = !s->alt_next;
+    send_all(s->status, s->alt_next ? document_alt : document,
+             s->alt_next ? document_alt_size : document_size);
+    double t0 = now_us();
+    for (double deadline = now_s() + 10; now_s() < deadline;) {
+        uint16_t now = read_input(s, address);
+        double t1 = now_us();
+        if (now != before)
+            return t1 - t0;
+    }
+    die("%s never showed a new document", server_names[which]);
+    return -1;
+}
+
 /* A cycle of the same requests without a command: the trigger stays 0. */
 static void idle_cycle(enum server which)
 {
@@ -295,15 +315,10 @@ static void idle_cycle(enum server which)
 
 /* ---- starting the servers ---- */
 
-static int accept_within(int listener, double seconds, const char *what)
+/* The server's connection to one of the robot's ports. */
+static int accept_server(int listener, double seconds, const char *what)
 {
-    struct pollfd p = {.fd = listener, .events = POLLIN};
-    if (poll(&p, 1, (int)(seconds * 1000)) != 1)
-        die("%s did not connect", what);
-    int fd = accept(listener, NULL, NULL);
-    if (fd < 0)
-        die("accept: %s", strerror(errno));
-    set_timeouts(fd);
+    int fd = accept_within(listener, seconds, what);
     /* Room for a backlog of documents while the server is stopped. */
     int size = 4 << 20;
     setsockopt(fd, SOL_SOCKET, SO_SNDBUF, &size, sizeof(size));
@@ -313,6 +328,7 @@ static int accept_within(int listener, double seconds, const char *what)
 struct paths {
     const char *jakagw, *floor;
     char conf[PATH_MAX + 16];
+    uint16_t http_port; /* 0: no HTTP */
 };
 
 /* Starts 'which' (with 'wrapper' in front, e.g. valgrind; NULL: none). */
@@ -343,8 +359,8 @@ static void start_server(enum server which, const struct paths *p, char *const *
     }
     s->pid = spawn(server_names[which], argv, -1);
     double wait = wrapper ? 60 : 10;
-    s->status = accept_within(status_listener, wait, server_names[which]);
-    s->robot = accept_within(command_listener, wait, server_names[which]);
+    s->status = accept_server(status_listener, wait, server_names[which]);
+    s->robot = accept_server(command_listener, wait, server_names[which]);
     close(status_listener);
     close(command_listener);
     if (which == JAKAGW)
@@ -352,6 +368,7 @@ static void start_server(enum server which, const struct paths *p, char *const *
     wait_listening(s->modbus_port, s->pid, server_names[which]);
     s->plc = connect_loopback(s->modbus_port);
     s->tid = 1;
+    s->http_port = which == JAKAGW ? p->http_port : 0;
 }
 
 static void stop_server(enum server which)
@@ -389,23 +406,60 @@ static double callgrind_total(const char *path)
     return total;
 }
 
+/* The functions where each server handles a Modbus request and the
+ * robot's reply; everything they call counts. */
+#define COUNTED_FUNCTIONS 2
+static const char *const counted_functions[SERVERS][COUNTED_FUNCTIONS] = {
+    [JAKAGW] = {"on_client_read", "on_reply"},
+    [FLOOR] = {"serve", "drop_reply"},
+};
+
+/* Whether callgrind's output names 'function' as a function or a callee
+ * ("fn=(id) name" or "cfn=(id) name" where the name first appears,
+ * "fn=name" uncompressed): --toggle-collect matches a symbol's name
+ * exactly, so a function inlined or cloned under another name
+ * ("serve.constprop.0") is never counted, and says nothing. */
+static bool callgrind_saw(const char *path, const char *function)
+{
+    char line[512];
+    bool seen = false;
+    size_t len = strlen(function);
+    FILE *f = fopen(path, "r");
+    if (!f)
+        die("%s: %s", path, strerror(errno));
+    while (!seen && fgets(line, sizeof(line), f)) {
+        const char *fn = line[0] == 'c' ? line + 1 : line;
+        if (strncmp(fn, "fn=", 3) != 0)
+            continue;
+        const char *name = fn + 3;
+        if (*name == '(') {
+            name = strchr(name, ')');
+            if (!name)
+                continue;
+            name += name[1] == ' ' ? 2 : 1;
+        }
+        seen = strncmp(name, function, len) == 0 && (name[len] == '\n' || name[len] == '\0');
+    }
+    fclose(f);
+    return seen;
+}
+
 /* Instructions per cycle of one kind: with_command or not. */
 static double count_instructions(enum server which, const struct paths *p, bool with_command)
 {
     char out[PATH_MAX + 32], arg[PATH_MAX + 64];
+    char toggles[COUNTED_FUNCTIONS][96];
     snprintf(out, sizeof(out), "%s/callgrind.%s.%d", bench_tmp_dir, server_names[which],
              with_command);
     snprintf(arg, sizeof(arg), "--callgrind-out-file=%s", out);
-    /* The functions where a request and the robot's reply are handled;
-     * everything they call counts. */
-    char *jakagw_wrapper[] = {"/usr/bin/valgrind", "--tool=callgrind", arg,
-                              "--collect-atstart=no",
-                              "--toggle-collect=on_client_read",
-                              "--toggle-collect=on_reply", NULL};
-    char *floor_wrapper[] = {"/usr/bin/valgrind", "--tool=callgrind", arg,
-                             "--collect-atstart=no", "--toggle-collect=serve",
-                             "--toggle-collect=drop_reply", NULL};
-    start_server(which, p, which == JAKAGW ? jakagw_wrapper : floor_wrapper);
+    char *wrapper[5 + COUNTED_FUNCTIONS] = {"/usr/bin/valgrind", "--tool=callgrind", arg,
+                                            "--collect-atstart=no"};
+    for (int i = 0; i < COUNTED_FUNCTIONS; i++) {
+        snprintf(toggles[i], sizeof(toggles[i]), "--toggle-collect=%s",
+                 counted_functions[which][i]);
+        wrapper[4 + i] = toggles[i];
+    }
+    start_server(which, p, wrapper);
     for (int i = 0; i < COUNT_CYCLES; i++) {
         if (with_command)
             sample(which, false);
@@ -413,6 +467,12 @@ static double count_instructions(enum server which, const struct paths *p, bool 
             idle_cycle(which);
     }
     stop_server(which);
+    /* A cycle with the command runs each of them (one without, no reply). */
+    for (int i = 0; with_command && i < COUNTED_FUNCTIONS; i++)
+        if (!callgrind_saw(out, counted_functions[which][i]))
+            die("%s: callgrind never counted in %s() (inlined, or cloned under another "
+                "name?): its figure would be wrong", server_names[which],
+                counted_functions[which][i]);
     return callgrind_total(out) / COUNT_CYCLES;
 }
 
@@ -476,6 +536,17 @@ static void load_document(const char *path)
     fclose(f);
     while (document_size && (document[document_size - 1] == '\n'))
         document_size--;
+    document[document_size] = '\0';
+    /* '{"len": N,' then the rest: the same with N + 1 and a space more. */
+    const char *comma = strchr(document, ',');
+    unsigned len;
+    if (sscanf(document, "{\"len\": %u,", &len) != 1 || !comma || len != document_size)
+        die("%s: not a status document that starts with its len", path);
+    int n = snprintf(document_alt, sizeof(document_alt), "{\"len\": %u, %s", len + 1,
+                     comma + 1);
+    if (n < 0 || (size_t)n != document_size + 1)
+        die("%s: the document's variant is %d bytes", path, n);
+    document_alt_size = (size_t)n;
 }
 
 int main(int argc, char **argv)
@@ -509,7 +580,12 @@ int main(int argc, char **argv)
     trigger_address = regmap_find_path(&map, REGMAP_SRC_CMD, "power_on")->address;
     trigger_state = regmap_find_path(&map, REGMAP_SRC_PATH, "result.power_on.state")->address;
     regmap_free(&map);
-    write_jakagw_config(p.conf, sizeof(p.conf), 4, "");
+    /* HTTP on for the latency runs (scraped in one kind), off for the
+     * counts. */
+    char http[64];
+    p.http_port = free_port();
+    snprintf(http, sizeof(http), "[http]\nenabled = true\nport = %u\n", p.http_port);
+    write_jakagw_config(p.conf, sizeof(p.conf), 4, http);
 
     for (int s = 0; s < SERVERS; s++)
         start_server((enum server)s, &p, NULL);
@@ -518,6 +594,7 @@ int main(int argc, char **argv)
             sample((enum server)s, false);
 
     pthread_create(&stream_thread, NULL, stream_main, NULL);
+    pthread_create(&scrape_thread, NULL, scrape_main, NULL);
     double *t[SERVERS];
     for (int s = 0; s < SERVERS; s++)
         t[s] = calloc(samples, sizeof(double));
@@ -527,10 +604,15 @@ int main(int argc, char **argv)
     for (int k = 0; k < K_COUNT; k++) {
         unsigned n = k == K_BACKLOG ? BACKLOG_SAMPLES : samples;
         atomic_store(&streaming, k == K_STREAM);
+        atomic_store(&scraping, k == K_SCRAPE);
         for (unsigned r = 0; r < (k == K_BACKLOG ? 1 : rounds); r++) {
-            for (unsigned i = 0; i < n; i++)
+            for (unsigned i = 0; i < n; i++) {
                 for (int s = 0; s < SERVERS; s++)
-                    t[s][i] = sample((enum server)s, k == K_BACKLOG);
+                    t[s][i] = k == K_STATUS ? status_sample((enum server)s)
+                                            : sample((enum server)s, k == K_BACKLOG);
+                if (k == K_PACED || k == K_SCRAPE)
+                    sleep_s(0.001);
+            }
             for (int s = 0; s < SERVERS; s++) {
                 p50[k][s][r] = percentile(t[s], n, 0.5);
                 p99[k][s][r] = percentile(t[s], n, 0.99);
@@ -541,24 +623,33 @@ int main(int argc, char **argv)
     atomic_store(&streaming, false);
     atomic_store(&stream_stop, true);
     pthread_join(stream_thread, NULL);
+    atomic_store(&scraping, false);
+    atomic_store(&scrape_stop, true);
+    pthread_join(scrape_thread, NULL);
 
     printf("Command latency, FC05 sent -> the command's last byte at the robot (loopback), "
            "jakagw beside a floor forwarder, samples interleaved\n");
-    for (int k = 0; k < K_COUNT; k++) {
+    for (int i = 0; i < K_COUNT; i++) {
+        /* The commands' kinds first, then the status's. */
+        int k = i < K_STATUS ? i : i == K_COUNT - 1 ? K_STATUS : i + 1;
         unsigned r = k == K_BACKLOG ? 1 : rounds;
         double a50 = median(p50[k][JAKAGW], r), f50 = median(p50[k][FLOOR], r);
+        if (k == K_STATUS)
+            printf("Status, a document's last byte sent to the status port -> the first FC04 "
+                   "answer that shows it (polled back to back), at idle\n");
         if (k == K_BACKLOG) {
             printf("  %-7s of %3u median of %u: jakagw %8.1f us  floor %7.1f us  ratio %5.2f "
                    "(timed from SIGCONT)\n",
                    kind_names[k], backlog_documents, BACKLOG_SAMPLES, a50, f50, a50 / f50);
             continue;
         }
-        printf("  %-15s p50 jakagw %7.1f us floor %6.1f us (%4.2fx)  p99 jakagw %8.1f us "
+        printf("  %-21s p50 jakagw %7.1f us floor %6.1f us (%4.2fx)  p99 jakagw %8.1f us "
                "floor %7.1f us  max %8.1f / %7.1f us  (%u rounds of %u)\n",
                kind_names[k], a50, f50, a50 / f50, median(p99[k][JAKAGW], r),
                median(p99[k][FLOOR], r), median(max[k][JAKAGW], r), median(max[k][FLOOR], r),
                r, samples);
     }
+    printf("  (/metrics scraped %u times, jakagw only)\n", atomic_load(&scrapes));
     fflush(stdout);
     counting = true;
     if (counts && have_program("strace")) {
@@ -573,6 +664,8 @@ int main(int argc, char **argv)
     }
     for (int s = 0; s < SERVERS; s++)
         stop_server((enum server)s);
+    write_jakagw_config(p.conf, sizeof(p.conf), 4, "");
+    p.http_port = 0;
     count_wait_s = 0.03;
     if (counts && have_program("valgrind")) {
         double c[SERVERS][2];
@@ -585,6 +678,6 @@ int main(int argc, char **argv)
                c[JAKAGW][1] - c[JAKAGW][0], c[FLOOR][1] - c[FLOOR][0],
                (c[JAKAGW][1] - c[JAKAGW][0]) / (c[FLOOR][1] - c[FLOOR][0]));
     }
-    stop_children();
+    bench_end();
     return 0;
 }

@@ -90,52 +90,7 @@ static const unsigned client_counts[] = {1, 8, 32};
  * (-1: wherever the scheduler puts them). */
 static int generator_cpu = -1, server_cpu = -1;
 
-/* ---- small helpers (the rest in bench_proc.h) ---- */
-
-/* The children's logs and files: kept when the run fails, to look at. */
-static void remove_tmp_dir(void)
-{
-    static const char *const names[] = {"jakagw.conf",      "jakagw.log",  "jakagw-feed.log",
-                                        "jakagw-quiet.log", "jakasim.log", "jakasim.json",
-                                        "ref_slave.log"};
-    char path[PATH_MAX + 32];
-
-    for (size_t i = 0; i < sizeof(names) / sizeof(names[0]); i++) {
-        snprintf(path, sizeof(path), "%s/%s", bench_tmp_dir, names[i]);
-        unlink(path);
-    }
-    rmdir(bench_tmp_dir);
-}
-
-static void send_all(int fd, const void *data, size_t size)
-{
-    const char *p = data;
-    while (size > 0) {
-        ssize_t n = send(fd, p, size, MSG_NOSIGNAL);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("send: %s", n < 0 ? strerror(errno) : "nothing sent");
-        p += n;
-        size -= (size_t)n;
-    }
-}
-
-static void recv_exact(int fd, void *data, size_t size)
-{
-    char *p = data;
-    while (size > 0) {
-        ssize_t n = recv(fd, p, size, 0);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("recv: %s", n < 0 ? strerror(errno) : "connection closed");
-        p += n;
-        size -= (size_t)n;
-    }
-}
-
-/* ---- the Modbus client ---- */
+/* ---- the Modbus client (sockets and requests: bench_proc.h) ---- */
 
 struct conn {
     int fd;
@@ -152,16 +107,7 @@ static size_t reply_size(const struct kind *k)
 
 static void send_read(struct conn *c, uint8_t function, uint16_t address, uint16_t count)
 {
-    uint8_t req[12] = {0, 0, 0, 0, 0, 6, 1, function}; /* MBAP: 6 bytes follow, unit 1 */
-
-    c->tid++;
-    req[0] = (uint8_t)(c->tid >> 8);
-    req[1] = (uint8_t)c->tid;
-    req[8] = (uint8_t)(address >> 8);
-    req[9] = (uint8_t)address;
-    req[10] = (uint8_t)(count >> 8);
-    req[11] = (uint8_t)count;
-    send_all(c->fd, req, sizeof(req));
+    modbus_tcp_send(c->fd, ++c->tid, function, address, count);
 }
 
 static void check_reply(const struct conn *c, uint8_t function, uint16_t count)
@@ -507,6 +453,13 @@ struct ingest {
  * A second jakagw whose status port is ours: the document is written back
  * to back as fast as jakagw takes it (the socket's buffer paces us), and
  * RSS is read at checkpoints. Commands still go to jakasim.
+ *
+ * Every other document has its "rapidrate" changed (its first digit): the
+ * status link keeps only the newest of several documents waiting and
+ * drops the others unparsed, unless one changes a member the events log
+ * or the motion tracker follows (status.h, STATUS_MARK_MEMBERS). So each
+ * document fed is parsed, as each was before that rule, and counted in
+ * documents_parsed.
  */
 static void measure_ingest(struct servers *s, const char *doc, size_t size, uint32_t documents,
                            struct ingest *out)
@@ -515,14 +468,23 @@ static void measure_ingest(struct servers *s, const char *doc, size_t size, uint
     int listener = listen_loopback(&status_port);
     pid_t pid = start_jakagw(s, "jakagw-feed", status_port, modbus_port);
     struct pollfd p = {.fd = listener, .events = POLLIN};
-    static char batch[64 * 9000];
-    unsigned per_batch = (unsigned)(sizeof(batch) / size);
+    static char batch[65 * 9000];
+    /* One document more than a batch sends: a batch starts at the
+     * document or at its variant, as the last one sent asks. */
+    unsigned per_batch = (unsigned)(sizeof(batch) / size) - 1;
     uint32_t step = documents / RSS_CHECKPOINTS, sent = 0;
+    const char *rate = strstr(doc, "\"rapidrate\": ");
+    size_t digit = rate ? (size_t)(rate - doc) + strlen("\"rapidrate\": ") : 0;
 
-    if (per_batch == 0 || step == 0)
+    if (per_batch == 0 || per_batch > 64 || step == 0)
         die("documents too large or too few");
-    for (unsigned i = 0; i < per_batch; i++)
+    if (!rate || digit >= size || doc[digit] < '0' || doc[digit] > '9')
+        die("the fed document has no numeric \"rapidrate\" to vary");
+    for (unsigned i = 0; i <= per_batch; i++) {
         memcpy(batch + i * size, doc, size);
+        if (i % 2)
+            batch[i * size + digit] = doc[digit] == '1' ? '2' : '1';
+    }
     if (poll(&p, 1, BENCH_IO_TIMEOUT_S * 1000) != 1)
         die("jakagw-feed did not connect to the status port");
     int feed = accept(listener, NULL, NULL);
@@ -541,7 +503,7 @@ static void measure_ingest(struct servers *s, const char *doc, size_t size, uint
         uint32_t target = cp == RSS_CHECKPOINTS ? documents : cp * step;
         while (sent < target) {
             unsigned n = target - sent < per_batch ? target - sent : per_batch;
-            send_all(feed, batch, n * size);
+            send_all(feed, batch + (sent % 2) * size, n * size);
             sent += n;
         }
         wait_documents(&poller, base, target, 60);
@@ -788,10 +750,9 @@ int main(int argc, char **argv)
     struct ingest ing = {0};
     measure_ingest(&s, doc, doc_size, (uint32_t)documents, &ing);
     ing.doc_cjson_us = cjson_us(doc, doc_size);
-    stop_children();
+    bench_end();
     regmap_free(&map);
     free(doc);
-    remove_tmp_dir();
 
     print_table(&lat, &tp, &ing, sim_doc_size, sim_cjson_us, (unsigned)rounds, doc_path);
     return 0;

@@ -3,7 +3,8 @@
  * bench_proc.h - what a benchmark needs around the programs it measures:
  * children started and stopped by their pid (their output in a temporary
  * directory kept when the run fails), their CPU time and memory from
- * /proc, loopback sockets with timeouts, medians.
+ * /proc, loopback sockets with timeouts, whole sends and receives, the
+ * robot's JSON objects as they arrive, Modbus TCP requests, medians.
  *
  * Header-only (static inline functions): each benchmark is one program
  * built from one file. A benchmark sets bench_name and bench_tmp_dir first.
@@ -14,9 +15,11 @@
 #define _GNU_SOURCE /* sched_setaffinity */
 #include <errno.h>
 #include <fcntl.h>
+#include <ftw.h>
 #include <limits.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <poll.h>
 #include <sched.h>
 #include <signal.h>
 #include <stdarg.h>
@@ -42,6 +45,11 @@ static inline double now_s(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (double)ts.tv_sec + (double)ts.tv_nsec / 1e9;
+}
+
+static inline double now_us(void)
+{
+    return now_s() * 1e6;
 }
 
 static inline int cmp_double(const void *a, const void *b)
@@ -251,6 +259,128 @@ static inline int connect_loopback(uint16_t port)
     return fd;
 }
 
+/* The next connection on 'listener' within 'seconds', with set_timeouts. */
+static inline int accept_within(int listener, double seconds, const char *what)
+{
+    struct pollfd p = {.fd = listener, .events = POLLIN};
+    if (poll(&p, 1, (int)(seconds * 1000)) != 1)
+        die("%s did not connect", what);
+    int fd = accept4(listener, NULL, NULL, SOCK_CLOEXEC);
+    if (fd < 0)
+        die("accept: %s", strerror(errno));
+    set_timeouts(fd);
+    return fd;
+}
+
+/* All of 'size' bytes, or the run fails. */
+static inline void send_all(int fd, const void *data, size_t size)
+{
+    const char *p = data;
+    while (size > 0) {
+        ssize_t n = send(fd, p, size, MSG_NOSIGNAL);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            die("send: %s", n < 0 ? strerror(errno) : "nothing sent");
+        p += n;
+        size -= (size_t)n;
+    }
+}
+
+/* Exactly 'size' bytes, or the run fails (a peer that closed, a timeout). */
+static inline void recv_exact(int fd, void *data, size_t size)
+{
+    char *p = data;
+    while (size > 0) {
+        ssize_t n = recv(fd, p, size, 0);
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            die("recv: %s", n < 0 ? strerror(errno) : "connection closed");
+        p += n;
+        size -= (size_t)n;
+    }
+}
+
+/* One JSON object as the gateway writes it to the robot: whole reads (it
+ * writes one object and waits for the answer), braces counted outside
+ * strings. */
+struct object_reader {
+    char buf[4096];
+    size_t size;
+};
+
+/* Reads one object into r->buf (NUL-terminated); returns now_us() when
+ * its last byte arrived, or -1 when nothing came for 'timeout_ms' (-1:
+ * wait as long as the socket's timeout allows). */
+static inline double read_object(int fd, struct object_reader *r, int timeout_ms)
+{
+    int depth = 0;
+    bool in_string = false, escaped = false, started = false;
+
+    r->size = 0;
+    for (;;) {
+        if (timeout_ms >= 0) {
+            struct pollfd p = {.fd = fd, .events = POLLIN};
+            if (poll(&p, 1, timeout_ms) != 1)
+                return -1;
+        }
+        ssize_t n = recv(fd, r->buf + r->size, sizeof(r->buf) - 1 - r->size, 0);
+        double t = now_us();
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n <= 0)
+            die("recv (robot side): %s", n < 0 ? strerror(errno) : "connection closed");
+        for (size_t i = r->size; i < r->size + (size_t)n; i++) {
+            char c = r->buf[i];
+            if (in_string) {
+                if (escaped)
+                    escaped = false;
+                else if (c == '\\')
+                    escaped = true;
+                else if (c == '"')
+                    in_string = false;
+            } else if (c == '"') {
+                in_string = true;
+            } else if (c == '{') {
+                depth++;
+                started = true;
+            } else if (c == '}') {
+                depth--;
+            }
+        }
+        r->size += (size_t)n;
+        r->buf[r->size] = '\0';
+        if (started && depth == 0)
+            return t;
+        if (r->size >= sizeof(r->buf) - 1)
+            die("an object of more than %zu bytes from the gateway", sizeof(r->buf) - 1);
+    }
+}
+
+/*
+ * A Modbus TCP request for unit 1 of the form every function here has:
+ * function, address, and a value (FC05, FC06) or a count (FC03, FC04).
+ */
+static inline void modbus_tcp_send(int fd, uint16_t tid, uint8_t function, uint16_t address,
+                                   uint16_t value)
+{
+    uint8_t req[12] = {(uint8_t)(tid >> 8), (uint8_t)tid, 0, 0, 0, 6, 1, function,
+                       (uint8_t)(address >> 8), (uint8_t)address, (uint8_t)(value >> 8),
+                       (uint8_t)value};
+    send_all(fd, req, sizeof(req));
+}
+
+/* Its answer, 'size' bytes with the MBAP header; an exception fails the run. */
+static inline void modbus_tcp_answer(int fd, uint8_t function, uint8_t *rsp, size_t size,
+                                     const char *server)
+{
+    recv_exact(fd, rsp, 9);
+    if (rsp[7] != function)
+        die("%s answered function %u with exception %u", server, function, rsp[8]);
+    recv_exact(fd, rsp + 9, size - 9);
+}
+
 static inline void wait_listening(uint16_t port, pid_t pid, const char *name)
 {
     double deadline = now_s() + 30;
@@ -324,6 +454,23 @@ static inline const char *sibling(const char *argv0, const char *rel)
     char *b = buf[used++ % 4];
     snprintf(b, sizeof(buf[0]), "%s/%s", dir, rel);
     return b;
+}
+
+static inline int remove_entry(const char *path, const struct stat *st, int flag,
+                               struct FTW *ftw)
+{
+    (void)st, (void)flag, (void)ftw;
+    return remove(path);
+}
+
+/* Stops every child and removes the benchmark's directory: a run that
+ * ended well leaves nothing behind (die() keeps it, to look at). */
+static inline void bench_end(void)
+{
+    stop_children();
+    if (bench_tmp_dir[0] && nftw(bench_tmp_dir, remove_entry, 8, FTW_DEPTH | FTW_PHYS) != 0)
+        fprintf(stderr, "%s: could not remove %s: %s\n", bench_name, bench_tmp_dir,
+                strerror(errno));
 }
 
 /* SIGINT, SIGTERM: no child outlives the benchmark. */

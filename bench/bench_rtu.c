@@ -446,10 +446,6 @@ int main(int argc, char **argv)
     printf("== Modbus RTU: jakagw against a bare libmodbus RTU slave, socat ptys\n");
     start(&s);
     measure(&s, rounds);
-    stop_children();
-    char cmd[PATH_MAX + 16];
-    snprintf(cmd, sizeof(cmd), "rm -rf '%s'", bench_tmp_dir);
-    if (system(cmd) != 0)
-        fprintf(stderr, "bench_rtu: could not remove %s\n", bench_tmp_dir);
+    bench_end();
     return 0;
 }

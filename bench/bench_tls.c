@@ -56,32 +56,25 @@ static void ssl_die(const char *what)
 
 static void io_write(struct client *c, const void *data, size_t size)
 {
-    if (c->ssl) {
-        if (SSL_write(c->ssl, data, (int)size) != (int)size)
-            ssl_die("SSL_write");
+    if (!c->ssl) {
+        send_all(c->fd, data, size);
         return;
     }
-    const char *p = data;
-    while (size > 0) {
-        ssize_t n = send(c->fd, p, size, MSG_NOSIGNAL);
-        if (n < 0 && errno == EINTR)
-            continue;
-        if (n <= 0)
-            die("send: %s", n < 0 ? strerror(errno) : "nothing sent");
-        p += n;
-        size -= (size_t)n;
-    }
+    if (SSL_write(c->ssl, data, (int)size) != (int)size)
+        ssl_die("SSL_write");
 }
 
 static void io_read(struct client *c, void *data, size_t size)
 {
+    if (!c->ssl) {
+        recv_exact(c->fd, data, size);
+        return;
+    }
     char *p = data;
     while (size > 0) {
-        ssize_t n = c->ssl ? SSL_read(c->ssl, p, (int)size) : recv(c->fd, p, size, 0);
-        if (n < 0 && !c->ssl && errno == EINTR)
-            continue;
+        int n = SSL_read(c->ssl, p, (int)size);
         if (n <= 0)
-            die("read: %s", c->ssl ? "TLS read failed" : n < 0 ? strerror(errno) : "closed");
+            die("read: TLS read failed");
         p += n;
         size -= (size_t)n;
     }
@@ -344,11 +337,7 @@ int main(int argc, char **argv)
     measure_reads(&s, rounds);
     measure_handshakes(&s);
     measure_memory(&s);
-    stop_children();
+    bench_end();
     SSL_CTX_free(s.ssl);
-    char cmd[PATH_MAX + 16];
-    snprintf(cmd, sizeof(cmd), "rm -rf '%s'", bench_tmp_dir);
-    if (system(cmd) != 0)
-        fprintf(stderr, "bench_tls: could not remove %s\n", bench_tmp_dir);
     return 0;
 }

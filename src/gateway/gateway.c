@@ -307,6 +307,8 @@ static void refresh_rtu_values(struct gateway *gw, double *v)
     v[GW_rtu_echoes] = (double)s->echoes;
     v[GW_rtu_collisions] = (double)s->collisions;
     v[GW_rtu_out_of_turn] = (double)s->out_of_turn;
+    v[GW_rtu_repeats] = (double)s->repeats;
+    v[GW_rtu_exceptions] = (double)s->exceptions;
     v[GW_rtu_delivery_ms] = on ? gw->rtu.delivery_bound_ms : 0;
 }
 

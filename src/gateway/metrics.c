@@ -255,13 +255,16 @@ void metrics_render(const struct gateway *gw, struct strbuf *out)
     head(out, "jakagw_rtu_frames_total", "counter",
          "What the RTU line saw, by kind: good frames of every unit, CRC errors, other "
          "units' frames, broadcasts, overruns, gaps inside frames, our replies read back "
-         "(echo), replies read back different (collision), frames out of turn.");
+         "(echo), replies read back different (collision), frames out of turn, our last "
+         "reply again within the delivery bound, answered again (repeat), exception-form "
+         "frames addressed to us (exception).");
     static const struct { const char *kind; enum gw_value value; } rtu_kinds[] = {
         {"frame", GW_rtu_frames},          {"crc_error", GW_rtu_crc_errors},
         {"foreign", GW_rtu_foreign_frames}, {"broadcast", GW_rtu_broadcasts},
         {"overrun", GW_rtu_overruns},       {"gap", GW_rtu_gap_discards},
         {"echo", GW_rtu_echoes},            {"collision", GW_rtu_collisions},
-        {"out_of_turn", GW_rtu_out_of_turn},
+        {"out_of_turn", GW_rtu_out_of_turn}, {"repeat", GW_rtu_repeats},
+        {"exception", GW_rtu_exceptions},
     };
     for (size_t i = 0; i < sizeof(rtu_kinds) / sizeof(rtu_kinds[0]); i++)
         strbuf_printf(out, "jakagw_rtu_frames_total{kind=\"%s\"} %.15g\n", rtu_kinds[i].kind,

@@ -130,6 +130,8 @@ enum regmap_word_order {
     X(rtu_collisions)                                                          \
     X(rtu_out_of_turn)                                                         \
     X(rtu_delivery_ms)                                                         \
+    X(rtu_repeats)                                                             \
+    X(rtu_exceptions)                                                          \
     X(status_stale_ms)                                                         \
     X(loop_stalls)                                                             \
     X(loop_stall_last_ms)

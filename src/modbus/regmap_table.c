@@ -456,6 +456,14 @@ const struct regmap_row regmap_table_rows[] = {
          "else [rtu] delivery_ms). A gap the host sees shorter than this is never a "
          "silence, and a frame equal to the last reply within it is answered again, "
          "not acted on again; 0 while the line is off or down"),
+    G_IR(5566, rtu_repeats, REGMAP_U32, "",
+         "local_echo = false: a frame equal to our last reply (an FC05 or FC06 write) "
+         "within the delivery bound, answered again and not acted on again (a master "
+         "that retries at once, or our reply heard back: see rtu_echoes)"),
+    G_IR(5568, rtu_exceptions, REGMAP_U32, "",
+         "RTU frames in an exception's form addressed to this unit (our own exception "
+         "reply heard back, or another device answering as this unit): counted and "
+         "skipped, never a request"),
 
     /* ---- input registers: robot state ---- */
     S_IR(100, task_state, 1, REGMAP_U16, "", "task_state",

@@ -410,7 +410,11 @@ def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
     {transport="rtu"} (beside the TCP client, not counted as one), its
     requests under transport="rtu", its entry in /status.json's clients and
     its commands in the audit trail, named by its device (a path with
-    markup in it, kept as text)."""
+    markup in it, kept as text). The master's write sent again at once (a
+    retry after a spoiled reply) is answered again, not acted on again, and
+    a frame in an exception's form for this unit is skipped: each counted
+    in jakagw_rtu_frames_total (kind "repeat", "exception") and in its
+    input register."""
     import test_rtu as rtu
     line = rtu.SerialPair()
     # The device's path is outside text too: markup in a directory name.
@@ -420,8 +424,10 @@ def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
     os.symlink(line.device, device)
     port = free_port()
     try:
+        # A delivery bound of 100 ms (16 by default): the retry sent at
+        # once stays within it on a loaded host.
         with running(["--log-commands"], http_config(port) + rtu.rtu_config(
-                device, rights="power")) as (sim, gw):
+                device, rights="power", delivery_ms="100")) as (sim, gw):
             web = Http(port)
             wait_until(lambda: web.status()["policy"]["handler"] == "accepted", 15, "the handler")
             plc = ModbusPlc(gw.modbus_port)
@@ -441,6 +447,17 @@ def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
                              function="4") == 1 and
                       metric(samples, "jakagw_modbus_requests_total", transport="rtu",
                              function="5") == 1, "the line's requests by transport")
+                m.quiet_until = 0  # the same write again as soon as the reply came
+                check(m.request(rtu.UNIT, req) == rtu.frame(rtu.UNIT, req),
+                      "power_on's write sent again at once answered again")
+                m.send(rtu.frame(rtu.UNIT, bytes([0x85, 0x02])))
+                m.no_reply()
+                check(m.read_ir(rtu.IR_MAGIC) == [rtu.MAGIC], "the line answers after it")
+                kinds = {k: metric(parse_metrics(web.metrics()), "jakagw_rtu_frames_total",
+                                   kind=k) for k in ("repeat", "exception")}
+                regs = {k: plc.u32(IR["rtu_%ss" % k]) for k in kinds}
+                check(kinds == {"repeat": 1, "exception": 1} and regs == kinds,
+                      "repeats and exception forms: metrics %r, registers %r" % (kinds, regs))
                 wait_until(lambda: any(c["command"] == "power_on"
                                        for c in web.status()["commands"]), 10, "power_on recorded")
                 status, headers, body = web.get("/status.json")
@@ -458,8 +475,8 @@ def test_rtu_line_is_transport_rtu_in_metrics_status_and_audit():
         audit = [a for a in audit_lines(gw) if a["command"] == "power_on"]
         check(len(audit) == 1 and audit[0]["transport"] == "rtu" and device in audit[0]["client"],
               "power_on's audit line: %r" % audit)
-        print("  clients by transport %r; audit: transport=rtu client=%s"
-              % (by, audit[0]["client"]))
+        print("  clients by transport %r; repeat and exception form counted %r; audit: "
+              "transport=rtu client=%s" % (by, kinds, audit[0]["client"]))
     finally:
         os.unlink(device)
         os.rmdir(hostile)
