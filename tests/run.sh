@@ -48,9 +48,9 @@ failed=0
 failures=""
 log=$(mktemp)
 alerts_beside=""
-# Suites that wait more than they compute run beside the package and
-# service VM tests, which build, install and boot (start_beside); their
-# output follows those tests' (finish_beside). A suite still running beside
+# Suites that wait more than they compute run beside the service VM test,
+# which boots and installs (start_beside); their output follows its
+# (finish_beside). A suite still running beside
 # the others is stopped with the run.
 beside_labels=() beside_pids=() beside_logs=() beside_starts=()
 lane_pids=()
@@ -82,8 +82,10 @@ start_beside() { # label command...
     local label=$1 out
     shift
     out=$(mktemp)
-    echo "== $label started beside the package tests; its output follows them"
-    "$@" >"$out" 2>&1 &
+    echo "== $label started beside the service VM test; its output follows it"
+    # Its own wall time goes into the table, not the time until collected.
+    ( t0=$SECONDS; "$@"; status=$?; echo $((SECONDS - t0)) >"$out.took"; exit $status ) \
+        >"$out" 2>&1 &
     beside_labels+=("$label") beside_pids+=($!) beside_logs+=("$out") beside_starts+=($SECONDS)
 }
 
@@ -95,7 +97,10 @@ finish_beside() {
         status=$?
         echo "== ${beside_labels[$i]}"
         cat "${beside_logs[$i]}"
-        record_summary "${beside_labels[$i]}" "$status" "${beside_logs[$i]}" "${beside_starts[$i]}"
+        took=$(cat "${beside_logs[$i]}.took" 2>/dev/null)
+        record_summary "${beside_labels[$i]}(beside)" "$status" "${beside_logs[$i]}" \
+            "$((SECONDS - ${took:-$((SECONDS - beside_starts[$i]))}))"
+        rm -f "${beside_logs[$i]}.took"
     done
     beside_pids=()
 }
@@ -110,8 +115,8 @@ record_summary() { # name exit-status file [start-seconds]
     record "$1" "$2" "${ok:-0}" "${bad:-0}" "${4:-}"
 }
 
-# The alert suite with the first native build goes beside the package and
-# service VM tests in a whole run (below).
+# The alert suite with the first native build goes beside the service VM
+# test in a whole run (below).
 if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
     alerts_beside=${BUILDS%% *}
 fi
@@ -156,7 +161,7 @@ run_build() { # build
         # The alert rules in a real Prometheus server, every fault in
         # parallel (about 2.5 minutes, nearly all of it waiting for
         # Prometheus's "for" durations): whole with the first native build,
-        # beside the package and service VM tests when those run (below);
+        # beside the service VM test when it runs (below);
         # the sanitizer build runs the gateway's own cases (the stall, the
         # never-seen ages, the stale streak: 16 s) and the promtool
         # replays; ARM builds do not run it.
@@ -272,7 +277,7 @@ suite_start=$SECONDS
 
 # The PLC library run as a PLC (make test-plc): once, with the first
 # native build; SUITES leaves it out unless it names plc.
-# In a whole run it goes beside the package tests (below): about two minutes,
+# In a whole run it goes beside the service VM test (below): about two minutes,
 # most of them the vendor clients' cells waiting on their scans.
 plc_beside=""
 if [ "$what" = all ] && [ -z "${JAKAGW_ARCH:-}" ] &&
@@ -316,7 +321,8 @@ if [ "$what" = all ] && { [ -z "$SUITES" ] || [ "${WITH_PACKAGE:-0}" = 1 ]; }; t
     build=${BUILDS%% *}
     # The alert suite waits on Prometheus most of its 2.5 minutes, and the
     # PLC library's cells on their scans: both use little CPU and run beside
-    # the package and service VM tests, their output after those tests'.
+    # the service VM test (and the package test when it was not made beside
+    # the lanes), their output after those tests'.
     [ -n "$alerts_beside" ] && JAKAGW_BIN_DIR="$alerts_beside" \
         start_beside "tests/integration/test_alerts.py($alerts_beside)" \
         "$PYTHON" tests/integration/test_alerts.py
