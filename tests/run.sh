@@ -124,10 +124,19 @@ for build in $BUILDS; do
     [ -x "$build/jakagw" ] || { echo "missing $build/jakagw: run make first" >&2; exit 2; }
 done
 
-# One build's unit tests, then its integration suites.
-run_build() { # build
-    local build=$1 t name suite_args plc_model_runs load_seconds browser_tests status ok bad
+# In a whole native run, these of the first build's suites get a lane of
+# their own (about half of its suites' time), beside the rest.
+SPLIT_SUITES=""
+if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
+    SPLIT_SUITES="http faults link_faults robot_protection tls"
+fi
+
+# One build's unit tests, then its integration suites; part "main": the
+# unit tests and the suites not in SPLIT_SUITES, "split": those only.
+run_build() { # build [all|main|split]
+    local build=$1 part=${2:-all} t name suite_args plc_model_runs load_seconds browser_tests status ok bad
     for t in "$build"/tests/test_*; do
+        [ "$part" = split ] && break
         case "$t" in *.d) continue ;; esac
         echo "== $t"
         if [ "${VALGRIND:-0}" = 1 ]; then
@@ -147,6 +156,10 @@ run_build() { # build
         name=${t#tests/integration/test_}
         name=${name%.py}
         case " ${SUITES:-$name} " in *" $name "*) ;; *) continue ;; esac
+        case $part in
+            main) [[ " $SPLIT_SUITES " == *" $name "* ]] && continue ;;
+            split) [[ " $SPLIT_SUITES " == *" $name "* ]] || continue ;;
+        esac
         # The fault suite (network namespaces, nftables; root) runs whole
         # with the first native build (about 70 s); the sanitizer build
         # runs the two cases that go through every fault close (a command
@@ -236,27 +249,29 @@ if [ "$what" = all ] && [ -z "$SUITES" ] && [ -z "${JAKAGW_ARCH:-}" ]; then
     echo "== tests/package/test_package.py and the service VM's image started beside the lanes; the output follows the VMs'"
 fi
 
-# The builds' lanes side by side: most suites wait on timers, links and
-# their processes far more than they compute, so the sanitizer build's
-# lane runs beside the first build's, whose output streams as it comes;
-# every other lane's output follows, whole, with its totals added.
+# The lanes side by side: most suites wait on timers, links and their
+# processes far more than they compute, so the first build's split-off
+# suites (SPLIT_SUITES) and each other build (the sanitizer build) run
+# beside the first build's unit tests and other suites, whose output
+# streams as it comes; every other lane's output follows, whole, with its
+# totals added.
 lane_state=() lane_out=() lane_pids=() lane_builds=()
-first=1
-for build in $BUILDS; do
-    if [ -n "$first" ]; then
-        first=
-        continue
-    fi
+lanes=()
+[ -n "$SPLIT_SUITES" ] && lanes+=("${BUILDS%% *}:split")
+for build in ${BUILDS#* }; do
+    [ "$build" = "${BUILDS%% *}" ] || lanes+=("$build:all")
+done
+for lane in "${lanes[@]}"; do
     out=$(mktemp) st=$(mktemp)
     ( log=$(mktemp)
       passed=0 failed=0 failures="" times="" suite_start=$SECONDS
-      run_build "$build" >"$out" 2>&1
+      run_build "${lane%:*}" "${lane##*:}" >"$out" 2>&1
       rm -f "$log"
       { echo "$passed"; echo "$failed"; echo "$failures"; printf '%s' "$times"; } >"$st" ) &
-    lane_pids+=($!) lane_out+=("$out") lane_state+=("$st") lane_builds+=("$build")
-    echo "== the $build lane started beside ${BUILDS%% *}'s; its output follows"
+    lane_pids+=($!) lane_out+=("$out") lane_state+=("$st") lane_builds+=("$lane")
+    echo "== the $lane lane started beside ${BUILDS%% *}'s; its output follows"
 done
-run_build "${BUILDS%% *}"
+run_build "${BUILDS%% *}" main
 for i in "${!lane_pids[@]}"; do
     wait "${lane_pids[$i]}"
     cat "${lane_out[$i]}"
