@@ -1218,7 +1218,11 @@ def test_late_echo_acts_once_with_either_setting():
     bad = []
     for local_echo in ("false", "true"):
         delays = (ECHO_DELAYS_ALL if table else ECHO_DELAYS_CI)[local_echo]
-        want = (1, 2) if local_echo == "false" else (1, 1)
+        # On a host loaded enough that the echo of our second answer comes
+        # past the delivery bound, that echo is a master's retry: answered
+        # once more, never acted on again (3 replies, 1 execution); a loop
+        # (the old fault) answers and acts tens of times.
+        ok = ({(1, 2), (1, 3)} if local_echo == "false" else {(1, 1)})
         for baud in (115200, 9600):
             with rig(rights="outputs", baud=str(baud), parity="none",
                      local_echo=local_echo) as r:
@@ -1230,7 +1234,7 @@ def test_late_echo_acts_once_with_either_setting():
                     for i, delay in enumerate(delays):
                         sent, replies = echo_executions(r, em, delay, next_do0(r),
                                                         1.5 if table else 0.5)
-                        if (sent, replies) != want and not table:
+                        if (sent, replies) not in ok and not table:
                             # Once more: a host so loaded that this thread
                             # read the reply 120 ms late gave the gateway
                             # an echo past its window; a loop fails twice.
@@ -1238,7 +1242,7 @@ def test_late_echo_acts_once_with_either_setting():
                                   (local_echo, baud, delay * 1000, sent, replies))
                             sent, replies = echo_executions(r, em, delay, next_do0(r), 0.5)
                         row.append("%d/%d" % (sent, replies))
-                        if (sent, replies) != want:
+                        if (sent, replies) not in ok:
                             bad.append("local_echo %s, %d baud, echo %.2f ms: "
                                        "set_digital_output %d, replies %d" %
                                        (local_echo, baud, delay * 1000, sent, replies))
