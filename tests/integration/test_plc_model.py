@@ -729,8 +729,24 @@ def move_done(cell, motion_before, target, relative_from, kind):
                          "the motion count")
     if (count - motion_before) & 0xFFFF != 1:
         raise Violation("motion count moved from %d to %d for one move" % (motion_before, count))
-    state = plc.wait_for(lambda: plc.ir(MOTION_STATE)[0], lambda v: v != MOVING, 5,
-                         "the move to end")
+    # The recipe's watchdog, as a PLC programmer sets one for a move: 5 s,
+    # and on for as long as the arm is seen moving (a move slowed by a low
+    # override takes as long as it takes; the gateway, too, ends no move
+    # while the status shows the arm moving), up to a minute.
+    end = time.monotonic() + 5
+
+    def ended_or_overdue():
+        now = time.monotonic()
+        if plc.ir(MOTION_STATE)[0] != MOVING:
+            return True
+        if now > end and cell.watch.moving_at(now - 0.1):
+            return False
+        return now > end
+    plc.wait(ended_or_overdue, 60, "the move to end")
+    state = plc.ir(MOTION_STATE)[0]
+    if state == MOVING:
+        raise StepFailed("timeout: the move to end (motion state 1, the arm still, more than "
+                         "5 s after the motion count moved)")
     if state != ARRIVED:
         raise StepFailed("move ended in motion state %d, the arm at %s, target %s%s" % (
             state, [round(j, 3) for j in cell.watch.joints()], target,
