@@ -338,6 +338,7 @@ CI_FUZZ_SECONDS ?= 10
 FUZZ_BUILD ?= build-fuzz
 FUZZ_TARGETS := fuzz_stream fuzz_modbus fuzz_config fuzz_command fuzz_mailbox fuzz_rtu fuzz_motion
 FUZZ_MODULES := framer status json_arena regmap regmap_table mb_request log command plc_commands \
+                param_rows output_readback \
                 config can_map can_map_table plc_write policy ip_allow regmap_rights tls rtu_frame audit \
                 motion json_member cmd_json
 FUZZ_SRCS := $(foreach m,$(FUZZ_MODULES),$(wildcard src/*/$(m).c))

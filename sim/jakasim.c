@@ -1126,7 +1126,7 @@ int main(int argc, char **argv)
     sim.robot.fail_message = sim.opt.fail_message;
     sim.robot.fail_times = sim.opt.fail_times;
     sim.robot.move_lag_ticks = sim.opt.move_lag;
-    sim.robot.stop_time_s = sim.opt.stop_time_ms / 1000.0;
+    sim.robot.ramp.stop_time_s = sim.opt.stop_time_ms / 1000.0;
     if (sim.opt.auto_run) {
         sim.robot.powered_on = sim.robot.enabled = true;
         snprintf(sim.robot.program, sizeof(sim.robot.program), "demo.jks");

@@ -212,9 +212,9 @@ static void halt_arm(struct sim_robot *r)
     r->moving = false;
     r->linear = false;
     r->queued_count = 0;
-    r->halting = SIM_HALT_NONE;
-    r->path_speed = 0;
-    r->braking = false;
+    r->ramp.halting = SIM_HALT_NONE;
+    r->ramp.path_speed = 0;
+    r->ramp.braking = false;
     memcpy(r->joint_target, r->joints, sizeof(r->joints));
     memcpy(r->joint_cmd, r->joints, sizeof(r->joints));
 }
@@ -224,11 +224,11 @@ static void halt_arm(struct sim_robot *r)
 static void stop_arm(struct sim_robot *r)
 {
     r->queued_count = 0;
-    if (r->stop_time_s <= 0 || !r->moving || r->path_speed <= 0) {
+    if (r->ramp.stop_time_s <= 0 || !r->moving || r->ramp.path_speed <= 0) {
         halt_arm(r);
         return;
     }
-    r->halting = SIM_HALT_STOP;
+    r->ramp.halting = SIM_HALT_STOP;
 }
 
 /* A program stopped or paused: every joint slows down from its speed of
@@ -237,11 +237,7 @@ static void brake_program(struct sim_robot *r)
 {
     memcpy(r->joint_target, r->joints, sizeof(r->joints));
     memcpy(r->joint_cmd, r->joints, sizeof(r->joints));
-    if (r->stop_time_s <= 0)
-        return;
-    memcpy(r->brake_vel, r->joint_vel, sizeof(r->brake_vel));
-    r->brake_total_s = r->brake_left_s = r->stop_time_s;
-    r->braking = true;
+    sim_ramp_brake(&r->ramp, r->joint_vel);
 }
 
 /* The first move queued starts now. */
@@ -260,8 +256,8 @@ static void start_next_move(struct sim_robot *r)
         r->lin_done = 0;
     }
     r->moving = true;
-    r->path_speed = 0;
-    r->halting = SIM_HALT_NONE;
+    r->ramp.path_speed = 0;
+    r->ramp.halting = SIM_HALT_NONE;
     r->queued_count--;
     memmove(&r->queued[0], &r->queued[1], r->queued_count * sizeof(r->queued[0]));
 }
@@ -298,44 +294,16 @@ static bool move_joints(struct sim_robot *r, double dt)
     return arrived;
 }
 
-/*
- * The running move's speed for the next tick: up towards its speed times
- * the rapid rate (down to 0 while halting), never faster than it can still
- * come to rest within 'remaining', changing by at most the ramp's rate.
- */
-static double ramp_speed(struct sim_robot *r, double remaining, double dt)
-{
-    double want = r->halting != SIM_HALT_NONE ? 0 : r->joint_speed * r->rapid_rate;
-
-    if (r->stop_time_s <= 0)
-        return want;
-    double accel = r->joint_speed / r->stop_time_s;
-    double v = r->path_speed;
-    v = v < want ? fmin(v + accel * dt, want) : fmax(v - accel * dt, want);
-    return fmin(v, sqrt(2 * accel * remaining));
-}
-
-/* A joint move: every joint on its way at once, all arriving together
- * (a straight line in joint space), the largest turn at the ramped speed. */
+/* A joint move for one tick, at the ramped speed (ramp.h). */
 static bool move_joints_ramped(struct sim_robot *r, double dt)
 {
-    double before[SIM_JOINTS], remaining = 0;
+    double before[SIM_JOINTS];
 
     memcpy(before, r->joints, sizeof(before));
-    for (int i = 0; i < SIM_JOINTS; i++)
-        remaining = fmax(remaining, fabs(r->joint_target[i] - r->joints[i]));
-    if (remaining <= 1e-9) {
-        track_motion(r, before, dt);
-        return true;
-    }
-    r->path_speed = ramp_speed(r, remaining, dt);
-    double step = fmin(r->path_speed * dt, remaining);
-    for (int i = 0; i < SIM_JOINTS; i++)
-        r->joints[i] = step >= remaining
-                           ? r->joint_target[i]
-                           : r->joints[i] + (r->joint_target[i] - r->joints[i]) * step / remaining;
+    bool arrived = sim_ramp_move_joints(&r->ramp, r->joints, r->joint_target, r->joint_speed,
+                                        r->rapid_rate, dt);
     track_motion(r, before, dt);
-    return step >= remaining;
+    return arrived;
 }
 
 /*
@@ -350,8 +318,9 @@ static bool move_linear(struct sim_robot *r, double dt)
     double frac;
 
     memcpy(before, r->joints, sizeof(before));
-    r->path_speed = ramp_speed(r, fmax(r->lin_length - r->lin_done, 0), dt);
-    r->lin_done += r->path_speed * dt;
+    r->ramp.path_speed = sim_ramp_speed(&r->ramp, r->joint_speed, r->rapid_rate,
+                                        fmax(r->lin_length - r->lin_done, 0), dt);
+    r->lin_done += r->ramp.path_speed * dt;
     frac = r->lin_length <= 0 || r->lin_done >= r->lin_length ? 1 : r->lin_done / r->lin_length;
     for (int i = 0; i < 3; i++)
         pose[i] = r->lin_start[i] + (r->lin_target[i] - r->lin_start[i]) * frac;
@@ -370,21 +339,15 @@ static bool move_linear(struct sim_robot *r, double dt)
     return true;
 }
 
-/* One tick of a program's braking: v(t) = v0 (1 - t / T), integrated. */
+/* One tick of a program's braking (ramp.h); at rest, the arm holds there. */
 static void brake_tick(struct sim_robot *r, double dt)
 {
     double before[SIM_JOINTS];
-    double total = r->brake_total_s, t1 = total - r->brake_left_s;
-    double t2 = fmin(total, t1 + dt);
-    double share = (t2 - t1) - (t2 * t2 - t1 * t1) / (2 * total);
 
     memcpy(before, r->joints, sizeof(before));
-    for (int i = 0; i < SIM_JOINTS; i++)
-        r->joints[i] += r->brake_vel[i] * share;
+    bool at_rest = sim_ramp_brake_tick(&r->ramp, r->joints, dt);
     track_motion(r, before, dt);
-    r->brake_left_s -= dt;
-    if (r->brake_left_s <= 0) {
-        r->braking = false;
+    if (at_rest) {
         memcpy(r->joint_target, r->joints, sizeof(r->joint_target));
         memcpy(r->joint_cmd, r->joints, sizeof(r->joint_cmd));
     }
@@ -396,9 +359,9 @@ static void advance_move(struct sim_robot *r, double dt)
     if (r->linear ? move_linear(r, dt) : move_joints_ramped(r, dt)) {
         r->moving = false;
         r->linear = false;
-        r->halting = SIM_HALT_NONE;
-        r->path_speed = 0;
-    } else if (r->halting == SIM_HALT_STOP && r->path_speed <= 0) {
+        r->ramp.halting = SIM_HALT_NONE;
+        r->ramp.path_speed = 0;
+    } else if (r->ramp.halting == SIM_HALT_STOP && r->ramp.path_speed <= 0) {
         /* At rest: the move ends here. Moves accepted while it braked
          * (after the stop) stay queued and run next. */
         unsigned queued = r->queued_count;
@@ -420,16 +383,16 @@ void sim_robot_tick(struct sim_robot *r, double dt)
         r->interp_state != 3)
         halt_arm(r);
     if (r->protective_stop && (r->moving || r->queued_count > 0) && r->interp_state != 3 &&
-        r->halting != SIM_HALT_STOP)
+        r->ramp.halting != SIM_HALT_STOP)
         stop_arm(r);
     if (!r->enabled) {
         r->moving = false;
-        r->braking = false;
+        r->ramp.braking = false;
         if (r->interp_state == 3 || r->interp_state == 2)
             r->interp_state = 0;
         return;
     }
-    if (r->braking) {
+    if (r->ramp.braking) {
         brake_tick(r, dt);
         return;
     }
@@ -446,7 +409,7 @@ void sim_robot_tick(struct sim_robot *r, double dt)
     }
     if (r->interp_state == 2) {
         /* Paused: nothing starts; a paused move slows down to rest. */
-        if (r->paused_move && r->moving && r->path_speed > 0)
+        if (r->paused_move && r->moving && r->ramp.path_speed > 0)
             advance_move(r, dt);
         return;
     }
@@ -855,9 +818,9 @@ static bool cmd_resume_program(struct command_ctx *c)
     /* A move paused on a lost link goes on to its target, from rest. */
     c->r->interp_state = c->r->paused_move ? 0 : 3;
     c->r->paused_move = false;
-    c->r->braking = false;
-    if (c->r->halting == SIM_HALT_PAUSE)
-        c->r->halting = SIM_HALT_NONE;
+    c->r->ramp.braking = false;
+    if (c->r->ramp.halting == SIM_HALT_PAUSE)
+        c->r->ramp.halting = SIM_HALT_NONE;
     return reply_ok(c);
 }
 
@@ -869,9 +832,9 @@ static void stop_motion(struct sim_robot *r)
     r->interp_state = 0;
     r->paused_move = false;
     if (program) {
-        bool braking = r->braking;
+        bool braking = r->ramp.braking;
         halt_arm(r);
-        r->braking = braking;
+        r->ramp.braking = braking;
         if (!braking)
             brake_program(r);
     } else {
@@ -1199,10 +1162,10 @@ void sim_robot_network_lost(struct sim_robot *r, enum sim_net_motion motion, cha
             start_next_move(r); /* paused as it starts */
         if (program)
             brake_program(r);
-        else if (r->stop_time_s > 0)
-            r->halting = SIM_HALT_PAUSE;
+        else if (r->ramp.stop_time_s > 0)
+            r->ramp.halting = SIM_HALT_PAUSE;
         else
-            r->path_speed = 0;
+            r->ramp.path_speed = 0;
         r->interp_state = 2;
         r->paused_move = move;
     } else if (motion == SIM_NET_STOP) {

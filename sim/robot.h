@@ -17,8 +17,8 @@
 #include <stddef.h>
 
 #include "pyjson.h"
+#include "ramp.h" /* SIM_JOINTS */
 
-#define SIM_JOINTS 6
 #define SIM_MAX_DIO 256
 #define SIM_MAX_AIO 128
 /* The extension IO module's pins (one Modbus TCP module). */
@@ -67,22 +67,9 @@ struct sim_robot {
     } queued[SIM_MOVE_QUEUE];
     unsigned queued_count;
     unsigned move_lag_ticks; /* ticks (status documents); 0: at once */
-    /*
-     * Acceleration and deceleration (manual 4.7: joint_move's "accel"; a
-     * controller ramps every move up and down). stop_time_s is the time a
-     * stop takes from a move's full speed (its speed at rapid rate 1), so
-     * the ramp's rate is that speed / stop_time_s; 0: instant, no ramp.
-     * path_speed is the running move's speed now (deg/s or mm/s); a move
-     * ends early only once it has come down to 0: halting says how it ends
-     * then (stopped where it is, or paused, to go on when resumed).
-     */
-    double stop_time_s;
-    double path_speed;
-    enum sim_halt { SIM_HALT_NONE, SIM_HALT_STOP, SIM_HALT_PAUSE } halting;
-    /* A program brought to a halt (stop or pause): every joint slows down
-     * from brake_vel to 0 over brake_total_s, brake_left_s still to go. */
-    bool braking;
-    double brake_vel[SIM_JOINTS], brake_total_s, brake_left_s;
+    /* Acceleration and braking: the ramp's stopping time, the running
+     * move's speed, how it halts, a program's braking (ramp.h). */
+    struct sim_ramp ramp;
     double tcp_speed;               /* mm/s */
     double cart[6];                 /* mm, deg: FK of joints */
 
@@ -125,8 +112,8 @@ void sim_robot_init(struct sim_robot *r, bool test_pattern);
  * starts once the move before it has ended and move_lag_ticks ticks after
  * it was accepted, ramps up to its speed (times the rapid rate) and down
  * to its target; stop_program and a protective stop end it once it has
- * slowed down to a standstill (stop_time_s from full speed), an emergency
- * stop, disable and power off where the arm is, each with every move
+ * slowed down to a standstill (ramp.stop_time_s from full speed, ramp.h),
+ * an emergency stop, disable and power off where the arm is, each with every move
  * queued behind it; pause_program does not touch it (no program runs).
  * A program stopped or paused slows down to a standstill the same way.
  */

@@ -270,7 +270,7 @@ static void write_body(struct pyjson *w, const struct sim_robot *r,
     pyjson_key(w, "powered_on");
     pyjson_int(w, r->powered_on);
     pyjson_key(w, "inpos");
-    pyjson_bool(w, !r->moving && !r->braking && r->interp_state != 3);
+    pyjson_bool(w, !r->moving && !r->ramp.braking && r->interp_state != 3);
     pyjson_key(w, "motion_mode");
     pyjson_int(w, 1);
     pyjson_key(w, "curr_tcp_trans_vel");

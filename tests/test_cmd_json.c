@@ -141,7 +141,7 @@ static cJSON *ref_build_triggered(const struct plc_commands *pc, const struct cm
     *result = obj ? BUILT : BUILD_NO_MEMORY;
     for (unsigned r = 0; obj && r < pc->img->map->row_count; r++) {
         const struct regmap_row *row = &pc->img->map->rows[r];
-        if (!is_param_of(row, def->name))
+        if (!param_rows_is_param_of(row, def->name))
             continue;
         for (unsigned i = 0; i < row->elements; i++) {
             *result = ref_add_param(pc, obj, row, i);
@@ -377,7 +377,7 @@ static void every_setpoint_is_byte_identical(void **state)
         const struct regmap_row *row = &map.rows[r];
         if (row->source != REGMAP_SRC_CMD || !row->fixed)
             continue;
-        const struct cmd_def *def = command_of(row->path);
+        const struct cmd_def *def = param_rows_command_of(row->path);
         assert_non_null(def);
         for (unsigned e = 0; e < row->elements; e++)
             for (unsigned round = 0; round < rounds; round++) {
@@ -474,13 +474,14 @@ static int setup(void **state)
     commands.img = &img;
     commands.mailbox_arg = regmap_find_path(&map, REGMAP_SRC_PATH, "mailbox.arg[*]");
     assert_non_null(commands.mailbox_arg);
-    find_parameter_spans(&commands);
+    assert_int_equal(param_rows_init(&commands.params, &map), 0);
     return 0;
 }
 
 static int teardown(void **state)
 {
     (void)state;
+    param_rows_free(&commands.params);
     regmap_image_free(&img);
     regmap_free(&map);
     return 0;

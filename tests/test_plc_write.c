@@ -469,31 +469,31 @@ static void refused_writer_changes_nothing(void **state)
     unsigned bit = (unsigned)(rel - map.rows);
     assert_int_equal(write_one("127.0.0.1", 1, pw.rows.heartbeat, 1), 0);
     assert_int_equal(write_one("127.0.0.1", 1, rel, 0), 0);
-    assert_true(pc.params_written[bit] & 1);
+    assert_true(pc.params.written[bit] & 1);
     /* Not in write_allow: judged and refused, or refused by the server. */
     assert_int_equal(write_one("192.0.2.7", 2, rel, 1), 1);
-    assert_true(pc.params_written[bit] & 1);
+    assert_true(pc.params.written[bit] & 1);
     uint16_t one = 1;
     struct mb_write w = {.table = rel->table, .address = rel->address, .count = 1,
                          .values = &one, .client = "192.0.2.7", .client_id = 2,
                          .rights = REGMAP_RIGHTS_ALL};
     assert_int_equal(ip_addr_parse("192.0.2.7", &w.client_addr), 0);
     plc_write_refused_unjudged(&pw, &w);
-    assert_true(pc.params_written[bit] & 1);
+    assert_true(pc.params.written[bit] & 1);
     /* Allowed, but not the owner: the same. */
     assert_int_equal(write_one("127.0.0.2", 3, rel, 1), 1);
-    assert_true(pc.params_written[bit] & 1);
+    assert_true(pc.params.written[bit] & 1);
     w.client = "127.0.0.2";
     w.client_id = 3;
     assert_int_equal(ip_addr_parse("127.0.0.2", &w.client_addr), 0);
     plc_write_refused_unjudged(&pw, &w);
-    assert_true(pc.params_written[bit] & 1);
+    assert_true(pc.params.written[bit] & 1);
     /* The owner's own refused write withdraws what it meant to replace. */
     w.client = "127.0.0.1";
     w.client_id = 1;
     assert_int_equal(ip_addr_parse("127.0.0.1", &w.client_addr), 0);
     plc_write_refused_unjudged(&pw, &w);
-    assert_false(pc.params_written[bit] & 1);
+    assert_false(pc.params.written[bit] & 1);
 }
 
 

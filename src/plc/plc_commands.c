@@ -91,143 +91,6 @@ static int bind_slot(struct plc_commands *pc, struct plc_slot *slot,
     return 0;
 }
 
-static const struct cmd_def *command_of(const char *path);
-static bool is_param_of(const struct regmap_row *row, const char *name);
-
-/* A command's parameter row ("<cmdName>.<param>", not a setpoint's). */
-static bool is_param_row(const struct regmap_row *row)
-{
-    return row->source == REGMAP_SRC_CMD && !row->fixed && strchr(row->path, '.');
-}
-
-/*
- * Finds 'member' among a command's mailbox arguments ("name[N]" takes N,
- * a '#' or '$' suffix marks the kind). Returns how many values it takes,
- * or 0 when it is not one of them.
- */
-static unsigned mailbox_arg_count(const struct cmd_def *def, const char *member)
-{
-    char args[128];
-
-    snprintf(args, sizeof(args), "%s", def->mailbox_args);
-    for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
-         tok = strtok_r(NULL, ",", &save)) {
-        size_t n = strcspn(tok, "[#$");
-        if (strlen(member) == n && strncmp(tok, member, n) == 0)
-            return tok[n] == '[' ? (unsigned)atoi(tok + n + 1) : 1;
-    }
-    return 0;
-}
-
-/* Does a parameter row of 'def' give mailbox argument 'arg'? */
-static bool has_param_row(const struct regmap *map, const struct cmd_def *def,
-                          const char *arg, size_t arg_len)
-{
-    size_t n = strlen(def->name);
-    for (unsigned r = 0; r < map->row_count; r++) {
-        const char *path = map->rows[r].path;
-        if (map->rows[r].source == REGMAP_SRC_CMD && !map->rows[r].fixed &&
-            strncmp(path, def->name, n) == 0 && path[n] == '.' &&
-            strncmp(path + n + 1, arg, arg_len) == 0 &&
-            (path[n + 1 + arg_len] == '\0' || path[n + 1 + arg_len] == '['))
-            return true;
-    }
-    return false;
-}
-
-/*
- * The command table (cmd_def.mailbox_args) and the register table's
- * parameter and setpoint rows ("<cmdName>.<member>") describe the same
- * parameters twice: checked against each other at start, so that they
- * cannot drift apart. Returns 0, or -EINVAL having logged the difference.
- */
-static int check_parameter_rows(const struct regmap *map)
-{
-    for (unsigned r = 0; r < map->row_count; r++) {
-        const struct regmap_row *row = &map->rows[r];
-        const char *dot = row->source == REGMAP_SRC_CMD ? strchr(row->path, '.') : NULL;
-        if (!dot)
-            continue;
-        const struct cmd_def *def = command_of(row->path);
-        if (!def) {
-            log_err("register map: row %s belongs to no command of the command table",
-                    row->name);
-            return -EINVAL;
-        }
-        if (!def->code)
-            continue; /* not in the mailbox: nothing to compare with */
-        char member[64];
-        snprintf(member, sizeof(member), "%.*s", (int)strcspn(dot + 1, "["), dot + 1);
-        unsigned count = mailbox_arg_count(def, member);
-        /* A parameter row gives the whole argument; a setpoint row one
-         * element of it, the others fixed by the row. */
-        if (count == 0 || (!row->fixed && count != row->elements)) {
-            log_err("register map: row %s (%s, %u values) does not match %s's arguments "
-                    "in the command table (%s)",
-                    row->name, row->path, row->elements, def->name, def->mailbox_args);
-            return -EINVAL;
-        }
-    }
-    /* The other way: a triggered command's every argument has its row. */
-    for (unsigned i = 0; i < cmd_table_count; i++) {
-        const struct cmd_def *def = &cmd_table[i];
-        char args[128];
-        bool triggered = false;
-        for (unsigned r = 0; r < map->row_count && !triggered; r++)
-            triggered = is_param_of(&map->rows[r], def->name);
-        if (!triggered || !def->code)
-            continue;
-        snprintf(args, sizeof(args), "%s", def->mailbox_args);
-        for (char *save = NULL, *tok = strtok_r(args, ",", &save); tok;
-             tok = strtok_r(NULL, ",", &save)) {
-            size_t n = strcspn(tok, "[#$");
-            if (!has_param_row(map, def, tok, n)) {
-                log_err("register map: %s's argument %.*s has no parameter row", def->name,
-                        (int)n, tok);
-                return -EINVAL;
-            }
-        }
-    }
-    return 0;
-}
-
-static bool is_param_of(const struct regmap_row *row, const char *name);
-
-/* Where each command's parameter rows lie in the map (none: 0, 0). */
-static void find_parameter_spans(struct plc_commands *pc)
-{
-    const struct regmap *map = pc->img->map;
-
-    for (unsigned i = 0; i < cmd_table_count; i++) {
-        pc->param_first[i] = pc->param_end[i] = 0;
-        for (unsigned r = 0; r < map->row_count; r++) {
-            if (!is_param_of(&map->rows[r], cmd_table[i].name))
-                continue;
-            if (pc->param_end[i] == 0)
-                pc->param_first[i] = (uint16_t)r;
-            pc->param_end[i] = (uint16_t)(r + 1);
-        }
-    }
-}
-
-/* Each output coil's read-back input, found once: a write judges it for
- * every coil of a cyclic channel's request. */
-static int find_readbacks(struct plc_commands *pc)
-{
-    const struct regmap *map = pc->img->map;
-    unsigned coils = map->size[REGMAP_COIL];
-
-    pc->readback_at = malloc(coils * sizeof(*pc->readback_at));
-    pc->output_sent_ms = calloc(coils, sizeof(*pc->output_sent_ms));
-    if (!pc->readback_at || !pc->output_sent_ms)
-        return -ENOMEM;
-    for (unsigned a = 0; a < coils; a++) {
-        const struct regmap_row *row = regmap_find(map, REGMAP_COIL, a);
-        pc->readback_at[a] = row ? regmap_readback_address(map, row, a - row->address) : -1;
-    }
-    return 0;
-}
-
 int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
                       struct cmd_queue *queue, const struct plc_commands_config *cfg,
                       uint64_t (*now_ms)(void *clock), void *clock)
@@ -241,22 +104,17 @@ int plc_commands_init(struct plc_commands *pc, struct regmap_image *img,
     pc->now_ms = now_ms;
     pc->clock = clock;
     pc->refuse_log_limit.interval_ms = 5000;
-    if (cmd_table_count > PLC_MAX_COMMANDS || check_parameter_rows(img->map) != 0)
+    if (cmd_table_count > PLC_MAX_COMMANDS)
         return -EINVAL;
-    for (unsigned r = 0; r < img->map->row_count; r++)
-        if (is_param_row(&img->map->rows[r]) && img->map->rows[r].elements > 32) {
-            log_err("register map: parameter row %s has more than 32 elements",
-                    img->map->rows[r].name);
-            return -EINVAL;
-        }
-    pc->params_written = calloc(img->map->row_count, sizeof(*pc->params_written));
+    int err = param_rows_init(&pc->params, img->map);
+    if (err != 0)
+        return err;
     pc->row_cmd = calloc(img->map->row_count, sizeof(*pc->row_cmd));
-    if (!pc->params_written || !pc->row_cmd || find_readbacks(pc) != 0)
+    if (!pc->row_cmd || output_readback_init(&pc->outputs, img->map) != 0)
         return -ENOMEM;
     for (unsigned r = 0; r < img->map->row_count; r++)
         if (img->map->rows[r].source == REGMAP_SRC_CMD)
-            pc->row_cmd[r] = command_of(img->map->rows[r].path);
-    find_parameter_spans(pc);
+            pc->row_cmd[r] = param_rows_command_of(img->map->rows[r].path);
     for (unsigned i = 0; i < cmd_table_count; i++) {
         struct plc_slot *slot = &pc->slots[i];
         slot->pc = pc;
@@ -303,14 +161,10 @@ void plc_commands_free(struct plc_commands *pc)
 {
     /* Only a write's staged commands; queued ones belong to the queue. */
     plc_commands_discard(pc);
-    free(pc->params_written);
-    pc->params_written = NULL;
+    param_rows_free(&pc->params);
     free(pc->row_cmd);
     pc->row_cmd = NULL;
-    free(pc->readback_at);
-    pc->readback_at = NULL;
-    free(pc->output_sent_ms);
-    pc->output_sent_ms = NULL;
+    output_readback_free(&pc->outputs);
 }
 
 static void set_result(struct plc_slot *slot, enum cmd_outcome outcome, long code,
@@ -353,23 +207,17 @@ static enum build_result add_param(const struct plc_commands *pc, struct cmd_jso
     return cmd->overflow ? BUILD_NO_MEMORY : BUILT;
 }
 
-static bool is_param_of(const struct regmap_row *row, const char *name)
-{
-    size_t n = strlen(name);
-    return row->source == REGMAP_SRC_CMD && !row->fixed &&
-           strncmp(row->path, name, n) == 0 && row->path[n] == '.';
-}
-
 /* The command 'def' with the parameters in its holding registers. */
 static enum build_result build_triggered(const struct plc_commands *pc,
                                          const struct cmd_def *def, struct cmd_json *cmd)
 {
-    unsigned c = (unsigned)(def - cmd_table);
+    unsigned first, end;
 
+    param_rows_span(&pc->params, def, &first, &end);
     cmd_json_begin(cmd, def->name);
-    for (unsigned r = pc->param_first[c]; r < pc->param_end[c]; r++) {
+    for (unsigned r = first; r < end; r++) {
         const struct regmap_row *row = &pc->img->map->rows[r];
-        if (!is_param_of(row, def->name))
+        if (!param_rows_is_param_of(row, def->name))
             continue;
         for (unsigned i = 0; i < row->elements; i++) {
             enum build_result result = add_param(pc, cmd, row, i);
@@ -496,17 +344,6 @@ static cJSON *parse_json_request(const struct plc_commands *pc, const struct cmd
 /* ACT_STALE: a 1 written onto a trigger another connection left at 1. */
 enum action { ACT_NONE, ACT_TRIGGER, ACT_STALE, ACT_SETPOINT, ACT_MAILBOX, ACT_JSON };
 
-static const struct cmd_def *command_of(const char *path)
-{
-    char name[64];
-    size_t n = strcspn(path, ".");
-    if (n >= sizeof(name))
-        return NULL;
-    memcpy(name, path, n);
-    name[n] = '\0';
-    return cmd_find(name);
-}
-
 /*
  * A trigger written 1: 0 -> 1 triggers; 1 again is the same connection's
  * retransmission (nothing to do), or another connection's write onto a
@@ -524,47 +361,6 @@ static enum action trigger_action(const struct plc_commands *pc, const struct pl
     return slot->trigger_by == pc->writer ? ACT_NONE : ACT_STALE;
 }
 
-/* How long an output written again with its own value waits for the
- * robot's report of the last set before it is sent again: many status
- * periods (30 ms on jakasim, 8 ms on a controller). */
-#define OUTPUT_RESEND_MS 1000
-
-/*
- * An output's level written again with the value it had: nothing to send
- * when the robot reports that value, or when this output was set less than
- * OUTPUT_RESEND_MS ago and set_digital_output's result is pending or done
- * (on its way, or accepted with the report not in yet). A vendor's cyclic
- * channel rewrites every output of its block each cycle: a command per
- * write would flood the robot and fill the queue. A new value is always
- * sent; so is the old one when the robot reports otherwise and its last
- * set failed (not sent, refused, link lost) or is older (changed elsewhere).
- */
-static bool output_unchanged(const struct plc_commands *pc, const struct plc_slot *slot,
-                             const struct regmap_written *w)
-{
-    unsigned coil = regmap_element_address(w->row, w->element);
-    int at = w->row->table == REGMAP_COIL ? pc->readback_at[coil] : -1;
-
-    if (at < 0 || w->value != w->previous)
-        return false;
-    if ((pc->img->mb->tab_input_bits[at] != 0) == (w->value != 0))
-        return true;
-    uint64_t sent = pc->output_sent_ms[coil];
-    if (sent == 0 || pc->now_ms(pc->clock) - sent >= OUTPUT_RESEND_MS || !slot->state)
-        return false;
-    double state = regmap_get_number(pc->img, slot->state, 0);
-    return state == CMD_PENDING || state == CMD_DONE;
-}
-
-/* Records when an output's set goes out (output_unchanged). */
-static void note_output_sent(struct plc_commands *pc, const struct regmap_written *w)
-{
-    if (w->row->table != REGMAP_COIL || !w->row->readback)
-        return;
-    uint64_t now = pc->now_ms(pc->clock);
-    pc->output_sent_ms[regmap_element_address(w->row, w->element)] = now ? now : 1;
-}
-
 /* What writing 'w' asks for; sets *def and *slot. */
 static enum action action_of(struct plc_commands *pc, const struct regmap_written *w,
                              const struct cmd_def **def, struct plc_slot **slot)
@@ -579,7 +375,10 @@ static enum action action_of(struct plc_commands *pc, const struct regmap_writte
             return ACT_NONE;
         *slot = &pc->slots[*def - cmd_table];
         if (row->fixed)
-            return output_unchanged(pc, *slot, w) ? ACT_NONE : ACT_SETPOINT;
+            return output_readback_unchanged(&pc->outputs, pc->img, w, (*slot)->state,
+                                             pc->now_ms(pc->clock))
+                       ? ACT_NONE
+                       : ACT_SETPOINT;
         if (!strchr(row->path, '.'))
             return trigger_action(pc, *slot, w, ACT_TRIGGER);
         return ACT_NONE;
@@ -656,26 +455,6 @@ static bool write_sets(const struct plc_commands *pc, const struct regmap_row *r
     return false;
 }
 
-/*
- * Were all of 'def''s parameters written since start (and not refused
- * since), or in the write being judged? A move to a target nobody wrote
- * (zeros at speed 0, or what a refused write meant to replace) must not go.
- */
-static bool params_written(const struct plc_commands *pc, const struct cmd_def *def)
-{
-    const struct regmap *map = pc->img->map;
-
-    for (unsigned r = 0; r < map->row_count; r++) {
-        const struct regmap_row *row = &map->rows[r];
-        if (!is_param_of(row, def->name))
-            continue;
-        for (unsigned i = 0; i < row->elements; i++)
-            if (!(pc->params_written[r] & (1u << i)) && !write_sets(pc, row, i))
-                return false;
-    }
-    return true;
-}
-
 /* How many of the mailbox's argument registers 'def' takes. */
 static unsigned mailbox_args_taken(const struct cmd_def *def)
 {
@@ -713,18 +492,7 @@ static bool mailbox_whole(const struct plc_commands *pc, const struct cmd_def *d
 void plc_commands_write_refused(struct plc_commands *pc, enum regmap_table table,
                                 unsigned address, unsigned count)
 {
-    const struct regmap *map = pc->img->map;
-
-    for (unsigned a = address; a < address + count; a++) {
-        const struct regmap_row *row = regmap_find(map, table, a);
-        if (!row || !is_param_row(row))
-            continue;
-        unsigned width = regmap_element_width(row);
-        unsigned stride = row->stride ? row->stride : width;
-        unsigned i = (a - row->address) / stride;
-        if (i < row->elements)
-            pc->params_written[row - map->rows] &= ~(1u << i);
-    }
+    param_rows_withdraw(&pc->params, table, address, count);
 }
 
 /* A trigger or mailbox write handled, whatever comes of it. */
@@ -791,7 +559,8 @@ static int gate(struct plc_commands *pc, enum action act, const struct cmd_def *
     if ((flags & CMD_SHUTDOWN) && !pc->cfg.allow_shutdown)
         return refuse(pc, slot, EX_NOT_PERMITTED, CMD_REFUSED,
                       "shutdown off: [commands] allow_shutdown");
-    if (act == ACT_TRIGGER && (flags & CMD_MOTION) && !params_written(pc, def))
+    if (act == ACT_TRIGGER && (flags & CMD_MOTION) &&
+        !param_rows_all_written(&pc->params, def, pc->write_elements, pc->write_element_count))
         return refuse(pc, slot, EX_INVALID, CMD_INVALID, "target not written");
     if (!pc->queue->connected)
         return refuse(pc, slot, EX_LINK_DOWN, CMD_NOT_SENT, "not sent: the command link is down");
@@ -1000,8 +769,8 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
     struct plc_slot *slot;
     enum action act = action_of(pc, w, &def, &slot);
 
-    if (is_param_row(w->row))
-        pc->params_written[w->row - pc->img->map->rows] |= 1u << w->element;
+    if (param_rows_is_param(w->row))
+        param_rows_note_written(&pc->params, w->row, w->element);
     if (act == ACT_TRIGGER || act == ACT_JSON)
         slot->trigger_by = pc->writer; /* its 1 again is a retransmission */
     if (act == ACT_NONE || pc->applied == pc->staged)
@@ -1013,7 +782,7 @@ void plc_commands_apply(struct plc_commands *pc, const struct regmap_written *w)
     if (act == ACT_MAILBOX)
         regmap_set_number(pc->img, pc->mailbox_ack, 0, w->value, true);
     if (act == ACT_SETPOINT)
-        note_output_sent(pc, w);
+        output_readback_note_sent(&pc->outputs, w, pc->now_ms(pc->clock));
     pc->sending_frequent = act == ACT_SETPOINT;
     submit(pc, slot, st->json, def);
     pc->sending_frequent = false;

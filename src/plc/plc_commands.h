@@ -15,7 +15,8 @@
  *   parameters were not all written since start (or whose last write was
  *   refused) is refused, 03 "target not written". Setpoint rows (rapid
  *   rate, digital and analog outputs, tool and user frame, collision
- *   level) send their command each time they are written. Each command's
+ *   level) send their command each time they are written, but for an
+ *   output written again with its level (output_readback.h). Each command's
  *   result is readable: "gw:result.<cmdName>.state", ".error_code",
  *   ".error_msg", and ".count", which changes with every trigger handled
  *   whatever its outcome: a PLC reads it before its trigger and waits for
@@ -49,6 +50,8 @@
 #include "audit.h"
 #include "command.h"
 #include "log.h"
+#include "output_readback.h"
+#include "param_rows.h"
 #include "regmap.h"
 
 #define PLC_MAX_COMMANDS 96
@@ -156,19 +159,14 @@ struct plc_commands {
     uint64_t writer;
     const struct regmap_written *write_elements;
     unsigned write_element_count;
-    /* The parameter rows' elements written since start and not refused
-     * since: a bit per element, by row index in the map. */
-    uint32_t *params_written;
+    /* The commands' parameter rows: their spans, and the elements written
+     * since start and not refused since. */
+    struct param_rows params;
     /* Per row of the map: the command a command row ("<cmdName>" or
      * "<cmdName>.<param>") belongs to, found once at init; NULL for others. */
     const struct cmd_def **row_cmd;
-    /* Each command's parameter rows lie in rows [first, end) of the map:
-     * building a triggered command looks only there. */
-    uint16_t param_first[PLC_MAX_COMMANDS], param_end[PLC_MAX_COMMANDS];
-    /* Per coil address: the discrete input an output reads back at (-1
-     * none), and when its last set_digital_output was sent (0 never). */
-    int *readback_at;
-    uint64_t *output_sent_ms;
+    /* The outputs' read-back: when writing a level again sends nothing. */
+    struct output_readback outputs;
     bool sending_frequent; /* the command being sent is a setpoint's */
     struct log_ratelimit refuse_log_limit;
     char refusal[96]; /* why the last plc_commands_check refused */
