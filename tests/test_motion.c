@@ -253,6 +253,31 @@ static void ends_before_arriving(void **state)
         motion_document(&m, T0 + 40, &v);
         assert_int_equal(m.state, MOTION_STOPPED);
     }
+    /* A stop a command ahead of the move was about to end (clear_error
+     * after a protective stop, enable_robot): the documents before the
+     * move's reply still show it, the arm still; they end nothing. After
+     * the reply the robot has it: the move goes on. */
+    for (int kind = 0; kind < 4; kind++) {
+        start_at_home();
+        motion_sent(&m, T0, move, SLOT);
+        struct motion_view v = doc_at(HOME, HOME_TCP);
+        if (kind == 0)
+            v.emergency_stop = 1;
+        else if (kind == 1)
+            v.protective_stop = 1;
+        else if (kind == 2)
+            v.enabled = 0;
+        else
+            v.powered_on = 0;
+        motion_document(&m, T0 + 20, &v);
+        motion_document(&m, T0 + 40, &v);
+        assert_int_equal(m.state, MOTION_MOVING);
+        motion_answered(&m, T0 + 40, SLOT, T0 + 1, true, false);
+        motion_document(&m, T0 + 40, &v); /* the same loop turn as the reply */
+        assert_int_equal(m.state, MOTION_MOVING);
+        feed(T0 + 60, q, HOME_TCP, 0);
+        assert_int_equal(m.state, MOTION_MOVING);
+    }
 }
 
 static void not_arrived_within_the_bound(void **state)

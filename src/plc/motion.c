@@ -383,6 +383,16 @@ static bool shows_reached(const struct motion *m, unsigned i, uint64_t now_ms,
     return v->inpos == 1 && arm_still(m, v);
 }
 
+/* Can document 'v' (received at 'now_ms') speak of the moves held? Only
+ * once the robot took the first of them: a document before its reply may
+ * show a stop that a command ahead of it (clear_error, enable_robot) was
+ * about to end, the arm still because the move has not begun. */
+static bool after_first_reply(const struct motion *m, uint64_t now_ms)
+{
+    const struct motion_move *first = &m->held[0];
+    return first->reply != MOTION_REPLY_AWAITED && now_ms > first->answered_ms;
+}
+
 void motion_document(struct motion *m, uint64_t now_ms, const struct motion_view *v)
 {
     m->previous = m->last;
@@ -393,8 +403,8 @@ void motion_document(struct motion *m, uint64_t now_ms, const struct motion_view
     if (!list_open(m) || m->held_count == 0)
         return;
     const char *stop = robot_stop(v);
-    if (stop && m->state == MOTION_MOVING && (arm_still(m, v) || v->enabled == 0 ||
-                                              v->powered_on == 0)) {
+    if (stop && m->state == MOTION_MOVING && after_first_reply(m, now_ms) &&
+        (arm_still(m, v) || v->enabled == 0 || v->powered_on == 0)) {
         end_moves(m, MOTION_STOPPED, stop);
         return;
     }
