@@ -900,6 +900,14 @@ def close_browser(driver):
 
 
 def text_of(driver, element_id):
+    """The element's text. The live page replaces elements as documents
+    come: one found just before it was replaced is read again, found anew."""
+    from selenium.common.exceptions import StaleElementReferenceException
+    for _ in range(20):
+        try:
+            return driver.find_element("id", element_id).text
+        except StaleElementReferenceException:
+            continue
     return driver.find_element("id", element_id).text
 
 
