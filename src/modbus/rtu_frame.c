@@ -662,6 +662,19 @@ static size_t first_crc_run(const uint8_t *d, size_t avail, size_t from, bool re
  * response of a form we do not know is never searched. Ours ends its
  * chunk: its rest.
  */
+/* A function code the Modbus Application Protocol v1.1b3 assigns (public,
+ * 6.1-6.21) or leaves to users (65-72, 100-110). */
+static bool function_assigned(uint8_t fc)
+{
+    switch (fc) {
+    case 1: case 2: case 3: case 4: case 5: case 6: case 7: case 8: case 11: case 12:
+    case 15: case 16: case 17: case 20: case 21: case 22: case 23: case 24: case 43:
+        return true;
+    default:
+        return (fc >= 65 && fc <= 72) || (fc >= 100 && fc <= 110);
+    }
+}
+
 static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size_t at,
                                                size_t avail, size_t *size, unsigned depth,
                                                bool final)
@@ -692,7 +705,14 @@ static enum rtu_length request_length_in_chunk(const struct rtu_line *line, size
         *size = final ? avail : avail + 1;
         return final ? RTU_LENGTH_EXACT : RTU_LENGTH_MORE;
     }
-    /* The first CRC-valid runs (at most RTU_MAX_ADU bytes are scanned). */
+    /* The first CRC-valid runs (at most RTU_MAX_ADU bytes are scanned),
+     * for a public or a user-defined code only: a code the Modbus
+     * specification reserves is no master's (noise, or the tail of an echo
+     * read as input), and a run whose CRC passes by chance in it must never
+     * make the bytes after it a frame's start (they may be another unit's
+     * data). */
+    if (!function_assigned(d[1]))
+        return RTU_LENGTH_UNKNOWN;
     unsigned tries = 0;
     for (size_t from = least; depth < RUN_SEARCH_DEPTH && tries++ < RUN_SEARCH_TRIES &&
                           (k = first_crc_run(d, avail, from, false)) != 0;
