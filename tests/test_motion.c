@@ -198,6 +198,22 @@ static void tcp_tolerances_and_equivalent_angles(void **state)
     assert_int_equal(m.state, MOTION_ARRIVED);
 }
 
+/* A document at 'joints' showing one of the robot's own stops: 0 an
+ * emergency stop, 1 a protective stop, 2 disabled, 3 powered off. */
+static struct motion_view doc_with_stop(int kind, const double joints[6])
+{
+    struct motion_view v = doc_at(joints, HOME_TCP);
+    if (kind == 0)
+        v.emergency_stop = 1;
+    else if (kind == 1)
+        v.protective_stop = 1;
+    else if (kind == 2)
+        v.enabled = 0;
+    else
+        v.powered_on = 0;
+    return v;
+}
+
 static void ends_before_arriving(void **state)
 {
     (void)state;
@@ -237,16 +253,8 @@ static void ends_before_arriving(void **state)
         start_at_home();
         motion_sent(&m, T0, move, SLOT);
         motion_answered(&m, T0 + 1, SLOT, T0 + 1, true, false);
-        struct motion_view v = doc_at(q, HOME_TCP);
+        struct motion_view v = doc_with_stop(kind, q);
         v.inpos = 0;
-        if (kind == 0)
-            v.emergency_stop = 1;
-        else if (kind == 1)
-            v.protective_stop = 1;
-        else if (kind == 2)
-            v.enabled = 0;
-        else
-            v.powered_on = 0;
         motion_document(&m, T0 + 20, &v);
         /* Unpowered it cannot move; stopped, it is 3 once it stands still. */
         assert_int_equal(m.state, kind < 2 ? MOTION_MOVING : MOTION_STOPPED);
@@ -260,15 +268,7 @@ static void ends_before_arriving(void **state)
     for (int kind = 0; kind < 4; kind++) {
         start_at_home();
         motion_sent(&m, T0, move, SLOT);
-        struct motion_view v = doc_at(HOME, HOME_TCP);
-        if (kind == 0)
-            v.emergency_stop = 1;
-        else if (kind == 1)
-            v.protective_stop = 1;
-        else if (kind == 2)
-            v.enabled = 0;
-        else
-            v.powered_on = 0;
+        struct motion_view v = doc_with_stop(kind, HOME);
         motion_document(&m, T0 + 20, &v);
         motion_document(&m, T0 + 40, &v);
         assert_int_equal(m.state, MOTION_MOVING);
