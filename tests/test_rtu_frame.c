@@ -1118,6 +1118,34 @@ static void user_codes_of_another_unit_are_cut_by_length(void **state)
             }
 }
 
+/* A chunk after a sure silence: unit 18 with a function code, 4 bytes and
+ * their CRC (a run whose CRC passes), then a whole write of ours. For a
+ * user-defined code (65) the run is that unit's request and ours follows
+ * it: executed. For a reserved code (123: neither public nor
+ * user-defined, no master's) nothing is cut: the bytes are dropped to the
+ * next silence and our write is not executed (it may be another unit's
+ * data: the field property's counterexample). */
+static void a_reserved_code_gets_no_length_search(void **state)
+{
+    static const uint8_t codes[] = {65, 123};
+    (void)state;
+    for (size_t k = 0; k < sizeof(codes); k++) {
+        struct rig r;
+        uint8_t bytes[32];
+        rig_init(&r, 115200, false, 0);
+        start_synced(&r);
+        size_t n = 0;
+        bytes[n++] = 18, bytes[n++] = codes[k];
+        bytes[n++] = 0x37, bytes[n++] = 0x9e, bytes[n++] = 0x40, bytes[n++] = 0x85;
+        n = rtu_append_crc(bytes, n);
+        n += write_coil(bytes + n, UNIT, 203, true);
+        deliver(&r, r.now + 5 * MS, bytes, n);
+        run_to(&r, r.now + 50 * MS);
+        if (r.executed != (codes[k] == 65 ? 1u : 0u))
+            fail_msg("FC%u: %zu executed", codes[k], r.executed);
+    }
+}
+
 /* Why's fourth case: a master that keeps no t3.5 of its own sends each
  * request as soon as our reply has come (50 writes, each toggling the
  * output): every one answered, on a wire and on a pty. */
@@ -2559,6 +2587,7 @@ int main(void)
         cmocka_unit_test(a_busy_bus_regains_its_place_after_noise),
         cmocka_unit_test(user_codes_of_another_unit_are_cut_by_length),
         cmocka_unit_test(a_master_without_t35_is_answered),
+        cmocka_unit_test(a_reserved_code_gets_no_length_search),
         cmocka_unit_test(a_garbage_byte_before_our_request_costs_nothing),
         cmocka_unit_test(a_noise_byte_never_makes_an_echo_a_request),
         cmocka_unit_test(ftdi_poll_cycles_execute_only_ours),
